@@ -1,0 +1,65 @@
+"""The ``companion`` command line (SPEC C10).
+
+Each subcommand lives in its own module under :mod:`companion.commands` and exposes
+``add_parser(subparsers)`` (which registers the subcommand and sets ``func``) and a ``run(args)``
+returning the process exit code. This file only assembles them.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+#: subcommand modules, in the order ``companion --help`` lists them
+SUBCOMMANDS = (
+    "rehearse",
+    "identify",
+    "run_behavior",
+    "sim",
+    "status",
+    "design",
+    "minspeed",
+    "analyze",
+    "results",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="companion",
+        description=(
+            "Companion process for marine vehicles: self-identification, speed-scheduled heading "
+            "gains, roll stabilisation and minimum-speed seeking over MAVLink."
+        ),
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in SUBCOMMANDS:
+        try:
+            module = importlib.import_module(f"companion.commands.{name}")
+        except ModuleNotFoundError as exc:  # a subcommand still being built must not break the others
+            if exc.name != f"companion.commands.{name}":
+                raise
+            continue
+        module.add_parser(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

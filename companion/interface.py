@@ -1,0 +1,146 @@
+"""The vocabulary shared by the vehicle interface and the behaviours (SPEC §5, layers 2 and 3).
+
+A behaviour is a step function ``step(telemetry) -> list[Command]`` of vehicle time and telemetry
+(SPEC §5). The link (``companion.link``) turns MAVLink into :class:`Telemetry` snapshots and
+executes :class:`Command` objects; a log replayer produces the same snapshots from a recording.
+Nothing here does I/O or reads a clock, so behaviours written against it run identically on a
+vehicle, against the simulator and over a recorded log.
+
+Units are SI throughout: metres, seconds, radians, thrust as a ratio 0..1. Angles of actuators are
+the physical deflections (rudder δr, elevator δs, rolling-mass angle α), already converted from PWM
+by the autopilot profile.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Protocol, Sequence, runtime_checkable
+
+NAN = float("nan")
+
+
+@dataclass(frozen=True)
+class Telemetry:
+    """One snapshot of the vehicle, stamped with the autopilot's clock.
+
+    ``time_s`` is ``time_boot_ms / 1000`` of the ATTITUDE message that completed the snapshot:
+    vehicle time, never wall-clock. Fields the vehicle has not reported yet are NaN.
+    """
+
+    time_s: float
+    roll: float = NAN
+    pitch: float = NAN
+    yaw: float = NAN  # wrapped to (-pi, pi]; unwrap before filtering (SPEC C3)
+    roll_rate: float = NAN
+    pitch_rate: float = NAN
+    yaw_rate: float = NAN
+    depth: float = NAN  # m, positive down (pressure sensor)
+    north: float = NAN  # m, navigation solution
+    east: float = NAN
+    down: float = NAN
+    vel_north: float = NAN  # m/s over ground, NED
+    vel_east: float = NAN
+    vel_down: float = NAN
+    speed_water: float = NAN  # m/s, water-relative speed (speed log / VFR_HUD.airspeed)
+    speed_ground: float = NAN  # m/s, horizontal over ground (DVL / VFR_HUD.groundspeed)
+    rudder: float = NAN  # rad, actual deflection
+    elevator: float = NAN  # rad, actual deflection
+    thrust_ratio: float = NAN  # 0..1, actual
+    mass_angle: float = NAN  # rad, rolling-mass angle
+    mode: str = ""
+    armed: bool = False
+
+    def finite(self, *names: str) -> bool:
+        """True when every named field is a finite number (guards against NaN telemetry)."""
+        return all(math.isfinite(getattr(self, name)) for name in names)
+
+
+# --------------------------------------------------------------------------- commands
+class Command:
+    """Base class of everything a behaviour may ask of the vehicle."""
+
+
+@dataclass(frozen=True)
+class OverrideActuator(Command):
+    """Drive one actuator open loop through an RC override (rudder/elevator/thrust).
+
+    ``actuator`` is one of ``"rudder"``, ``"elevator"``, ``"thrust"``; ``value`` is radians for
+    fins and a ratio for thrust. The link keeps refreshing the override until it is released.
+    """
+
+    actuator: str
+    value: float
+
+
+@dataclass(frozen=True)
+class ReleaseActuator(Command):
+    """Give an overridden actuator back to the autopilot (RC override value 0)."""
+
+    actuator: str
+
+
+@dataclass(frozen=True)
+class SetHeading(Command):
+    heading: float  # rad, true north, clockwise
+
+
+@dataclass(frozen=True)
+class SetDepth(Command):
+    depth: float  # m, positive down
+
+
+@dataclass(frozen=True)
+class SetThrust(Command):
+    thrust_ratio: float  # 0..1, set-point of the holding/guided mode
+
+
+@dataclass(frozen=True)
+class SetRollingMass(Command):
+    angle: float  # rad, rolling-mass angle (spare servo output, DO_SET_SERVO)
+
+
+@dataclass(frozen=True)
+class SetMode(Command):
+    mode: str  # profile-neutral name: "manual", "hold" (heading-and-depth hold), "guided"
+
+
+@dataclass(frozen=True)
+class SetParameters(Command):
+    """Write parameters by the product's neutral names (see ``companion.link.profiles``),
+    e.g. ``{"heading_p": 1.2, "heading_i": 0.05, "rudder_trim": 0.01}``; the link verifies echoes."""
+
+    values: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class StatusText(Command):
+    text: str
+    severity: int = 6  # MAV_SEVERITY_INFO
+
+
+@dataclass(frozen=True)
+class NamedValue(Command):
+    """A live value for the ground station to graph (NAMED_VALUE_FLOAT, name <= 10 chars)."""
+
+    name: str
+    value: float
+
+
+# --------------------------------------------------------------------------- behaviours
+@runtime_checkable
+class Behavior(Protocol):
+    """A closed-loop procedure as a step function of vehicle time and telemetry (SPEC §5).
+
+    ``step`` is called once per telemetry snapshot (the attitude rate) and returns the commands to
+    send now. ``abort`` returns the commands that put the vehicle back as the behaviour found it;
+    after it, ``done`` is true. ``result`` is a JSON-serialisable summary for the store.
+    """
+
+    @property
+    def done(self) -> bool: ...
+
+    def step(self, telemetry: Telemetry) -> Sequence[Command]: ...
+
+    def abort(self, reason: str) -> Sequence[Command]: ...
+
+    def result(self) -> dict: ...
