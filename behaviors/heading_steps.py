@@ -1,0 +1,134 @@
+"""Heading steps to check a set of heading gains (thesis Fig. 3.16; issue: ±20° at each thrust).
+
+At one thrust: write the gains, settle on course, command +step, hold, command the original course
+(−step), hold. Each step is scored by its overshoot (percent of the step) and its 90 % rise time.
+A pure step function of telemetry on vehicle time.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Sequence
+
+import numpy as np
+
+from companion.interface import Command, SetHeading, SetParameters, SetThrust, StatusText, Telemetry
+
+
+@dataclass(frozen=True)
+class StepTestConfig:
+    step: float = math.radians(20.0)
+    settle_s: float = 20.0
+    hold_s: float = 25.0
+
+
+def step_metrics(times: Sequence[float], heading: Sequence[float], start: float, target: float) -> dict:
+    """Overshoot (% of the step) and 90 % rise time of one heading step (headings unwrapped)."""
+    t = np.asarray(times, dtype=float)
+    psi = np.asarray(heading, dtype=float)
+    size = target - start
+    if len(t) < 2 or abs(size) < 1e-9:
+        return {"overshoot_pct": math.nan, "rise_time_s": math.nan}
+    progress = (psi - start) / size  # 0 at the start, 1 on target
+    overshoot = max(0.0, float(np.max(progress)) - 1.0) * 100.0
+    reached = np.nonzero(progress >= 0.9)[0]
+    rise = float(t[reached[0]] - t[0]) if len(reached) else math.nan
+    return {"overshoot_pct": overshoot, "rise_time_s": rise}
+
+
+class HeadingStepTest:
+    """Write ``gains`` (neutral names), settle at ``thrust``, then step +step and back."""
+
+    def __init__(self, thrust: float, gains: dict[str, float] | None, config: StepTestConfig = StepTestConfig(),
+                 label: str = "") -> None:
+        self.thrust = thrust
+        self.gains = dict(gains or {})
+        self.config = config
+        self.label = label
+        self._start: float | None = None
+        self._course = math.nan
+        self._phase = "settle"
+        self._phase_start = math.nan
+        self._unwrap_ref = math.nan
+        self._unwrap_offset = 0.0
+        self.series: dict[str, list[float]] = {"time": [], "heading": [], "target": [], "rudder": [], "speed": []}
+        self.steps: list[dict] = []
+        self._done = False
+        self.aborted = False
+
+    @property
+    def done(self) -> bool:
+        return self._done
+
+    def _unwrapped(self, yaw: float) -> float:
+        if not math.isnan(self._unwrap_ref):
+            jump = yaw - self._unwrap_ref
+            if jump > math.pi:
+                self._unwrap_offset -= 2 * math.pi
+            elif jump < -math.pi:
+                self._unwrap_offset += 2 * math.pi
+        self._unwrap_ref = yaw
+        return yaw + self._unwrap_offset
+
+    def step(self, telemetry: Telemetry) -> Sequence[Command]:
+        if self._done or not telemetry.finite("yaw"):
+            return []
+        now = telemetry.time_s
+        heading = self._unwrapped(telemetry.yaw)
+        commands: list[Command] = []
+        if self._start is None:
+            self._start, self._phase_start, self._course = now, now, heading
+            if self.gains:
+                commands.append(SetParameters(self.gains))
+            commands += [SetThrust(self.thrust), SetHeading(_wrap(self._course)),
+                         StatusText(f"heading steps {self.label} at thrust {self.thrust:.2f}")]
+        target = {"settle": self._course, "up": self._course + self.config.step, "down": self._course}[self._phase]
+        self.series["time"].append(now)
+        self.series["heading"].append(heading)
+        self.series["target"].append(target)
+        self.series["rudder"].append(telemetry.rudder)
+        self.series["speed"].append(telemetry.speed_water)
+        elapsed = now - self._phase_start
+        if self._phase == "settle" and elapsed >= self.config.settle_s:
+            commands += self._begin("up", now, self._course + self.config.step)
+        elif self._phase == "up" and elapsed >= self.config.hold_s:
+            self._score(self._course, self._course + self.config.step)
+            commands += self._begin("down", now, self._course)
+        elif self._phase == "down" and elapsed >= self.config.hold_s:
+            self._score(self._course + self.config.step, self._course)
+            self._done = True
+        return commands
+
+    def _begin(self, phase: str, now: float, target: float) -> list[Command]:
+        self._phase, self._phase_start = phase, now
+        self._segment_start = len(self.series["time"])
+        return [SetHeading(_wrap(target))]
+
+    def _score(self, start: float, target: float) -> None:
+        first = self._segment_start
+        metrics = step_metrics(self.series["time"][first:], self.series["heading"][first:], start, target)
+        speeds = [s for s in self.series["speed"][first:] if math.isfinite(s)]
+        metrics.update(step_deg=math.degrees(target - start), speed=float(np.mean(speeds)) if speeds else math.nan)
+        self.steps.append(metrics)
+
+    def abort(self, reason: str) -> Sequence[Command]:
+        self._done = True
+        self.aborted = True
+        return [SetHeading(_wrap(self._course))] if math.isfinite(self._course) else []
+
+    def result(self) -> dict:
+        overshoots = [s["overshoot_pct"] for s in self.steps if math.isfinite(s["overshoot_pct"])]
+        return {
+            "label": self.label,
+            "thrust": self.thrust,
+            "gains": self.gains,
+            "steps": self.steps,
+            "max_overshoot_pct": max(overshoots) if overshoots else math.nan,
+            "config": asdict(self.config),
+            "series": self.series,
+            "aborted": self.aborted,
+        }
+
+
+def _wrap(angle: float) -> float:
+    return math.atan2(math.sin(angle), math.cos(angle))

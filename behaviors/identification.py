@@ -1,0 +1,355 @@
+"""The identification manoeuvre at one thrust setting (SPEC C4; thesis §3.3.1, Fig. 3.4).
+
+Stages, all timed on vehicle time:
+
+1. **settle** — straight course at constant depth in the heading-and-depth holding mode (40 s);
+2. **train** — the online estimator (SVF + RLS) runs on every sample; after 2 s a doublet of
+   0.26 rad is injected open loop on the actuator (+A for half the period, −A for the other half,
+   period 4 s) around the current trim; then the actuator is released so the autopilot's heading
+   (or depth) loop re-engages; training stops 10.5 s after the excitation, or earlier once the
+   estimate has converged (eq. 3.39) *after the excitation has ended* (a convergence detected before
+   the doublet only means nothing has been excited yet);
+3. **resettle** — the autopilot brings the vehicle back on course;
+4. **validate** — a fresh doublet of 0.15 rad, no estimation; the identified model is simulated on
+   the recorded actuator input and scored by R² (eq. 3.35–3.37). Accepted at R² ≥ threshold,
+   otherwise the manoeuvre is repeated from stage 2 (at most ``max_attempts`` times).
+
+The same machinery identifies the pitch axis (thesis App. B) with an elevator doublet. The
+behaviour is a pure step function of telemetry (SPEC §5): it never touches the link; ``abort``
+returns the commands that release what it holds.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Callable, Sequence
+
+from companion.interface import (
+    Command,
+    NamedValue,
+    OverrideActuator,
+    ReleaseActuator,
+    StatusText,
+    Telemetry,
+)
+from companion.numerics.identification import PitchIdentifier, YawIdentifier
+from companion.numerics.validation import validate_pitch, validate_yaw
+
+log = logging.getLogger(__name__)
+
+SETTLE, TRAIN, RESETTLE, VALIDATE, DONE = "settle", "train", "resettle", "validate", "done"
+
+
+@dataclass(frozen=True)
+class ManoeuvreConfig:
+    """Timings and amplitudes of one identification manoeuvre (defaults: thesis §3.3.1)."""
+
+    axis: str = "yaw"  # "yaw" (rudder, heading) or "pitch" (elevator, pitch)
+    settle_s: float = 40.0
+    pre_excitation_s: float = 2.0
+    doublet_period_s: float = 4.0
+    training_amplitude: float = 0.26  # rad
+    validation_amplitude: float = 0.15  # rad
+    post_excitation_s: float = 10.5
+    resettle_s: float = 15.0
+    r2_threshold: float = 0.61
+    max_attempts: int = 3
+    stop_on_convergence: bool = True
+    svf_bandwidth: float | None = None  # None: the numerics' default (thesis value)
+    p0: float = 100.0
+    live_value_period_s: float = 0.25  # NAMED_VALUE_FLOAT rate of the live estimates
+
+    @property
+    def actuator(self) -> str:
+        return "rudder" if self.axis == "yaw" else "elevator"
+
+    @property
+    def excitation_end_s(self) -> float:
+        return self.pre_excitation_s + self.doublet_period_s
+
+    @property
+    def window_s(self) -> float:
+        """Length of the training stage without early stop, and of the validation record."""
+        return self.excitation_end_s + self.post_excitation_s
+
+
+def doublet(t_rel: float, start_s: float, period_s: float, amplitude: float) -> float | None:
+    """Doublet offset at ``t_rel``: +A in the first half period, −A in the second, None outside."""
+    if t_rel < start_s or t_rel >= start_s + period_s:
+        return None
+    return amplitude if t_rel < start_s + period_s / 2 else -amplitude
+
+
+@dataclass
+class _Record:
+    time: list[float] = field(default_factory=list)
+    signal: list[float] = field(default_factory=list)  # heading (rad, as reported) or pitch
+    actuator: list[float] = field(default_factory=list)
+
+    def add(self, time_s: float, signal: float, actuator: float) -> None:
+        self.time.append(time_s)
+        self.signal.append(signal)
+        self.actuator.append(actuator)
+
+
+class IdentificationManoeuvre:
+    """SPEC C4 at one thrust: settle, train (online), resettle, validate, accept or repeat."""
+
+    def __init__(self, config: ManoeuvreConfig = ManoeuvreConfig(), *, thrust: float | None = None,
+                 status_prefix: str = "") -> None:
+        if config.axis not in ("yaw", "pitch"):
+            raise ValueError(f"axis must be 'yaw' or 'pitch', not {config.axis!r}")
+        self.config = config
+        self.thrust = thrust
+        self._prefix = status_prefix
+        self.stage = SETTLE
+        self._stage_start: float | None = None
+        self._settle_s = config.settle_s
+        self._trim: float = 0.0
+        self.attempt = 0
+        self.attempts: list[dict] = []
+        self._identifier = None
+        self._training = _Record()
+        self._validation = _Record()
+        self._speeds: list[float] = []
+        self._last_live = -math.inf
+        self._overriding = False
+        self._training_time_s = math.nan
+        self.outcome: str | None = None  # "accepted", "rejected", "aborted"
+        self.abort_reason: str | None = None
+
+    # ------------------------------------------------------------------ protocol
+    @property
+    def done(self) -> bool:
+        return self.stage == DONE
+
+    def step(self, telemetry: Telemetry) -> Sequence[Command]:
+        if self.done:
+            return []
+        now = telemetry.time_s
+        if self._stage_start is None:
+            self._stage_start = now
+            return [self._status(f"settling {self.config.settle_s:.0f} s")]
+        t_rel = now - self._stage_start
+        if self.stage == SETTLE:
+            return self._step_settle(telemetry, t_rel)
+        if self.stage == TRAIN:
+            return self._step_train(telemetry, t_rel)
+        if self.stage == RESETTLE:
+            if t_rel >= self.config.resettle_s:
+                self._enter(VALIDATE, now)
+                return [self._status(f"validating on a fresh {self.config.validation_amplitude:.2f} rad doublet")]
+            return []
+        if self.stage == VALIDATE:
+            return self._step_validate(telemetry, t_rel)
+        return []
+
+    def abort(self, reason: str) -> Sequence[Command]:
+        self.abort_reason = reason
+        self.outcome = "aborted"
+        self.stage = DONE
+        self._overriding = False
+        return [ReleaseActuator(self.config.actuator)]
+
+    # ------------------------------------------------------------------ stages
+    def _enter(self, stage: str, now: float) -> None:
+        self.stage = stage
+        self._stage_start = now
+
+    def _signal(self, telemetry: Telemetry) -> float:
+        return telemetry.yaw if self.config.axis == "yaw" else telemetry.pitch
+
+    def _actuator(self, telemetry: Telemetry) -> float:
+        return telemetry.rudder if self.config.axis == "yaw" else telemetry.elevator
+
+    def _step_settle(self, telemetry: Telemetry, t_rel: float) -> list[Command]:
+        if t_rel < self._settle_s:
+            return []
+        return self._start_training(telemetry)
+
+    def _start_training(self, telemetry: Telemetry) -> list[Command]:
+        self.attempt += 1
+        # the doublet is injected around the trim the autopilot is holding now
+        actuator = self._actuator(telemetry)
+        self._trim = actuator if math.isfinite(actuator) else 0.0
+        self._identifier = self._new_identifier()
+        self._training = _Record()
+        self._speeds = []
+        self._enter(TRAIN, telemetry.time_s)
+        return [self._status(f"training, attempt {self.attempt}: {self.config.training_amplitude:.2f} rad doublet")]
+
+    def _new_identifier(self):
+        kwargs = {"p0": self.config.p0}
+        if self.config.svf_bandwidth is not None:
+            kwargs["bandwidth"] = self.config.svf_bandwidth
+        return YawIdentifier(**kwargs) if self.config.axis == "yaw" else PitchIdentifier(**kwargs)
+
+    def _excitation(self, t_rel: float, amplitude: float) -> list[Command]:
+        offset = doublet(t_rel, self.config.pre_excitation_s, self.config.doublet_period_s, amplitude)
+        if offset is not None:
+            self._overriding = True
+            return [OverrideActuator(self.config.actuator, self._trim + offset)]
+        if self._overriding:
+            self._overriding = False
+            return [ReleaseActuator(self.config.actuator)]
+        return []
+
+    def _step_train(self, telemetry: Telemetry, t_rel: float) -> list[Command]:
+        commands = self._excitation(t_rel, self.config.training_amplitude)
+        signal, actuator = self._signal(telemetry), self._actuator(telemetry)
+        if math.isfinite(signal) and math.isfinite(actuator):
+            self._identifier.update(telemetry.time_s, signal, actuator)
+            self._training.add(telemetry.time_s, signal, actuator)
+        if math.isfinite(telemetry.speed_water):
+            self._speeds.append(telemetry.speed_water)
+        commands += self._live_values(telemetry.time_s)
+        after_excitation = t_rel >= self.config.excitation_end_s
+        converged = self.config.stop_on_convergence and after_excitation and self._identifier.converged
+        if converged or t_rel >= self.config.window_s:
+            if self._overriding:  # never leave the stage holding the actuator
+                self._overriding = False
+                commands.append(ReleaseActuator(self.config.actuator))
+            self._training_time_s = t_rel
+            self._enter(RESETTLE, telemetry.time_s)
+            model = self._identifier.model()
+            commands.append(self._status(f"trained in {t_rel:.1f} s: {self._describe(model)}"))
+        return commands
+
+    def _step_validate(self, telemetry: Telemetry, t_rel: float) -> list[Command]:
+        commands = self._excitation(t_rel, self.config.validation_amplitude)
+        signal, actuator = self._signal(telemetry), self._actuator(telemetry)
+        if math.isfinite(signal) and math.isfinite(actuator):
+            self._validation.add(telemetry.time_s, signal, actuator)
+        if t_rel < self.config.window_s:
+            return commands
+        if self._overriding:
+            self._overriding = False
+            commands.append(ReleaseActuator(self.config.actuator))
+        commands += self._finish_attempt(telemetry.time_s)
+        return commands
+
+    def _finish_attempt(self, now: float) -> list[Command]:
+        model = self._identifier.model()
+        r2 = self._score(model)
+        accepted = math.isfinite(r2) and r2 >= self.config.r2_threshold
+        speed = sum(self._speeds) / len(self._speeds) if self._speeds else math.nan
+        self.attempts.append(
+            {
+                "attempt": self.attempt,
+                "axis": self.config.axis,
+                "thrust": self.thrust,
+                "speed": speed,
+                "model": _model_dict(model),
+                "r2": r2,
+                "accepted": accepted,
+                "converged": bool(self._identifier.converged),
+                "converged_s": self._converged_s(),
+                "training_s": self._training_time_s,
+                "samples": len(self._training.time),
+                "training": self._series(self._training, history=True),
+                "validation": self._series(self._validation, model=model),
+            }
+        )
+        self._validation = _Record()
+        verdict = "accepted" if accepted else "rejected"
+        commands: list[Command] = [self._status(f"validation R2 {r2:.3f}: {verdict}")]
+        if accepted:
+            self.outcome = "accepted"
+            self.stage = DONE
+        elif self.attempt >= self.config.max_attempts:
+            self.outcome = "rejected"
+            self.stage = DONE
+            commands.append(self._status(f"no model passed validation after {self.attempt} attempts", 4))
+        else:  # repeat from the training stage after a short resettle (bounded by max_attempts)
+            self._settle_s = self.config.resettle_s
+            self._enter(SETTLE, now)
+        return commands
+
+    # ------------------------------------------------------------------ helpers
+    def _score(self, model) -> float:
+        record = self._validation
+        if len(record.time) < 10:
+            return math.nan
+        validate = validate_yaw if self.config.axis == "yaw" else validate_pitch
+        try:
+            return float(validate(model, record.time, record.signal, record.actuator))
+        except (ValueError, FloatingPointError, ZeroDivisionError) as exc:
+            log.warning("validation failed: %s", exc)
+            return math.nan
+
+    def _converged_s(self) -> float | None:
+        value = getattr(self._identifier, "converged_at_s", None)
+        return float(value) if value is not None else None
+
+    def _series(self, record: _Record, *, history: bool = False, model=None) -> dict:
+        series: dict = {"time": list(record.time), "signal": list(record.signal), "actuator": list(record.actuator)}
+        if history:
+            series["history"] = _history_dict(getattr(self._identifier, "history", None))
+        if model is not None and len(record.time) >= 2:
+            series["simulated"] = _simulate(self.config.axis, model, record)
+        return series
+
+    def _live_values(self, now: float) -> list[Command]:
+        if now - self._last_live < self.config.live_value_period_s:
+            return []
+        self._last_live = now
+        model = _model_dict(self._identifier.model())
+        return [NamedValue(name[:10], value) for name, value in model.items() if isinstance(value, float)]
+
+    def _describe(self, model) -> str:
+        values = _model_dict(model)
+        return " ".join(f"{name} {value:.3f}" for name, value in values.items() if isinstance(value, float))
+
+    def _status(self, text: str, severity: int = 6) -> StatusText:
+        return StatusText(f"{self._prefix}{self.config.axis}: {text}", severity)
+
+    def result(self) -> dict:
+        accepted = [a for a in self.attempts if a["accepted"]]
+        best = accepted[-1] if accepted else (max(self.attempts, key=lambda a: _nan_low(a["r2"])) if self.attempts else None)
+        return {
+            "axis": self.config.axis,
+            "thrust": self.thrust,
+            "outcome": self.outcome,
+            "abort_reason": self.abort_reason,
+            "config": asdict(self.config),
+            "attempts": self.attempts,
+            "best": best,
+        }
+
+
+def _nan_low(value: float) -> float:
+    return value if isinstance(value, float) and math.isfinite(value) else -math.inf
+
+
+def _model_dict(model) -> dict:
+    """Numbers of a YawModel/PitchModel as a plain dict (covariance as nested lists)."""
+    out = {}
+    for name, value in vars(model).items() if hasattr(model, "__dict__") else asdict(model).items():
+        if name == "covariance":
+            out[name] = None if value is None else [[float(x) for x in row] for row in value]
+        elif isinstance(value, (int, float)):
+            out[name] = float(value)
+    return out
+
+
+def _history_dict(history) -> dict | None:
+    if history is None:
+        return None
+    if isinstance(history, dict):
+        return {key: [float(x) for x in values] for key, values in history.items()}
+    return None
+
+
+def _simulate(axis: str, model, record: _Record) -> list[float]:
+    from companion.numerics.validation import simulate_pitch, simulate_yaw  # same numerics as the score
+
+    import numpy as np
+
+    simulate: Callable = simulate_yaw if axis == "yaw" else simulate_pitch
+    signal = np.unwrap(np.asarray(record.signal)) if axis == "yaw" else np.asarray(record.signal)
+    try:
+        return [float(x) for x in simulate(model, record.time, record.actuator, float(signal[0]))]
+    except (ValueError, FloatingPointError) as exc:
+        log.warning("could not simulate the model for the plot: %s", exc)
+        return []

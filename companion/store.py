@@ -1,0 +1,306 @@
+"""The embedded store: SQLite from the standard library (SPEC C10).
+
+What it holds: vehicle configurations, campaigns, identification runs (every attempt, accepted or
+not, with its time series), the accepted models, the gains written (before and after) and the
+behaviour results. Each write is its own transaction in WAL mode, so a process killed at any moment
+leaves every completed write on disk and no half-written row; a campaign that never finished stays
+``running`` and is shown as such.
+
+Schema changes go in ``MIGRATIONS`` (one SQL script per version, applied in order, tracked by
+``PRAGMA user_version``); never edit a released migration.
+"""
+from __future__ import annotations
+
+import json
+import math
+import sqlite3
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+MIGRATIONS: tuple[str, ...] = (
+    # version 1
+    """
+    CREATE TABLE vehicles (
+        id INTEGER PRIMARY KEY,
+        name TEXT NOT NULL,
+        profile TEXT,
+        config_json TEXT NOT NULL DEFAULT '{}',
+        created_utc TEXT NOT NULL
+    );
+    CREATE TABLE campaigns (
+        id INTEGER PRIMARY KEY,
+        vehicle_id INTEGER NOT NULL REFERENCES vehicles(id),
+        kind TEXT NOT NULL,
+        status TEXT NOT NULL,
+        reason TEXT,
+        config_json TEXT NOT NULL DEFAULT '{}',
+        started_utc TEXT NOT NULL,
+        finished_utc TEXT
+    );
+    CREATE TABLE runs (
+        id INTEGER PRIMARY KEY,
+        campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+        axis TEXT NOT NULL,
+        thrust REAL,
+        attempt INTEGER NOT NULL,
+        speed REAL,
+        r2 REAL,
+        accepted INTEGER NOT NULL,
+        converged_s REAL,
+        training_s REAL,
+        samples INTEGER,
+        model_json TEXT NOT NULL,
+        series_json TEXT NOT NULL DEFAULT '{}'
+    );
+    CREATE TABLE models (
+        id INTEGER PRIMARY KEY,
+        run_id INTEGER NOT NULL REFERENCES runs(id),
+        campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+        axis TEXT NOT NULL,
+        thrust REAL,
+        speed REAL,
+        params_json TEXT NOT NULL,
+        covariance_json TEXT,
+        r2 REAL
+    );
+    CREATE TABLE gains (
+        id INTEGER PRIMARY KEY,
+        campaign_id INTEGER REFERENCES campaigns(id),
+        speed REAL,
+        before_json TEXT NOT NULL,
+        after_json TEXT NOT NULL,
+        written_utc TEXT NOT NULL
+    );
+    CREATE TABLE behavior_results (
+        id INTEGER PRIMARY KEY,
+        campaign_id INTEGER REFERENCES campaigns(id),
+        kind TEXT NOT NULL,
+        status TEXT NOT NULL,
+        result_json TEXT NOT NULL,
+        recorded_utc TEXT NOT NULL
+    );
+    CREATE INDEX runs_campaign ON runs(campaign_id);
+    CREATE INDEX models_campaign ON models(campaign_id);
+    """,
+)
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _json(value: Any) -> str:
+    """JSON with NaN/inf written as null (strict JSON readers reject NaN)."""
+    return json.dumps(_clean(value), separators=(",", ":"))
+
+
+def _clean(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if hasattr(value, "tolist"):  # numpy arrays and scalars
+        return _clean(value.tolist())
+    return value
+
+
+@dataclass(frozen=True)
+class StoredModel:
+    campaign_id: int
+    axis: str
+    thrust: float | None
+    speed: float | None
+    params: dict
+    r2: float | None
+
+
+class Store:
+    """A handle on one SQLite file. Cheap to open; safe to use from one thread."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._db = sqlite3.connect(str(self.path), isolation_level=None)  # autocommit; explicit transactions
+        self._db.row_factory = sqlite3.Row
+        self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.execute("PRAGMA synchronous=FULL")
+        self._db.execute("PRAGMA foreign_keys=ON")
+        self._migrate()
+
+    # ------------------------------------------------------------------ plumbing
+    def _migrate(self) -> None:
+        version = self._db.execute("PRAGMA user_version").fetchone()[0]
+        if version > len(MIGRATIONS):
+            raise RuntimeError(f"{self.path} was written by a newer version (schema {version}); upgrade the companion")
+        for number, script in enumerate(MIGRATIONS[version:], start=version + 1):
+            # one script, one transaction: a killed migration leaves the previous version intact
+            self._db.executescript(f"BEGIN;{script};PRAGMA user_version={number};COMMIT;")
+
+    def _transaction(self):
+        return _Transaction(self._db)
+
+    @property
+    def schema_version(self) -> int:
+        return self._db.execute("PRAGMA user_version").fetchone()[0]
+
+    def _insert(self, sql: str, args: tuple) -> int:
+        with self._transaction():
+            return int(self._db.execute(sql, args).lastrowid)
+
+    def close(self) -> None:
+        self._db.close()
+
+    def __enter__(self) -> "Store":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ writes
+    def add_vehicle(self, name: str, profile: str | None = None, config: dict | None = None) -> int:
+        return self._insert("INSERT INTO vehicles(name, profile, config_json, created_utc) VALUES (?,?,?,?)",
+                            (name, profile, _json(config or {}), _now()))
+
+    def start_campaign(self, vehicle_id: int, kind: str, config: dict | None = None) -> int:
+        return self._insert(
+            "INSERT INTO campaigns(vehicle_id, kind, status, config_json, started_utc) VALUES (?,?,?,?,?)",
+            (vehicle_id, kind, "running", _json(config or {}), _now()))
+
+    def finish_campaign(self, campaign_id: int, status: str, reason: str | None = None) -> None:
+        with self._transaction():
+            self._db.execute("UPDATE campaigns SET status=?, reason=?, finished_utc=? WHERE id=?",
+                             (status, reason, _now(), campaign_id))
+
+    def add_run(self, campaign_id: int, attempt: dict) -> int:
+        """Store one identification attempt (the dict built by IdentificationManoeuvre); an accepted
+        attempt also becomes a model row, in the same transaction."""
+        model = attempt.get("model", {})
+        with self._transaction():
+            run_id = int(self._db.execute(
+                "INSERT INTO runs(campaign_id, axis, thrust, attempt, speed, r2, accepted, converged_s, training_s,"
+                " samples, model_json, series_json) VALUES (?,?,?,?,?,?,?,?,?,?,?,?)",
+                (campaign_id, attempt["axis"], attempt.get("thrust"), attempt.get("attempt", 1),
+                 _clean(attempt.get("speed")), _clean(attempt.get("r2")), int(bool(attempt.get("accepted"))),
+                 _clean(attempt.get("converged_s")), _clean(attempt.get("training_s")), attempt.get("samples"),
+                 _json(model), _json({"training": attempt.get("training"), "validation": attempt.get("validation")})),
+            ).lastrowid)
+            if attempt.get("accepted"):
+                params = {k: v for k, v in model.items() if k != "covariance"}
+                self._db.execute(
+                    "INSERT INTO models(run_id, campaign_id, axis, thrust, speed, params_json, covariance_json, r2)"
+                    " VALUES (?,?,?,?,?,?,?,?)",
+                    (run_id, campaign_id, attempt["axis"], attempt.get("thrust"), _clean(attempt.get("speed")),
+                     _json(params), _json(model.get("covariance")), _clean(attempt.get("r2"))))
+        return run_id
+
+    def add_gains(self, campaign_id: int | None, speed: float | None, before: dict, after: dict) -> int:
+        return self._insert("INSERT INTO gains(campaign_id, speed, before_json, after_json, written_utc) VALUES (?,?,?,?,?)",
+                            (campaign_id, _clean(speed), _json(before), _json(after), _now()))
+
+    def add_behavior_result(self, campaign_id: int | None, kind: str, status: str, result: dict) -> int:
+        return self._insert(
+            "INSERT INTO behavior_results(campaign_id, kind, status, result_json, recorded_utc) VALUES (?,?,?,?,?)",
+            (campaign_id, kind, status, _json(result), _now()))
+
+    # ------------------------------------------------------------------ reads
+    def campaigns(self) -> list[dict]:
+        rows = self._db.execute(
+            "SELECT c.*, v.name AS vehicle, v.profile AS profile,"
+            " (SELECT COUNT(*) FROM runs r WHERE r.campaign_id=c.id) AS runs,"
+            " (SELECT COUNT(*) FROM models m WHERE m.campaign_id=c.id) AS models"
+            " FROM campaigns c JOIN vehicles v ON v.id=c.vehicle_id ORDER BY c.id").fetchall()
+        return [self._campaign_dict(row) for row in rows]
+
+    @staticmethod
+    def _campaign_dict(row: sqlite3.Row) -> dict:
+        out = dict(row)
+        out["config"] = json.loads(out.pop("config_json"))
+        return out
+
+    def campaign(self, campaign_id: int) -> dict:
+        row = self._db.execute("SELECT c.*, v.name AS vehicle, v.profile AS profile, v.config_json AS vehicle_config"
+                               " FROM campaigns c JOIN vehicles v ON v.id=c.vehicle_id WHERE c.id=?",
+                               (campaign_id,)).fetchone()
+        if row is None:
+            raise KeyError(f"no campaign {campaign_id} in {self.path}")
+        out = self._campaign_dict(row)
+        out["vehicle_config"] = json.loads(out["vehicle_config"])
+        return out
+
+    def latest_campaign_id(self, kind: str | None = None) -> int | None:
+        sql, args = "SELECT MAX(id) FROM campaigns", ()
+        if kind:
+            sql, args = sql + " WHERE kind=?", (kind,)
+        value = self._db.execute(sql, args).fetchone()[0]
+        return None if value is None else int(value)
+
+    def runs(self, campaign_id: int, with_series: bool = False) -> list[dict]:
+        rows = self._db.execute("SELECT * FROM runs WHERE campaign_id=? ORDER BY id", (campaign_id,)).fetchall()
+        out = []
+        for row in rows:
+            item = dict(row)
+            item["model"] = json.loads(item.pop("model_json"))
+            series = item.pop("series_json")
+            if with_series:
+                item["series"] = json.loads(series)
+            item["accepted"] = bool(item["accepted"])
+            out.append(item)
+        return out
+
+    def models(self, campaign_id: int | None = None, axis: str | None = None) -> list[StoredModel]:
+        sql, args = "SELECT * FROM models WHERE 1=1", []
+        if campaign_id is not None:
+            sql += " AND campaign_id=?"
+            args.append(campaign_id)
+        if axis is not None:
+            sql += " AND axis=?"
+            args.append(axis)
+        rows = self._db.execute(sql + " ORDER BY id", args).fetchall()
+        return [StoredModel(row["campaign_id"], row["axis"], row["thrust"], row["speed"],
+                            json.loads(row["params_json"]), row["r2"]) for row in rows]
+
+    def gains(self, campaign_id: int | None = None) -> list[dict]:
+        sql, args = "SELECT * FROM gains", ()
+        if campaign_id is not None:
+            sql, args = sql + " WHERE campaign_id=?", (campaign_id,)
+        rows = self._db.execute(sql + " ORDER BY id", args).fetchall()
+        return [{"id": r["id"], "campaign_id": r["campaign_id"], "speed": r["speed"], "written_utc": r["written_utc"],
+                 "before": json.loads(r["before_json"]), "after": json.loads(r["after_json"])} for r in rows]
+
+    def behavior_results(self, campaign_id: int | None = None, kind: str | None = None) -> list[dict]:
+        sql, args = "SELECT * FROM behavior_results WHERE 1=1", []
+        if campaign_id is not None:
+            sql += " AND campaign_id=?"
+            args.append(campaign_id)
+        if kind is not None:
+            sql += " AND kind=?"
+            args.append(kind)
+        rows = self._db.execute(sql + " ORDER BY id", args).fetchall()
+        return [{"id": r["id"], "campaign_id": r["campaign_id"], "kind": r["kind"], "status": r["status"],
+                 "recorded_utc": r["recorded_utc"], "result": json.loads(r["result_json"])} for r in rows]
+
+
+class _Transaction:
+    """BEGIN IMMEDIATE … COMMIT, or ROLLBACK on error (the connection is in autocommit mode)."""
+
+    def __init__(self, db: sqlite3.Connection) -> None:
+        self._db = db
+        self._outer = False
+
+    def __enter__(self):
+        self._outer = not self._db.in_transaction
+        if self._outer:
+            self._db.execute("BEGIN IMMEDIATE")
+        return self._db
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if not self._outer:
+            return
+        if exc_type is None:
+            self._db.execute("COMMIT")
+        else:
+            self._db.execute("ROLLBACK")
