@@ -1,0 +1,27 @@
+"""Truth for scoring identification: what the nonlinear physics linearises to (PROTOCOL "Truth").
+
+``linearized_yaw`` differentiates the simulator's own yaw-acceleration function numerically (central
+differences at r = 0), so it stays correct if the yaw law changes; ``steady_speed`` solves the
+level-flight equilibrium of the dive-plane model (thesis eq. 5.18) with scipy.
+"""
+from __future__ import annotations
+
+from sim.physics.equilibrium import level_trim_at_thrust
+from sim.physics.yaw import YawConstants, yaw_acceleration
+from sim.preset import Preset
+
+_STEP = 1e-6
+
+
+def linearized_yaw(preset: Preset, speed: float) -> dict:
+    """{"a22", "b2", "delta0", "speed"} with ṙ ≈ a22·r + b2·(δr − δ0) at water speed ``speed``, r = 0."""
+    c = YawConstants.from_preset(preset.yaw, preset.sway)
+    a22 = (yaw_acceleration(c, speed, _STEP, 0.0) - yaw_acceleration(c, speed, -_STEP, 0.0)) / (2 * _STEP)
+    b2 = (yaw_acceleration(c, speed, 0.0, _STEP) - yaw_acceleration(c, speed, 0.0, -_STEP)) / (2 * _STEP)
+    delta0 = -yaw_acceleration(c, speed, 0.0, 0.0) / b2 if b2 != 0.0 else 0.0
+    return {"a22": a22, "b2": b2, "delta0": delta0, "speed": speed}
+
+
+def steady_speed(preset: Preset, thrust_ratio: float) -> float:
+    """Level-flight steady water speed (m/s) for a thrust ratio (0 in the thruster dead zone)."""
+    return level_trim_at_thrust(preset, thrust_ratio).speed
