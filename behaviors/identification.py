@@ -33,7 +33,7 @@ from companion.interface import (
     StatusText,
     Telemetry,
 )
-from companion.numerics.identification import PitchIdentifier, YawIdentifier
+from companion.numerics.identification import ConvergenceRule, PitchIdentifier, YawIdentifier
 from companion.numerics.validation import validate_pitch, validate_yaw
 
 log = logging.getLogger(__name__)
@@ -180,7 +180,9 @@ class IdentificationManoeuvre:
         return [self._status(f"training, attempt {self.attempt}: {self.config.training_amplitude:.2f} rad doublet")]
 
     def _new_identifier(self):
-        kwargs = {"p0": self.config.p0}
+        # convergence only counts once the whole doublet has been seen (eq. 3.39 + thesis §3.3.1)
+        rule = ConvergenceRule(min_time_s=self.config.excitation_end_s)
+        kwargs = {"p0": self.config.p0, "rule": rule}
         if self.config.svf_bandwidth is not None:
             kwargs["bandwidth"] = self.config.svf_bandwidth
         return YawIdentifier(**kwargs) if self.config.axis == "yaw" else PitchIdentifier(**kwargs)
@@ -285,7 +287,7 @@ class IdentificationManoeuvre:
     def _series(self, record: _Record, *, history: bool = False, model=None) -> dict:
         series: dict = {"time": list(record.time), "signal": list(record.signal), "actuator": list(record.actuator)}
         if history:
-            series["history"] = _history_dict(getattr(self._identifier, "history", None))
+            series["history"] = _history_dict(self._identifier.history_table)
         if model is not None and len(record.time) >= 2:
             series["simulated"] = _simulate(self.config.axis, model, record)
         return series
@@ -325,7 +327,7 @@ def _nan_low(value: float) -> float:
 def _model_dict(model) -> dict:
     """Numbers of a YawModel/PitchModel as a plain dict (covariance as nested lists)."""
     out = {}
-    for name, value in vars(model).items() if hasattr(model, "__dict__") else asdict(model).items():
+    for name, value in vars(model).items():
         if name == "covariance":
             out[name] = None if value is None else [[float(x) for x in row] for row in value]
         elif isinstance(value, (int, float)):

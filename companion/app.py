@@ -1,0 +1,217 @@
+"""Application services: run procedures over a link with the store, progress and abort sources.
+
+Used by the command line (``identify``, ``run-behavior``, ``run``, ``rehearse``). Everything that
+touches the store or the ground station lives here, so behaviours stay pure.
+
+Ground-station protocol (SPEC C1): COMMAND_LONG aimed at component 191 —
+``MAV_CMD_USER_1`` starts the identification campaign, ``MAV_CMD_USER_2`` roll stabilisation,
+``MAV_CMD_USER_3`` minimum-speed seeking, ``MAV_CMD_USER_4`` aborts whatever runs. A start is
+answered with COMMAND_ACK IN_PROGRESS carrying the progress (percent) as the procedure advances, and
+a final ACCEPTED (completed) or FAILED (aborted, with the reason in a STATUSTEXT).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import signal
+import sys
+from dataclasses import dataclass
+from typing import Callable
+
+from companion.campaign import CampaignConfig, IdentificationCampaign
+from companion.interface import Behavior, Telemetry
+from companion.runner import RestorePoint, RunOutcome, SafetyLimits, run_behavior
+from companion.store import Store
+
+log = logging.getLogger(__name__)
+
+MAV_CMD_USER_1, MAV_CMD_USER_2, MAV_CMD_USER_3, MAV_CMD_USER_4 = 31010, 31011, 31012, 31013
+MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_IN_PROGRESS = 0, 4, 5
+
+
+class AbortFlag:
+    """The first abort reason wins; polled by the runner once per telemetry snapshot."""
+
+    def __init__(self) -> None:
+        self.reason: str | None = None
+
+    def request(self, reason: str) -> None:
+        if self.reason is None:
+            self.reason = reason
+
+    def clear(self) -> None:
+        self.reason = None
+
+    def __call__(self) -> str | None:
+        return self.reason
+
+
+def install_signal_handlers(flag: AbortFlag) -> Callable[[], None]:
+    """SIGINT/SIGTERM request an abort (the runner then restores the vehicle) instead of killing us
+    mid-procedure; a second SIGINT falls back to the default behaviour. Returns an undo function."""
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def handler(signum, _frame):
+        if flag.reason is not None and signum == signal.SIGINT:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+        flag.request(f"signal {signal.Signals(signum).name}")
+
+    for sig in previous:
+        signal.signal(sig, handler)
+
+    def undo() -> None:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+    return undo
+
+
+@dataclass
+class GcsProgress:
+    """COMMAND_ACK IN_PROGRESS with the progress percent, then the final result (SPEC C1)."""
+
+    link: object
+    command: int
+    target_system: int = 0
+    target_component: int = 0
+    _last: int = -1
+
+    def update(self, fraction: float) -> None:
+        percent = int(max(0.0, min(1.0, fraction)) * 100)
+        if percent >= self._last + 5 or (percent == 100 and self._last != 100):
+            self._last = percent
+            self.link.send_command_ack(self.command, MAV_RESULT_IN_PROGRESS, percent,
+                                       self.target_system, self.target_component)
+
+    def finish(self, outcome: RunOutcome) -> None:
+        result = MAV_RESULT_ACCEPTED if outcome.status == "completed" else MAV_RESULT_FAILED
+        self.link.send_command_ack(self.command, result, 100 if result == MAV_RESULT_ACCEPTED else self._last,
+                                   self.target_system, self.target_component)
+
+
+class ConsoleProgress:
+    """A one-line progress display on stderr for long procedures (no dependency is allowed for this,
+    and a single rewritten line is all a terminal user needs)."""
+
+    def __init__(self, label: str, enabled: bool = True) -> None:
+        self.label = label
+        self.enabled = enabled and sys.stderr.isatty()
+        self._shown = -1
+
+    def update(self, fraction: float, detail: str = "") -> None:
+        percent = int(fraction * 100)
+        if not self.enabled or percent == self._shown:
+            return
+        self._shown = percent
+        bar = "#" * (percent // 5) + "." * (20 - percent // 5)
+        sys.stderr.write(f"\r{self.label} [{bar}] {percent:3d}% {detail[:50]:<50}")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.enabled and self._shown >= 0:
+            sys.stderr.write("\n")
+
+
+def vehicle_record(store: Store, link, name: str | None = None, config: dict | None = None) -> int:
+    profile = getattr(getattr(link, "profile", None), "name", None)
+    system_id = getattr(link, "system_id", None)
+    return store.add_vehicle(name or f"sysid-{system_id}", profile, config or {})
+
+
+def drain_campaign_events(store: Store, campaign_id: int, campaign: IdentificationCampaign) -> None:
+    """Write what the campaign produced since the last call (one transaction per item)."""
+    while campaign.events:
+        event = campaign.events.pop(0)
+        if event["type"] == "run":
+            store.add_run(campaign_id, event["attempt"])
+        elif event["type"] == "steps":
+            store.add_behavior_result(campaign_id, "heading_steps", "completed", event["result"])
+        elif event["type"] == "gains":
+            store.add_gains(campaign_id, event["speed"], event["before"], event["after"])
+        elif event["type"] == "design":
+            store.add_behavior_result(campaign_id, "gain_design", "completed", event["design"])
+
+
+def run_campaign(
+    link,
+    store: Store,
+    config: CampaignConfig,
+    *,
+    vehicle_id: int,
+    abort: AbortFlag,
+    limits: SafetyLimits = SafetyLimits(),
+    gcs: GcsProgress | None = None,
+    console: ConsoleProgress | None = None,
+) -> tuple[IdentificationCampaign, RunOutcome, int]:
+    """Run the identification campaign, storing as it goes; restores the vehicle on abort and the
+    mode (not the new gains) on success."""
+    restore = RestorePoint.capture(link)
+    campaign_id = store.start_campaign(vehicle_id, "identification", config.to_dict())
+    campaign = IdentificationCampaign(config, original_gains=restore.parameters)
+    log.info("campaign %d started; original gains %s, mode %s", campaign_id, restore.parameters, restore.mode)
+
+    def on_step(telemetry: Telemetry, _behavior: Behavior) -> None:
+        drain_campaign_events(store, campaign_id, campaign)
+        fraction = campaign.progress()
+        if gcs is not None:
+            gcs.update(fraction)
+        if console is not None:
+            current = campaign._sequence.current if campaign._sequence is not None else None
+            console.update(fraction, f"t={telemetry.time_s:7.1f}s {type(current).__name__ if current else ''}")
+
+    outcome = run_behavior(link, campaign, limits=limits, abort_requested=abort, on_step=on_step, restore=restore)
+    drain_campaign_events(store, campaign_id, campaign)
+    if outcome.status == "completed" and restore.mode:
+        outcome.restore_problems += RestorePoint(restore.mode, {}).restore(link)
+    store.finish_campaign(campaign_id, outcome.status, outcome.reason)
+    if gcs is not None:
+        gcs.finish(outcome)
+    if console is not None:
+        console.close()
+    return campaign, outcome, campaign_id
+
+
+def run_procedure(
+    link,
+    store: Store,
+    kind: str,
+    behavior: Behavior,
+    *,
+    vehicle_id: int,
+    abort: AbortFlag,
+    limits: SafetyLimits = SafetyLimits(),
+    gcs: GcsProgress | None = None,
+    progress: Callable[[Behavior], float] | None = None,
+    campaign_id: int | None = None,
+) -> RunOutcome:
+    """Run one behaviour (roll stabilisation, minimum-speed seeking, …) and store its result."""
+    restore = RestorePoint.capture(link)
+    own_campaign = campaign_id is None
+    if own_campaign:
+        campaign_id = store.start_campaign(vehicle_id, kind, {})
+
+    def on_step(_telemetry: Telemetry, current: Behavior) -> None:
+        if gcs is not None and progress is not None:
+            gcs.update(progress(current))
+
+    outcome = run_behavior(link, behavior, limits=limits, abort_requested=abort, on_step=on_step, restore=restore,
+                           restore_on_success=True)
+    store.add_behavior_result(campaign_id, kind, outcome.status, _with_reason(outcome))
+    if own_campaign:
+        store.finish_campaign(campaign_id, outcome.status, outcome.reason)
+    if gcs is not None:
+        gcs.finish(outcome)
+    return outcome
+
+
+def _with_reason(outcome: RunOutcome) -> dict:
+    result = dict(outcome.result)
+    result.setdefault("status", outcome.status)
+    if outcome.reason:
+        result["abort_reason"] = outcome.reason
+    result["vehicle_time_s"] = outcome.vehicle_time_s
+    return result
+
+
+def finite_or_none(value) -> float | None:
+    return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None

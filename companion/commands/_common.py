@@ -1,0 +1,71 @@
+"""Argument helpers shared by the subcommands."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+DEFAULT_STORE = "companion.sqlite"
+
+
+def add_store_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--store", default=os.environ.get("COMPANION_STORE", DEFAULT_STORE),
+                        help="SQLite store (default: $COMPANION_STORE or ./%(default)s)")
+
+
+def add_connect_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--connect", required=True, metavar="ENDPOINT",
+                        help="pymavlink connection string, e.g. udpin:0.0.0.0:14551, udpout:127.0.0.1:14550, "
+                             "tcp:127.0.0.1:5760, /dev/ttyUSB0,57600")
+    parser.add_argument("--profile", choices=("sim", "ardusub", "ardurover"), default=None,
+                        help="autopilot profile (default: detected from the parameter names)")
+    parser.add_argument("--signing-key", metavar="HEX", default=None,
+                        help="MAVLink 2 signing key as 64 hex characters (32 bytes)")
+
+
+def signing_key(args: argparse.Namespace) -> bytes | None:
+    if not getattr(args, "signing_key", None):
+        return None
+    try:
+        key = bytes.fromhex(args.signing_key)
+    except ValueError:
+        raise SystemExit("--signing-key must be hexadecimal") from None
+    if len(key) != 32:
+        raise SystemExit("--signing-key must be 32 bytes (64 hex characters)")
+    return key
+
+
+def thrust_list(text: str) -> tuple[float, ...]:
+    """'0.6,0.7' or '60,70' (percent) -> (0.6, 0.7)."""
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a list of numbers: {text!r}") from None
+    values = [v / 100.0 if v > 1.0 else v for v in values]
+    if not values or any(not 0.0 < v <= 1.0 for v in values):
+        raise argparse.ArgumentTypeError("thrusts must be in (0, 1] (or percent)")
+    return tuple(values)
+
+
+def _json_safe(value):
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+def print_json(value) -> None:
+    json.dump(_json_safe(value), sys.stdout, indent=1)
+    sys.stdout.write("\n")
+
+
+def ensure_parent(path: str) -> Path:
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    return p

@@ -1,0 +1,88 @@
+"""``companion identify``: the identification campaign against any vehicle (SPEC C4, C5)."""
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+
+from companion.commands._common import add_connect_arguments, add_store_argument, print_json, signing_key, thrust_list
+
+
+def add_parser(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "identify", help="run the self-identification campaign on a vehicle and write scheduled heading gains",
+        description="Settles, excites with rudder (and elevator) doublets, identifies online, validates on "
+                    "fresh doublets at each thrust, designs speed-scheduled heading PI gains and writes them. "
+                    "Ctrl-C (or MAV_CMD_USER_4 from the ground station) aborts and restores the autopilot.")
+    add_connect_arguments(parser)
+    add_store_argument(parser)
+    parser.add_argument("--thrusts", type=thrust_list, default=None, help="thrust settings (default: 60..100%%)")
+    parser.add_argument("--depth", type=float, default=None, help="campaign depth in m (default: 2)")
+    parser.add_argument("--axes", default="yaw,pitch", help="axes to identify (default: %(default)s)")
+    parser.add_argument("--no-steps", action="store_true", help="skip the heading-step checks")
+    parser.add_argument("--no-write", action="store_true", help="design the gains but do not write them")
+    parser.add_argument("--r2-threshold", type=float, default=None, help="validation acceptance threshold (default: 0.61)")
+    parser.add_argument("--report", metavar="DIR", default=None, help="also write the HTML report into DIR")
+    parser.add_argument("--json", action="store_true", help="print the campaign result as JSON")
+    parser.set_defaults(func=run)
+
+
+def campaign_config(args: argparse.Namespace):
+    from companion.campaign import CampaignConfig
+
+    config = CampaignConfig(axes=tuple(a.strip() for a in args.axes.split(",") if a.strip()))
+    if args.thrusts:
+        config = replace(config, thrusts=args.thrusts)
+    if args.depth is not None:
+        config = replace(config, depth=args.depth)
+    if args.no_steps:
+        config = replace(config, step_labels=())
+    if args.no_write:
+        config = replace(config, write_gains=False)
+    if args.r2_threshold is not None:
+        config = replace(config, yaw=replace(config.yaw, r2_threshold=args.r2_threshold),
+                         pitch=replace(config.pitch, r2_threshold=args.r2_threshold))
+    return config
+
+
+def run(args: argparse.Namespace) -> int:
+    from companion.app import AbortFlag, ConsoleProgress, install_signal_handlers, run_campaign, vehicle_record
+    from companion.link.errors import LinkError
+    from companion.link.vehicle import VehicleLink
+    from companion.report import write_report
+    from companion.store import Store
+
+    config = campaign_config(args)
+    abort = AbortFlag()
+    undo = install_signal_handlers(abort)
+    try:
+        link = VehicleLink.connect(args.connect, profile=args.profile, signing_key=signing_key(args))
+    except LinkError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        undo()
+        return 1
+    try:
+        with Store(args.store) as store:
+            vehicle_id = vehicle_record(store, link)
+            campaign, outcome, campaign_id = run_campaign(
+                link, store, config, vehicle_id=vehicle_id, abort=abort,
+                console=ConsoleProgress("identification", enabled=not args.json))
+            report = str(write_report(store, campaign_id, args.report)) if args.report else None
+    finally:
+        link.close()
+        undo()
+    result = {"campaign_id": campaign_id, "status": outcome.status, "reason": outcome.reason,
+              "restore_problems": outcome.restore_problems, "store": args.store, "report": report,
+              **{k: v for k, v in campaign.result().items() if k in ("accepted", "design", "steps", "final_gains")}}
+    if args.json:
+        print_json(result)
+    else:
+        print(f"campaign {campaign_id}: {outcome.status}" + (f" ({outcome.reason})" if outcome.reason else ""))
+        for a in result["accepted"]:
+            model = ", ".join(f"{k} {v:.4f}" for k, v in a["model"].items() if isinstance(v, float))
+            print(f"  {a['axis']:5s} thrust {a['thrust']:.2f} speed {a['speed']:.2f} m/s R2 {a['r2']:.3f}: {model}")
+        if result["final_gains"]:
+            print(f"  gains written: {result['final_gains']}")
+        if report:
+            print(f"  report: {report}")
+    return 0 if outcome.status == "completed" else 1

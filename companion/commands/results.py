@@ -1,0 +1,79 @@
+"""``companion results``: what the store holds (campaigns, models, gains, behaviour results)."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from companion.commands._common import add_store_argument, print_json
+
+
+def add_parser(subparsers) -> None:
+    parser = subparsers.add_parser("results", help="show what the store holds",
+                                   description="Lists the campaigns in the store, or one campaign in detail.")
+    add_store_argument(parser)
+    parser.add_argument("--campaign", type=int, default=None, help="show this campaign in detail (default: list all)")
+    parser.add_argument("--report", metavar="DIR", default=None, help="(re)write the HTML report of --campaign (or the latest) into DIR")
+    parser.add_argument("--json", action="store_true", help="print JSON")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from companion.store import Store
+
+    if not Path(args.store).exists():
+        print(f"error: no store at {args.store} (run `companion rehearse` or `companion identify`, or pass --store)",
+              file=sys.stderr)
+        return 1
+    with Store(args.store) as store:
+        campaign_id = args.campaign
+        if args.report:
+            from companion.report import write_report
+
+            campaign_id = campaign_id or store.latest_campaign_id("identification")
+            if campaign_id is None:
+                print("error: no identification campaign in the store", file=sys.stderr)
+                return 1
+            print(f"report: {write_report(store, campaign_id, args.report)}", file=sys.stderr)
+        if campaign_id is None:
+            data = {"store": args.store, "schema_version": store.schema_version, "campaigns": store.campaigns()}
+            if args.json:
+                print_json(data)
+            else:
+                print(f"{'id':>4} {'kind':16} {'status':10} {'vehicle':20} {'runs':>4} {'models':>6} started")
+                for c in data["campaigns"]:
+                    print(f"{c['id']:>4} {c['kind']:16} {c['status']:10} {c['vehicle'][:20]:20} {c['runs']:>4} "
+                          f"{c['models']:>6} {c['started_utc']}" + (f"  ({c['reason']})" if c.get("reason") else ""))
+            return 0
+        try:
+            campaign = store.campaign(campaign_id)
+        except KeyError as exc:
+            print(f"error: {exc.args[0]}", file=sys.stderr)
+            return 1
+        data = {
+            "campaign": campaign,
+            "runs": store.runs(campaign_id),
+            "models": [vars(m) for m in store.models(campaign_id)],
+            "gains": store.gains(campaign_id),
+            "behaviors": [{k: v for k, v in b.items() if k != "result"} | {"summary": _short(b["result"])}
+                          for b in store.behavior_results(campaign_id)],
+        }
+    if args.json:
+        print_json(data)
+        return 0
+    print(f"campaign {campaign_id} ({campaign['kind']}) on {campaign['vehicle']}: {campaign['status']}")
+    for r in data["runs"]:
+        model = " ".join(f"{k} {v:.4f}" for k, v in r["model"].items() if isinstance(v, float))
+        print(f"  run {r['id']:>3} {r['axis']:5} thrust {r['thrust'] or 0:.2f} try {r['attempt']} "
+              f"speed {r['speed'] or float('nan'):.2f} R2 {r['r2'] if r['r2'] is not None else float('nan'):.3f} "
+              f"{'accepted' if r['accepted'] else 'rejected'}: {model}")
+    for g in data["gains"]:
+        print(f"  gains at {g['speed']:.2f} m/s: {g['before']} -> {g['after']}")
+    for b in data["behaviors"]:
+        print(f"  {b['kind']}: {b['status']} {b['summary']}")
+    return 0
+
+
+def _short(result: dict) -> dict:
+    """The scalar part of a behaviour result (time series left out)."""
+    return {k: v for k, v in result.items() if isinstance(v, (int, float, str, bool)) or v is None}

@@ -1,0 +1,201 @@
+"""The self-contained rehearsal: simulator + companion + report (the README's first command).
+
+The simulator runs as a child process (``python -m sim run``) and is reached only over MAVLink on
+loopback; its linearised "truth" comes from another child process (``python -m sim linearize``).
+The companion never imports the simulator (SPEC §5).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from companion.app import AbortFlag, ConsoleProgress, finite_or_none, run_campaign, vehicle_record
+from companion.campaign import CampaignConfig
+from companion.report import write_report
+from companion.runner import SafetyLimits
+from companion.store import Store
+
+log = logging.getLogger(__name__)
+
+
+class SimulatorError(RuntimeError):
+    pass
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@dataclass
+class SimulatorProcess:
+    """``python -m sim run`` as a child process on a free loopback UDP port.
+
+    Waiting for its READY line is the one wall-clock wait of the companion: it is a process start,
+    not vehicle logic.
+    """
+
+    preset: str = "starfish"
+    speedup: float = 50.0
+    seed: int = 1
+    current: tuple[float, float] = (0.0, 0.0)
+    extra_args: list[str] = field(default_factory=list)
+    ready_timeout_s: float = 60.0
+    process: subprocess.Popen | None = None
+    port: int = 0
+
+    @property
+    def endpoint(self) -> str:
+        """The connection string a client uses (the simulator listens with ``udpin``)."""
+        return f"udpout:127.0.0.1:{self.port}"
+
+    def start(self) -> "SimulatorProcess":
+        self.port = free_udp_port()
+        command = [sys.executable, "-m", "sim", "run", "--preset", self.preset, "--speedup", str(self.speedup),
+                   "--listen", f"udpin:127.0.0.1:{self.port}", "--seed", str(self.seed),
+                   "--current", f"{self.current[0]},{self.current[1]}", *self.extra_args]
+        log.info("starting simulator: %s", " ".join(command))
+        self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                        env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        deadline = time.monotonic() + self.ready_timeout_s
+        assert self.process.stdout is not None
+        while time.monotonic() < deadline:
+            line = self.process.stdout.readline()
+            if not line:
+                break
+            if line.startswith("READY"):
+                return self
+        self.stop()
+        stderr = self.process.stderr.read() if self.process.stderr else ""
+        raise SimulatorError(f"simulator did not start (preset {self.preset!r}): {stderr.strip()[-500:]}")
+
+    def stop(self) -> None:
+        if self.process is None or self.process.poll() is not None:
+            return
+        self.process.terminate()
+        try:
+            self.process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+
+    def __enter__(self) -> "SimulatorProcess":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def simulator_truth(preset: str, speed: float) -> dict | None:
+    """The preset's linearised yaw parameters at ``speed`` (SPEC C2), from ``python -m sim linearize``."""
+    if not math.isfinite(speed):
+        return None
+    command = [sys.executable, "-m", "sim", "linearize", "--preset", preset, "--speed", f"{speed:.6f}", "--json"]
+    try:
+        out = subprocess.run(command, capture_output=True, text=True, timeout=60, check=True).stdout
+        return json.loads(out)
+    except (subprocess.SubprocessError, json.JSONDecodeError) as exc:
+        log.warning("no simulator truth at %.3f m/s: %s", speed, exc)
+        return None
+
+
+@dataclass(frozen=True)
+class RehearsalConfig:
+    preset: str = "starfish"
+    speedup: float = 50.0
+    seed: int = 1
+    out_dir: str = "rehearsal"
+    campaign: CampaignConfig = CampaignConfig()
+    behaviors: tuple[str, ...] = ("roll", "min_speed")
+    current: tuple[float, float] = (0.0, 0.0)
+    progress: bool = True
+
+
+def _run_rows(campaign, truth: dict) -> list[dict]:
+    design_rows = {row["thrust"]: row for row in (campaign.design.per_thrust if campaign.design else [])}
+    rows = []
+    for attempt in campaign.accepted:
+        if attempt["axis"] != "yaw":
+            continue
+        model = attempt["model"]
+        true = truth.get(f"{attempt['thrust']:.2f}") or {}
+        design = design_rows.get(attempt["thrust"], {})
+        rows.append({
+            "thrust": attempt["thrust"],
+            "speed": finite_or_none(attempt["speed"]),
+            "a22": model["a22"], "b2": model["b2"], "delta0": model["delta0"],
+            "r2": finite_or_none(attempt["r2"]),
+            "converged_s": finite_or_none(attempt["converged_s"]) if attempt["converged_s"] is not None else None,
+            "true_a22": true.get("a22"), "true_b2": true.get("b2"), "true_delta0": true.get("delta0"),
+            "kp": design.get("kp"), "ki": design.get("ki"),
+        })
+    return rows
+
+
+def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
+    """Run the whole rehearsal; returns the JSON summary (also written to ``<out>/summary.json``)."""
+    from companion.link.vehicle import VehicleLink  # the link pulls in pymavlink; keep CLI start-up light
+
+    abort = abort or AbortFlag()
+    started = time.monotonic()  # wall time of the whole rehearsal: a reported figure, not logic
+    out = Path(config.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    store_path = out / "store.sqlite"
+    summary: dict = {"preset": config.preset, "speedup": config.speedup, "seed": config.seed}
+    with Store(store_path) as store, SimulatorProcess(config.preset, config.speedup, config.seed, config.current) as sim:
+        link = VehicleLink.connect(sim.endpoint)
+        try:
+            link.arm(True)
+            vehicle_id = vehicle_record(store, link, f"sim:{config.preset}", {"preset": config.preset, "seed": config.seed})
+            console = ConsoleProgress("identification", enabled=config.progress)
+            campaign, outcome, campaign_id = run_campaign(link, store, config.campaign, vehicle_id=vehicle_id,
+                                                          abort=abort, console=console, limits=SafetyLimits())
+            summary.update(status=outcome.status, reason=outcome.reason, campaign_id=campaign_id,
+                           vehicle_time_s=outcome.vehicle_time_s)
+            extra: dict = {}
+            if outcome.status == "completed":
+                extra = _run_behaviors(link, store, config, vehicle_id, campaign_id, abort, summary)
+        finally:
+            link.close()
+        truth = {}
+        for attempt in campaign.accepted:
+            if attempt["axis"] == "yaw":
+                truth[f"{attempt['thrust']:.2f}"] = simulator_truth(config.preset, attempt["speed"])
+        summary["runs"] = _run_rows(campaign, truth)
+        summary["design"] = campaign.design_summary()
+        summary["heading_steps"] = [{"thrust": s["thrust"], "label": s["label"], "max_overshoot_pct": finite_or_none(s["max_overshoot_pct"])}
+                                    for s in campaign.step_results]
+        summary["final_gains"] = campaign.final_gains
+        summary["store"] = str(store_path)
+        summary["report"] = str(out / "report.html")
+        summary["wall_time_s"] = round(time.monotonic() - started, 2)
+        write_report(store, campaign_id, out, truth={k: v for k, v in truth.items() if v}, extra_results=extra,
+                     summary={k: v for k, v in summary.items() if k != "design"},
+                     delta_max=config.campaign.yaw.training_amplitude)
+        summary["wall_time_s"] = round(time.monotonic() - started, 2)
+    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def _run_behaviors(link, store, config: RehearsalConfig, vehicle_id: int, campaign_id: int, abort: AbortFlag,
+                   summary: dict) -> dict:
+    """Roll stabilisation and minimum-speed seeking after the campaign (issue 4)."""
+    from companion.behavior_runs import run_named_behavior  # noqa: PLC0415 - optional until built
+
+    extra = {}
+    for name in config.behaviors:
+        result = run_named_behavior(name, link, store, vehicle_id=vehicle_id, campaign_id=campaign_id, abort=abort,
+                                    preset=config.preset)
+        if result is not None:
+            extra[name] = result["result"]
+            summary[name] = result["summary"]
+    return extra

@@ -1,0 +1,303 @@
+"""Campaign report: one HTML page with PNG plots (matplotlib, Agg), built from the store (SPEC C10).
+
+Plots (each skipped when its data is absent): parameter convergence (thesis Fig. 3.7), validation
+overlays with R² (Fig. 3.9), b2 against u² with the fitted law (Fig. 3.8), turning radius / rate /
+U-turn time against speed (Fig. 3.13), heading steps with the original, one constant and the
+scheduled gains (Fig. 3.16), thrust and speed during minimum-speed seeking (Fig. 5.22) and roll
+open against closed loop (Fig. 4.8). Regenerate any time with ``companion results --report``.
+"""
+from __future__ import annotations
+
+import html
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Callable
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from companion.numerics.identification import YawModel  # noqa: E402
+from companion.numerics.turning import turning_performance  # noqa: E402
+from companion.store import Store  # noqa: E402
+
+log = logging.getLogger(__name__)
+
+
+def _figure(path: Path, draw: Callable[[], None], size=(9, 5)) -> str | None:
+    """Draw with ``draw`` into a new figure and save it; a plot that fails is logged, not fatal."""
+    fig = plt.figure(figsize=size)
+    try:
+        draw()
+        fig.tight_layout()
+        fig.savefig(path, dpi=90)
+        return path.name
+    except Exception as exc:  # noqa: BLE001 - a report with one missing plot beats no report
+        log.warning("plot %s failed: %s", path.name, exc)
+        return None
+    finally:
+        plt.close(fig)
+
+
+def _by_thrust(runs: list[dict], axis: str) -> list[dict]:
+    return sorted((r for r in runs if r["axis"] == axis), key=lambda r: (r["thrust"] or 0, r["attempt"]))
+
+
+def plot_convergence(runs: list[dict], path: Path) -> str | None:
+    accepted = [r for r in _by_thrust(runs, "yaw") if r["accepted"] and r.get("series", {}).get("training")]
+    if not accepted:
+        return None
+
+    def draw():
+        names = ("a22", "b2", "delta0")
+        for row, name in enumerate(names):
+            ax = plt.subplot(len(names), 1, row + 1)
+            for run in accepted:
+                history = run["series"]["training"].get("history") or {}
+                if history.get(name):
+                    ax.plot(history["time_s"], history[name], label=f"T {run['thrust'] * 100:.0f}%")
+                if run.get("converged_s"):
+                    ax.axvline(run["converged_s"], color="0.8", lw=0.8)
+            ax.set_ylabel(name)
+            ax.grid(True, alpha=0.3)
+            if row == 0:
+                ax.set_title("Online estimates during training (Fig. 3.7); grey: convergence")
+                ax.legend(fontsize=7, ncol=5)
+        ax.set_xlabel("time since training start (s)")
+
+    return _figure(path, draw, (9, 7))
+
+
+def plot_validation(runs: list[dict], path: Path) -> str | None:
+    accepted = [r for r in _by_thrust(runs, "yaw") if r["accepted"] and r.get("series", {}).get("validation")]
+    if not accepted:
+        return None
+
+    def draw():
+        n = len(accepted)
+        for i, run in enumerate(accepted):
+            ax = plt.subplot(n, 1, i + 1)
+            val = run["series"]["validation"]
+            t = np.asarray(val["time"]) - val["time"][0]
+            measured = np.degrees(np.unwrap(np.asarray(val["signal"], dtype=float)))
+            ax.plot(t, measured, label="measured")
+            if val.get("simulated"):
+                ax.plot(t, np.degrees(val["simulated"]), "--", label="model")
+            ax.set_ylabel("heading (deg)")
+            ax.set_title(f"T {run['thrust'] * 100:.0f}%  u {run['speed']:.2f} m/s  R² {run['r2']:.3f}", fontsize=9)
+            ax.grid(True, alpha=0.3)
+            if i == 0:
+                ax.legend(fontsize=7)
+        ax.set_xlabel("time (s)")
+
+    return _figure(path, draw, (9, 2.2 * len(accepted) + 1))
+
+
+def plot_b2_law(runs: list[dict], design: dict | None, truth: dict | None, path: Path) -> str | None:
+    accepted = [r for r in _by_thrust(runs, "yaw") if r["accepted"]]
+    if not accepted:
+        return None
+
+    def draw():
+        u2 = np.array([r["speed"] ** 2 for r in accepted])
+        b2 = np.array([r["model"]["b2"] for r in accepted])
+        plt.plot(u2, b2, "o", label="identified")
+        if design:
+            grid = np.linspace(0, max(u2) * 1.15, 50)
+            plt.plot(grid, design["b2_slope"] * grid + design["b2_intercept"], "-",
+                     label=f"fit b2 = {design['b2_slope']:.3f}·u² + {design['b2_intercept']:.3f}")
+        if truth:
+            pts = sorted(truth.values(), key=lambda t: t["speed"])
+            plt.plot([t["speed"] ** 2 for t in pts], [t["b2"] for t in pts], "x", label="simulator truth")
+        plt.xlabel("u² (m²/s²)")
+        plt.ylabel("b2 (s⁻²)")
+        plt.title("Rudder authority against speed squared (Fig. 3.8)")
+        plt.grid(True, alpha=0.3)
+        plt.legend()
+
+    return _figure(path, draw, (7, 5))
+
+
+def plot_turning(design: dict | None, delta_max: float, path: Path) -> str | None:
+    if not design:
+        return None
+    speeds = [row["speed"] for row in design["per_thrust"]]
+    grid = np.linspace(max(0.3, min(speeds) * 0.7), max(speeds) * 1.2, 40)
+
+    def draw():
+        perf = [turning_performance(YawModel(design["a22"], design["b2_slope"] * u * u + design["b2_intercept"],
+                                             design["delta0"]), u, delta_max) for u in grid]
+        for i, (attr, label) in enumerate((("turning_radius_m", "turning radius (m)"),
+                                           ("yaw_rate_max_deg_s", "max yaw rate (deg/s)"),
+                                           ("u_turn_time_s", "U-turn time (s)"))):
+            ax = plt.subplot(1, 3, i + 1)
+            ax.plot(grid, [getattr(p, attr) for p in perf])
+            ax.set_xlabel("speed (m/s)")
+            ax.set_ylabel(label)
+            ax.grid(True, alpha=0.3)
+        plt.suptitle(f"Turning performance from the fitted laws, δmax {delta_max:.2f} rad (Fig. 3.13)")
+
+    return _figure(path, draw, (11, 4))
+
+
+def plot_heading_steps(steps: list[dict], path: Path) -> str | None:
+    if not steps:
+        return None
+    thrusts = sorted({s["thrust"] for s in steps})
+
+    def draw():
+        for i, thrust in enumerate(thrusts):
+            ax = plt.subplot(len(thrusts), 1, i + 1)
+            for s in (s for s in steps if s["thrust"] == thrust):
+                series = s.get("series") or {}
+                if not series.get("time"):
+                    continue
+                t = np.asarray(series["time"]) - series["time"][0]
+                course = series["heading"][0]
+                ax.plot(t, np.degrees(np.asarray(series["heading"]) - course),
+                        label=f"{s['label']} (overshoot {s['max_overshoot_pct']:.1f}%)")
+            ax.plot(t, np.degrees(np.asarray(series["target"]) - series["target"][0]), "k:", lw=0.8)
+            ax.set_ylabel(f"T {thrust * 100:.0f}%\nΔψ (deg)")
+            ax.legend(fontsize=7, loc="upper right")
+            ax.grid(True, alpha=0.3)
+        ax.set_xlabel("time (s)")
+        plt.suptitle("±20° heading steps: original, constant and scheduled gains (Fig. 3.16)")
+
+    return _figure(path, draw, (9, 2.2 * len(thrusts) + 1))
+
+
+def plot_min_speed(result: dict, path: Path) -> str | None:
+    series = result.get("series") or {}
+    if not series.get("time"):
+        return None
+
+    def draw():
+        t = np.asarray(series["time"]) - series["time"][0]
+        panels = [("thrust_ratio", "thrust ratio", result.get("thrust_ratio_star")), ("speed", "speed (m/s)", result.get("v_min")),
+                  ("pitch", "pitch (deg)", None), ("elevator", "elevator (deg)", None), ("depth", "depth (m)", None)]
+        panels = [p for p in panels if series.get(p[0])]
+        for i, (key, label, mark) in enumerate(panels):
+            ax = plt.subplot(len(panels), 1, i + 1)
+            values = np.asarray(series[key], dtype=float)
+            if key in ("pitch", "elevator"):
+                values = np.degrees(values)
+            ax.plot(t, values)
+            if mark:
+                ax.axhline(mark, color="r", ls="--", lw=0.8, label="analytic")
+                ax.legend(fontsize=7)
+            ax.set_ylabel(label)
+            ax.grid(True, alpha=0.3)
+        ax.set_xlabel("time (s)")
+        plt.suptitle("Minimum-speed seeking (Fig. 5.22); red: analytic TR* and Vmin")
+
+    return _figure(path, draw, (9, 9))
+
+
+def plot_roll(result: dict, path: Path) -> str | None:
+    open_loop, closed_loop = result.get("open_series"), result.get("closed_series") or result.get("series")
+    if not (closed_loop and closed_loop.get("time")):
+        return None
+
+    def draw():
+        for i, (name, series) in enumerate((("open loop", open_loop), ("closed loop", closed_loop))):
+            if not series or not series.get("time"):
+                continue
+            t = np.asarray(series["time"]) - series["time"][0]
+            plt.subplot(2, 1, 1)
+            plt.plot(t, np.degrees(series["roll"]), label=name)
+            if series.get("mass_angle"):
+                plt.subplot(2, 1, 2)
+                plt.plot(t, np.degrees(series["mass_angle"]), label=name)
+        plt.subplot(2, 1, 1)
+        plt.ylabel("roll (deg)")
+        plt.title(f"Roll, open vs closed loop (Fig. 4.8): σ {result.get('std_open_deg', math.nan):.2f}° → "
+                  f"{result.get('std_closed_deg', math.nan):.2f}°")
+        plt.legend()
+        plt.grid(True, alpha=0.3)
+        plt.subplot(2, 1, 2)
+        plt.ylabel("mass angle (deg)")
+        plt.xlabel("time (s)")
+        plt.grid(True, alpha=0.3)
+
+    return _figure(path, draw, (9, 6))
+
+
+def _table(rows: list[dict], columns: list[tuple[str, str, str]]) -> str:
+    head = "".join(f"<th>{html.escape(title)}</th>" for _, title, _ in columns)
+    body = []
+    for row in rows:
+        cells = []
+        for key, _, fmt in columns:
+            value = row.get(key)
+            cells.append(f"<td>{format(value, fmt) if isinstance(value, (int, float)) and value is not None else html.escape(str(value if value is not None else '–'))}</td>")
+        body.append("<tr>" + "".join(cells) + "</tr>")
+    return f"<table><tr>{head}</tr>{''.join(body)}</table>"
+
+
+def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: dict | None = None,
+                 extra_results: dict | None = None, summary: dict | None = None, delta_max: float = 0.26) -> Path:
+    """Write ``report.html`` and its PNGs into ``out_dir``; returns the HTML path.
+
+    ``truth`` maps thrust (as a string) to the simulator's linearised {a22, b2, delta0, speed};
+    ``extra_results`` maps a behaviour kind to its result dict (roll, min_speed, ...).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    campaign = store.campaign(campaign_id)
+    runs = store.runs(campaign_id, with_series=True)
+    behaviour_rows = store.behavior_results(campaign_id)
+    design = next((b["result"] for b in reversed(behaviour_rows) if b["kind"] == "gain_design"), None)
+    steps = [b["result"] for b in behaviour_rows if b["kind"] == "heading_steps"]
+    extra = dict(extra_results or {})
+    for row in behaviour_rows:
+        if row["kind"] in ("roll", "min_speed") and row["kind"] not in extra:
+            extra[row["kind"]] = row["result"]
+
+    images = [
+        ("Parameter convergence", plot_convergence(runs, out / "convergence.png")),
+        ("Validation on fresh doublets", plot_validation(runs, out / "validation.png")),
+        ("b2 against u²", plot_b2_law(runs, design, truth, out / "b2_law.png")),
+        ("Turning performance", plot_turning(design, delta_max, out / "turning.png")),
+        ("Heading steps", plot_heading_steps(steps, out / "heading_steps.png")),
+        ("Roll stabilisation", plot_roll(extra["roll"], out / "roll.png") if "roll" in extra else None),
+        ("Minimum-speed seeking", plot_min_speed(extra["min_speed"], out / "min_speed.png") if "min_speed" in extra else None),
+    ]
+    run_rows = [{"axis": r["axis"], "thrust": r["thrust"], "attempt": r["attempt"], "speed": r["speed"], "r2": r["r2"],
+                 "accepted": "yes" if r["accepted"] else "no", "converged_s": r["converged_s"],
+                 **{k: v for k, v in r["model"].items() if isinstance(v, (int, float))}} for r in runs]
+    model_keys = sorted({k for row in run_rows for k in row} - {"axis", "thrust", "attempt", "speed", "r2", "accepted", "converged_s"})
+    columns = [("axis", "axis", ""), ("thrust", "thrust", ".2f"), ("attempt", "try", "d"), ("speed", "speed m/s", ".3f"),
+               ("r2", "R²", ".3f"), ("accepted", "accepted", ""), ("converged_s", "converged s", ".1f")] + \
+              [(k, k, ".4f") for k in model_keys]
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'><title>Identification campaign</title>",
+        "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse;margin:1em 0}"
+        "td,th{border:1px solid #ccc;padding:2px 8px;text-align:right}img{max-width:100%}pre{background:#f6f6f6;padding:1em}</style>",
+        "</head><body>",
+        f"<h1>Campaign {campaign_id}: {html.escape(campaign['vehicle'])} ({html.escape(str(campaign['profile']))})</h1>",
+        f"<p>Status <b>{html.escape(campaign['status'])}</b>{(' — ' + html.escape(campaign['reason'])) if campaign.get('reason') else ''};"
+        f" started {campaign['started_utc']}, finished {campaign.get('finished_utc') or '–'}.</p>",
+        "<h2>Identification runs</h2>", _table(run_rows, columns),
+    ]
+    if design:
+        parts += ["<h2>Gain design</h2>",
+                  f"<p>a22 ≈ {design['a22']:.3f} s⁻¹ (constant), b2 = {design['b2_slope']:.3f}·u² + {design['b2_intercept']:.3f},"
+                  f" δ0 ≈ {design['delta0']:.4f} rad.</p>",
+                  _table(design["per_thrust"], [("thrust", "thrust", ".2f"), ("speed", "speed m/s", ".3f"),
+                                                ("kp", "Kp", ".3f"), ("ki", "Ki", ".4f"), ("trim", "trim rad", ".4f")])]
+    gains = store.gains(campaign_id)
+    if gains:
+        parts += ["<h2>Gains written</h2>", "<pre>" + html.escape(json.dumps(gains, indent=1)) + "</pre>"]
+    for title, image in images:
+        if image:
+            parts.append(f"<h2>{html.escape(title)}</h2><img src='{image}' alt='{html.escape(title)}'>")
+    if summary:
+        parts += ["<h2>Summary (JSON)</h2>", "<pre>" + html.escape(json.dumps(summary, indent=1)) + "</pre>"]
+    parts.append("</body></html>")
+    path = out / "report.html"
+    path.write_text("\n".join(parts), encoding="utf-8")
+    return path
