@@ -1,0 +1,141 @@
+"""Telemetry snapshot assembly from MAVLink messages (SPEC C1; docs/PROTOCOL.md "Telemetry").
+
+:class:`TelemetryAssembler` keeps the latest value of every field and, on each ATTITUDE, returns a
+:class:`companion.interface.Telemetry` stamped with that ATTITUDE's ``time_boot_ms``. No I/O and no
+clock: it is fed messages (live, or from a recorded log) and is unit-tested with fabricated ones.
+
+Field sources: ATTITUDE → attitude, rates, time; SERVO_OUTPUT_RAW → actual actuator positions
+(profile conversions); LOCAL_POSITION_NED → north/east/down, NED velocities; VFR_HUD → water speed
+(airspeed) and ground speed; SCALED_PRESSURE → depth (LOCAL_POSITION_NED.z until a pressure
+arrives); HEARTBEAT → mode (neutral name) and armed. Non-finite or non-numeric fields become NaN
+and are logged once per field, never raised.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from companion.interface import Telemetry
+from companion.link.profiles import AutopilotProfile
+
+log = logging.getLogger(__name__)
+
+#: MAV_MODE_FLAG_SAFETY_ARMED
+SAFETY_ARMED = 128
+STANDARD_GRAVITY = 9.80665
+SEA_LEVEL_PRESSURE_HPA = 1013.25
+
+
+@dataclass(frozen=True)
+class DepthSensor:
+    """Pressure → depth: ``depth = (press_abs − surface_hpa)·100 / (ρ·g)`` (PROTOCOL.md)."""
+
+    water_density: float = 1000.0  # kg/m³ (fresh water; 1025 for sea water)
+    surface_pressure_hpa: float = SEA_LEVEL_PRESSURE_HPA
+
+    def depth(self, press_abs_hpa: float) -> float:
+        return (press_abs_hpa - self.surface_pressure_hpa) * 100.0 / (self.water_density * STANDARD_GRAVITY)
+
+
+def wrap_angle(angle: float) -> float:
+    """Angle wrapped to (−π, π]."""
+    wrapped = math.remainder(angle, 2.0 * math.pi)
+    return math.pi if wrapped == -math.pi else wrapped
+
+
+@dataclass
+class TelemetryAssembler:
+    """Latest values of every telemetry field; :meth:`on_message` returns a snapshot on ATTITUDE."""
+
+    profile: AutopilotProfile
+    depth_sensor: DepthSensor = field(default_factory=DepthSensor)
+    _fields: dict[str, Any] = field(default_factory=dict)
+    _have_pressure: bool = False
+    _warned: set[str] = field(default_factory=set)
+    latest: Telemetry | None = None
+
+    def __post_init__(self) -> None:
+        self._handlers: dict[str, Callable[[Any], Telemetry | None]] = {
+            "ATTITUDE": self._on_attitude,
+            "SERVO_OUTPUT_RAW": self._on_servo_output_raw,
+            "LOCAL_POSITION_NED": self._on_local_position_ned,
+            "VFR_HUD": self._on_vfr_hud,
+            "SCALED_PRESSURE": self._on_scaled_pressure,
+            "HEARTBEAT": self._on_heartbeat,
+        }
+
+    @property
+    def message_types(self) -> frozenset[str]:
+        return frozenset(self._handlers)
+
+    def on_message(self, msg: Any) -> Telemetry | None:
+        """Fold one message in; returns the completed snapshot when ``msg`` is an ATTITUDE."""
+        handler = self._handlers.get(msg.get_type())
+        return handler(msg) if handler else None
+
+    # ------------------------------------------------------------------ handlers
+    def _on_attitude(self, msg: Any) -> Telemetry | None:
+        time_ms = self._number(msg, "time_boot_ms")
+        if not math.isfinite(time_ms):
+            return None  # a snapshot without a time stamp is useless to vehicle-time logic
+        yaw = self._number(msg, "yaw")
+        self._fields.update(
+            roll=self._number(msg, "roll"), pitch=self._number(msg, "pitch"),
+            yaw=wrap_angle(yaw) if math.isfinite(yaw) else math.nan,
+            roll_rate=self._number(msg, "rollspeed"), pitch_rate=self._number(msg, "pitchspeed"),
+            yaw_rate=self._number(msg, "yawspeed"))
+        self.latest = Telemetry(time_s=time_ms / 1000.0, **self._fields)
+        return self.latest
+
+    def _on_servo_output_raw(self, msg: Any) -> None:
+        outputs = self.profile.servo_outputs
+        for actuator, telemetry_field in (("rudder", "rudder"), ("elevator", "elevator"), ("thrust", "thrust_ratio")):
+            output = outputs.get(actuator)
+            if output is None:
+                continue
+            pwm = self._number(msg, f"servo{output}_raw")
+            self._fields[telemetry_field] = (
+                self.profile.pwm_to_thrust(pwm) if actuator == "thrust" else self.profile.pwm_to_angle(pwm))
+        if self.profile.mass_servo is not None:
+            pwm = self._number(msg, f"servo{self.profile.mass_servo}_raw")
+            self._fields["mass_angle"] = self.profile.pwm_to_angle(pwm)
+
+    def _on_local_position_ned(self, msg: Any) -> None:
+        down = self._number(msg, "z")
+        self._fields.update(
+            north=self._number(msg, "x"), east=self._number(msg, "y"), down=down,
+            vel_north=self._number(msg, "vx"), vel_east=self._number(msg, "vy"), vel_down=self._number(msg, "vz"))
+        if not self._have_pressure:
+            self._fields["depth"] = down
+
+    def _on_vfr_hud(self, msg: Any) -> None:
+        self._fields.update(speed_water=self._number(msg, "airspeed"), speed_ground=self._number(msg, "groundspeed"))
+
+    def _on_scaled_pressure(self, msg: Any) -> None:
+        press_abs = self._number(msg, "press_abs")
+        self._have_pressure = True
+        self._fields["depth"] = self.depth_sensor.depth(press_abs) if math.isfinite(press_abs) else math.nan
+
+    def _on_heartbeat(self, msg: Any) -> None:
+        custom_mode = self._number(msg, "custom_mode")
+        base_mode = self._number(msg, "base_mode")
+        self._fields["mode"] = self.profile.mode_name(int(custom_mode)) if math.isfinite(custom_mode) else ""
+        self._fields["armed"] = bool(int(base_mode) & SAFETY_ARMED) if math.isfinite(base_mode) else False
+
+    # ------------------------------------------------------------------ helpers
+    def _number(self, msg: Any, name: str) -> float:
+        """``msg.name`` as a finite float, else NaN (logged once per message field)."""
+        value = getattr(msg, name, None)
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            number = math.nan
+        if not math.isfinite(number):
+            key = f"{msg.get_type()}.{name}"
+            if key not in self._warned:
+                self._warned.add(key)
+                log.warning("telemetry field %s is not a finite number (%r): NaN in snapshots", key, value)
+            return math.nan
+        return number

@@ -1,0 +1,727 @@
+"""The companion's MAVLink vehicle interface (SPEC C1, SPEC §4, docs/PROTOCOL.md).
+
+:class:`VehicleLink` connects to an autopilot, turns its telemetry into
+:class:`companion.interface.Telemetry` snapshots and executes :class:`companion.interface.Command`
+objects. All timing is on the **vehicle clock** (``time_boot_ms``): heartbeats, override refresh
+and parameter/command timeouts; the wall clock is used only as a guard against a silent link
+(``LinkLost``, ``HeartbeatTimeout`` and per-try wall guards).
+
+One receive path (:meth:`VehicleLink._pump`: ``recv_match`` over all types, then a dispatch dict)
+serves every blocking call, so telemetry, acks, parameters and incoming user commands are
+processed — and active overrides refreshed — whatever the caller is waiting for.
+"""
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Sequence
+
+from companion.interface import (Command, NamedValue, OverrideActuator, ReleaseActuator, SetDepth, SetHeading,
+                                 SetMode, SetParameters, SetRollingMass, SetThrust, StatusText, Telemetry)
+from companion.link import params as paramcodec
+from companion.link.errors import (CommandFailed, HeartbeatTimeout, LinkLost, ModeChangeFailed, ParamRefused,
+                                   ParamTimeout, ProfileError, VehicleRebooted)
+from companion.link.overrides import OverrideTable, single_shot
+from companion.link.profiles import HEADING_PI_NAMES, AutopilotProfile, detect_profile, get_profile, marker_params
+from companion.link.snapshot import SAFETY_ARMED, DepthSensor, TelemetryAssembler
+
+log = logging.getLogger(__name__)
+
+# MAVLink constants used here (numbers from the common dialect, kept local so this module does not
+# depend on which dialect module pymavlink has loaded globally)
+MAV_TYPE_GCS = 6
+MAV_TYPE_ONBOARD_CONTROLLER = 18
+MAV_AUTOPILOT_INVALID = 8
+MAV_STATE_ACTIVE = 4
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+MAV_CMD_CONDITION_YAW = 115
+MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_DO_CHANGE_SPEED = 178
+MAV_CMD_DO_SET_SERVO = 183
+MAV_CMD_DO_CHANGE_ALTITUDE = 186
+MAV_CMD_COMPONENT_ARM_DISARM = 400
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_CMD_REQUEST_MESSAGE = 512
+MAV_CMD_USER_1, MAV_CMD_USER_5 = 31010, 31014
+MAV_RESULT_ACCEPTED, MAV_RESULT_TEMPORARILY_REJECTED, MAV_RESULT_DENIED = 0, 1, 2
+MAV_RESULT_UNSUPPORTED, MAV_RESULT_FAILED, MAV_RESULT_IN_PROGRESS = 3, 4, 5
+MAV_SEVERITY_WARNING = 4
+MSG_ID_AUTOPILOT_VERSION = 148
+
+#: message id → interval requested at connect (vehicle-time Hz; PROTOCOL.md defaults)
+DEFAULT_STREAM_RATES: dict[int, float] = {
+    30: 20.0,  # ATTITUDE
+    36: 20.0,  # SERVO_OUTPUT_RAW
+    32: 10.0,  # LOCAL_POSITION_NED
+    74: 10.0,  # VFR_HUD
+    29: 10.0,  # SCALED_PRESSURE
+}
+STATUSTEXT_CHUNK = 50
+NAMED_VALUE_MAX = 10
+
+
+@dataclass(frozen=True)
+class LinkTimeouts:
+    """Timeouts of the blocking calls: vehicle seconds per try, with wall-clock guards."""
+
+    param_try_s: float = 1.0  # vehicle time per PARAM_SET / PARAM_REQUEST_READ try
+    mode_s: float = 3.0  # vehicle time for the heartbeat to show a mode / armed state
+    command_s: float = 1.0  # vehicle time per COMMAND_LONG try awaiting its ACK
+    wall_guard_s: float = 3.0  # wall-clock guard of one try when the vehicle clock stops
+    heartbeat_period_s: float = 1.0  # our HEARTBEAT, vehicle time
+
+
+@dataclass(frozen=True)
+class UserCommand:
+    """A COMMAND_LONG MAV_CMD_USER_1..5 aimed at the companion, queued for the callback."""
+
+    command: int
+    params: tuple[float, ...]
+    source_system: int
+    source_component: int
+
+
+class VehicleLink:
+    """MAVLink interface to one autopilot. Build it with :meth:`connect`."""
+
+    def __init__(self, master: Any, *, system_id: int, autopilot_component: int, component: int,
+                 timeouts: LinkTimeouts = LinkTimeouts()) -> None:
+        self.master = master
+        self.system_id = system_id
+        self.autopilot_component = autopilot_component
+        self.component = component
+        self.timeouts = timeouts
+        self.profile: AutopilotProfile | None = None
+        self.assembler: TelemetryAssembler | None = None
+        self.vehicle_time_s: float = math.nan
+        self.gcs_sysid: int = 255
+        self.override_timeout_s: float = 3.0
+        self.int_encoding: paramcodec.IntEncoding = "cast"
+        self.capabilities: int | None = None
+        self.custom_mode: int | None = None
+        self.base_mode: int = 0
+        self.param_cache: dict[str, float] = {}
+        self.param_types: dict[str, int] = {}
+        self.statustexts: collections.deque[tuple[float, int, str]] = collections.deque(maxlen=64)
+        self.rejected_commands: collections.deque[tuple[float, int, int]] = collections.deque(maxlen=64)
+        self.overrides = OverrideTable()
+        self._last_attitude_ms: float | None = None
+        self._last_heartbeat_sent: float = -math.inf
+        self._last_heartbeat_msg: Any = None
+        self._last_rx_wall = time.monotonic()
+        self._param_events: dict[str, int] = collections.defaultdict(int)
+        self._statustext_count = 0
+        self._acks: dict[int, tuple[int, int, int]] = {}  # command -> (result, progress, arrival counter)
+        self._ack_count = 0
+        self._heartbeat_count = 0
+        self._unread_snapshot: Telemetry | None = None
+        self._user_callback: Callable[[int, tuple[float, ...]], None] | None = None
+        self._user_queue: collections.deque[UserCommand] = collections.deque()
+        self.last_user_command: UserCommand | None = None
+        self._statustext_id = 0
+        self._handlers: dict[str, Callable[[Any], None]] = {
+            "ATTITUDE": self._on_attitude,
+            "SERVO_OUTPUT_RAW": self._on_telemetry,
+            "LOCAL_POSITION_NED": self._on_telemetry,
+            "VFR_HUD": self._on_telemetry,
+            "SCALED_PRESSURE": self._on_telemetry,
+            "HEARTBEAT": self._on_heartbeat,
+            "SYSTEM_TIME": self._on_system_time,
+            "PARAM_VALUE": self._on_param_value,
+            "COMMAND_ACK": self._on_command_ack,
+            "COMMAND_LONG": self._on_command_long,
+            "STATUSTEXT": self._on_statustext,
+            "AUTOPILOT_VERSION": self._on_autopilot_version,
+        }
+
+    # ================================================================== connection
+    @classmethod
+    def connect(cls, endpoint: str, *, profile: str | None = None, component: int = 191,
+                signing_key: bytes | None = None, heartbeat_timeout_s: float = 10.0,
+                system_id_hint: int = 1, stream_rates: dict[int, float] | None = None,
+                water_density: float = 1000.0, timeouts: LinkTimeouts = LinkTimeouts()) -> "VehicleLink":
+        """Connect to the autopilot at ``endpoint`` (any pymavlink connection string).
+
+        Waits (wall clock, ``heartbeat_timeout_s``) for an autopilot HEARTBEAT, beaconing our own
+        HEARTBEAT meanwhile (from ``system_id_hint``, so a ``udpout:`` peer learns our address);
+        then takes the vehicle's system id, requests the telemetry streams (``stream_rates``:
+        message id → Hz, ``{}`` requests none), detects the profile from marker parameters (or
+        uses ``profile``), reads the GCS system id and override timeout, and the integer encoding
+        from AUTOPILOT_VERSION. Raises HeartbeatTimeout, ProfileError or ParamTimeout.
+        """
+        from pymavlink import mavutil
+
+        # MAVLink 2 is needed for signing and the servo9+ extension fields; pymavlink chooses the
+        # wire version through this process-wide variable, so set it before loading the dialect.
+        os.environ.setdefault("MAVLINK20", "1")
+        mavutil.set_dialect("ardupilotmega")
+        master = mavutil.mavlink_connection(endpoint, source_system=system_id_hint, source_component=component,
+                                            robust_parsing=True)
+        if signing_key is not None:
+            master.setup_signing(signing_key, sign_outgoing=True)
+        try:
+            heartbeat = cls._await_autopilot_heartbeat(master, heartbeat_timeout_s, endpoint, component)
+            link = cls(master, system_id=heartbeat.get_srcSystem(), autopilot_component=heartbeat.get_srcComponent(),
+                       component=component, timeouts=timeouts)
+            master.mav.srcSystem = link.system_id
+            master.mav.srcComponent = component
+            link._on_heartbeat(heartbeat)
+            link._setup(profile, DEFAULT_STREAM_RATES if stream_rates is None else stream_rates,
+                        DepthSensor(water_density=water_density))
+        except BaseException:
+            master.close()
+            raise
+        return link
+
+    @staticmethod
+    def _await_autopilot_heartbeat(master: Any, timeout_s: float, endpoint: str, component: int) -> Any:
+        deadline = time.monotonic() + timeout_s
+        next_beacon = 0.0
+        while True:
+            now = time.monotonic()
+            if now >= deadline:
+                raise HeartbeatTimeout(f"no autopilot HEARTBEAT on {endpoint} within {timeout_s:g} s (wall clock)")
+            if now >= next_beacon:
+                master.mav.heartbeat_send(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE)
+                next_beacon = now + 1.0
+            msg = master.recv_match(type="HEARTBEAT", blocking=True, timeout=min(0.25, deadline - now))
+            if msg is not None and msg.autopilot != MAV_AUTOPILOT_INVALID and msg.type not in (
+                    MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER):
+                return msg
+
+    def _setup(self, profile: str | None, stream_rates: dict[int, float], depth_sensor: DepthSensor) -> None:
+        self.send_heartbeat()
+        for message_id, rate_hz in stream_rates.items():
+            self._command_long(MAV_CMD_SET_MESSAGE_INTERVAL, (message_id, 1e6 / rate_hz if rate_hz > 0 else -1))
+        self._command_long(MAV_CMD_REQUEST_MESSAGE, (MSG_ID_AUTOPILOT_VERSION,))
+        chosen = get_profile(profile) if profile is not None else self._detect_profile()
+        self.profile = chosen
+        self.int_encoding = chosen.int_encoding
+        self.assembler = TelemetryAssembler(chosen, depth_sensor=depth_sensor)
+        if self._last_heartbeat_msg is not None:
+            self.assembler.on_message(self._last_heartbeat_msg)
+        self.gcs_sysid = int(self._read_first(chosen.native_candidates("gcs_sysid"), default=255.0))
+        if "override_timeout" in chosen.params:
+            self.override_timeout_s = self._read_first(chosen.native_candidates("override_timeout"), default=3.0)
+        if self.capabilities is None:  # AUTOPILOT_VERSION may already have arrived while reading
+            self._wait_until(lambda: self.capabilities is not None, self.timeouts.command_s)
+        if self.capabilities is not None:
+            self.int_encoding = paramcodec.encoding_from_capabilities(self.capabilities, chosen.int_encoding)
+        log.info("connected: system %d, profile %s, GCS sysid %d, override timeout %.1f s, int encoding %s",
+                 self.system_id, chosen.name, self.gcs_sysid, self.override_timeout_s, self.int_encoding)
+
+    def _detect_profile(self) -> AutopilotProfile:
+        """Probe each profile's marker parameter with PARAM_REQUEST_READ; the one that answers wins
+        (cheaper than a full PARAM_REQUEST_LIST of ~1000 ArduPilot parameters over a radio)."""
+        markers = marker_params()
+        for _attempt in range(3):
+            for name in markers:
+                self._request_param(name)
+            self._wait_until(lambda: any(n in self.param_cache for n in markers), self.timeouts.param_try_s)
+            found = {n for n in markers if n in self.param_cache}
+            if found:
+                return detect_profile(found)
+        raise ProfileError(f"no answer to the profile marker parameters {markers}; pass profile= explicitly")
+
+    def _read_first(self, names: Iterable[str], default: float) -> float:
+        for name in names:
+            try:
+                return self.get_param(name, retries=2)
+            except ParamTimeout:
+                continue
+        log.warning("none of %s answered; assuming %g", list(names), default)
+        return default
+
+    def close(self) -> None:
+        """Release every override we hold, then close the connection."""
+        try:
+            if self.overrides.active:
+                self.overrides.release_all()
+                self._send_overrides()
+        finally:
+            self.master.close()
+
+    def __enter__(self) -> "VehicleLink":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ================================================================== receive path
+    def _pump(self, wall_timeout_s: float) -> Any:
+        """Receive and dispatch one message (None when nothing arrived within the wall timeout)."""
+        msg = self.master.recv_match(blocking=True, timeout=max(wall_timeout_s, 0.0))
+        if msg is None:
+            return None
+        self._last_rx_wall = time.monotonic()
+        handler = self._handlers.get(msg.get_type())
+        if handler is not None:
+            handler(msg)
+        return msg
+
+    def _wait_until(self, done: Callable[[], bool], vehicle_timeout_s: float, wall_guard_s: float | None = None) -> bool:
+        """Pump until ``done()``; False after ``vehicle_timeout_s`` of vehicle time or the wall guard."""
+        start_vehicle = self.vehicle_time_s
+        wall_deadline = time.monotonic() + (self.timeouts.wall_guard_s if wall_guard_s is None else wall_guard_s)
+        while not done():
+            if math.isfinite(start_vehicle) and self.vehicle_time_s - start_vehicle >= vehicle_timeout_s:
+                return False
+            if not math.isfinite(start_vehicle) and math.isfinite(self.vehicle_time_s):
+                start_vehicle = self.vehicle_time_s  # vehicle clock appeared while waiting
+            remaining = wall_deadline - time.monotonic()
+            if remaining <= 0.0:
+                return False
+            self._pump(min(remaining, 0.1))
+        return True
+
+    def next_telemetry(self, timeout_s: float = 5.0) -> Telemetry:
+        """Block until the next ATTITUDE completes a snapshot and return it.
+
+        Everything else received meanwhile is processed; queued user commands are handed to the
+        callback before returning. Raises LinkLost after ``timeout_s`` of wall clock without a
+        snapshot, VehicleRebooted when time_boot_ms jumps back.
+        """
+        deadline = time.monotonic() + timeout_s
+        while self._unread_snapshot is None:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0.0:
+                silent = time.monotonic() - self._last_rx_wall
+                raise LinkLost(f"no telemetry snapshot for {timeout_s:g} s of wall clock "
+                               f"(last message of any kind {silent:.1f} s ago)")
+            self._pump(min(remaining, 0.5))
+        snapshot, self._unread_snapshot = self._unread_snapshot, None
+        self._deliver_user_commands()
+        return snapshot
+
+    @property
+    def latest_telemetry(self) -> Telemetry | None:
+        """The most recent snapshot (whether or not next_telemetry returned it)."""
+        return self.assembler.latest if self.assembler else None
+
+    # ------------------------------------------------------------------ handlers
+    def _from_autopilot(self, msg: Any) -> bool:
+        return msg.get_srcSystem() == self.system_id and msg.get_srcComponent() == self.autopilot_component
+
+    def _on_attitude(self, msg: Any) -> None:
+        if not self._from_autopilot(msg):
+            return
+        time_ms = getattr(msg, "time_boot_ms", None)
+        if isinstance(time_ms, (int, float)) and self._last_attitude_ms is not None:
+            if time_ms < self._last_attitude_ms - 1000:
+                previous = self._last_attitude_ms
+                self._last_attitude_ms = time_ms
+                self.vehicle_time_s = time_ms / 1000.0
+                raise VehicleRebooted(f"time_boot_ms went back from {previous} to {time_ms}: the vehicle rebooted")
+            if time_ms <= self._last_attitude_ms:
+                return  # duplicate or reordered sample
+        if self.assembler is None:
+            if isinstance(time_ms, (int, float)):
+                self._advance_clock(time_ms)
+            return
+        snapshot = self.assembler.on_message(msg)
+        if snapshot is None:
+            return
+        self._last_attitude_ms = time_ms
+        self._advance_clock(time_ms)
+        self._unread_snapshot = snapshot
+        if self.overrides.pending:
+            self._send_overrides()
+
+    def _advance_clock(self, time_ms: float) -> None:
+        time_s = time_ms / 1000.0
+        if not math.isfinite(self.vehicle_time_s) or time_s > self.vehicle_time_s:
+            self.vehicle_time_s = time_s
+        if self.vehicle_time_s - self._last_heartbeat_sent >= self.timeouts.heartbeat_period_s:
+            self.send_heartbeat()
+
+    def _on_system_time(self, msg: Any) -> None:
+        if self._from_autopilot(msg) and isinstance(msg.time_boot_ms, int):
+            if self._last_attitude_ms is None or msg.time_boot_ms >= self._last_attitude_ms - 1000:
+                self._advance_clock(msg.time_boot_ms)
+
+    def _on_telemetry(self, msg: Any) -> None:
+        if self.assembler is not None and msg.get_srcSystem() == self.system_id:
+            self.assembler.on_message(msg)
+
+    def _on_heartbeat(self, msg: Any) -> None:
+        if not self._from_autopilot(msg):
+            return
+        self.custom_mode = msg.custom_mode
+        self.base_mode = msg.base_mode
+        self._last_heartbeat_msg = msg
+        self._heartbeat_count += 1
+        if self.assembler is not None:
+            self.assembler.on_message(msg)
+
+    def _on_param_value(self, msg: Any) -> None:
+        if msg.get_srcSystem() != self.system_id:
+            return
+        name = paramcodec.param_id_str(msg.param_id)
+        self.param_types[name] = msg.param_type
+        self.param_cache[name] = paramcodec.decode_value(msg.param_value, msg.param_type, self.int_encoding)
+        self._param_events[name] += 1
+
+    def _on_command_ack(self, msg: Any) -> None:
+        if msg.get_srcSystem() != self.system_id:
+            return
+        target_system = getattr(msg, "target_system", 0)
+        target_component = getattr(msg, "target_component", 0)
+        if target_system not in (0, self.system_id) or target_component not in (0, self.component):
+            return
+        self._ack_count += 1
+        self._acks[msg.command] = (msg.result, getattr(msg, "progress", 0) or 0, self._ack_count)
+        if msg.result not in (MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS):
+            self.rejected_commands.append((self.vehicle_time_s, msg.command, msg.result))
+            log.warning("vehicle answered command %d with result %d", msg.command, msg.result)
+
+    def _on_statustext(self, msg: Any) -> None:
+        if msg.get_srcSystem() != self.system_id:
+            return
+        text = msg.text.decode("ascii", "replace") if isinstance(msg.text, bytes) else str(msg.text)
+        text = text.split("\x00", 1)[0]
+        self.statustexts.append((self.vehicle_time_s, msg.severity, text))
+        self._statustext_count += 1
+        log.debug("vehicle says [%d] %s", msg.severity, text)
+
+    def _on_autopilot_version(self, msg: Any) -> None:
+        if msg.get_srcSystem() == self.system_id:
+            self.capabilities = int(msg.capabilities)
+
+    def _on_command_long(self, msg: Any) -> None:
+        if msg.target_system not in (0, self.system_id) or msg.target_component not in (0, self.component):
+            return
+        if MAV_CMD_USER_1 <= msg.command <= MAV_CMD_USER_5:
+            params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
+            self._user_queue.append(UserCommand(msg.command, params, msg.get_srcSystem(), msg.get_srcComponent()))
+        elif msg.target_component == self.component:
+            self._send_ack(msg.command, MAV_RESULT_UNSUPPORTED, 0, msg.get_srcSystem(), msg.get_srcComponent())
+
+    # ================================================================== user commands
+    def on_user_command(self, callback: Callable[[int, tuple[float, ...]], None] | None) -> None:
+        """``callback(command_id, params)`` for COMMAND_LONG MAV_CMD_USER_1..5 aimed at our component
+        (or broadcast); called from :meth:`next_telemetry`. Without a callback, such commands are
+        answered UNSUPPORTED. ``last_user_command`` holds the sender for :meth:`send_command_ack`."""
+        self._user_callback = callback
+
+    def _deliver_user_commands(self) -> None:
+        while self._user_queue:
+            command = self._user_queue.popleft()
+            self.last_user_command = command
+            if self._user_callback is None:
+                self._send_ack(command.command, MAV_RESULT_UNSUPPORTED, 0, command.source_system, command.source_component)
+                continue
+            try:
+                self._user_callback(command.command, command.params)
+            except Exception:  # a failing handler must not take the link down
+                log.exception("user command %d handler failed", command.command)
+                self._send_ack(command.command, MAV_RESULT_FAILED, 0, command.source_system, command.source_component)
+
+    def send_command_ack(self, command: int, result: int, progress: int = 0, target_system: int = 0,
+                         target_component: int = 0) -> None:
+        """COMMAND_ACK (IN_PROGRESS with ``progress`` 0..100, ACCEPTED, FAILED ...). Target 0/0
+        means the sender of the last user command with this id, or broadcast if none."""
+        if target_system == 0 and target_component == 0 and self.last_user_command is not None \
+                and self.last_user_command.command == command:
+            target_system = self.last_user_command.source_system
+            target_component = self.last_user_command.source_component
+        self._send_ack(command, result, progress, target_system, target_component)
+
+    def _send_ack(self, command: int, result: int, progress: int, target_system: int, target_component: int) -> None:
+        self.master.mav.command_ack_send(command, result, progress, 0, target_system, target_component)
+
+    # ================================================================== sending
+    def send_heartbeat(self) -> None:
+        """Our HEARTBEAT (onboard controller); sent automatically every vehicle second."""
+        self.master.mav.heartbeat_send(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE)
+        self._last_heartbeat_sent = self.vehicle_time_s if math.isfinite(self.vehicle_time_s) else -math.inf
+
+    def _command_long(self, command: int, params: Sequence[float], *, confirmation: int = 0) -> int:
+        """Send a COMMAND_LONG to the autopilot; returns the ack counter to wait from."""
+        values = list(params) + [0.0] * (7 - len(params))
+        self.master.mav.command_long_send(self.system_id, self.autopilot_component, command, confirmation, *values)
+        return self._ack_count
+
+    def command(self, command: int, params: Sequence[float], *, retries: int = 2) -> int:
+        """Send a COMMAND_LONG and wait (vehicle time) for its ACK; returns the MAV_RESULT.
+        Raises CommandFailed when no ACK arrives after all tries."""
+        for attempt in range(retries + 1):
+            since = self._command_long(command, params, confirmation=attempt)
+            if self._wait_until(lambda: self._acks.get(command, (0, 0, -1))[2] > since, self.timeouts.command_s):
+                return self._acks[command][0]
+        raise CommandFailed(f"no COMMAND_ACK for command {command}", command=command)
+
+    def _send_overrides(self) -> None:
+        values = self.overrides.channel_values()
+        self._send_rc_override(values)
+
+    def _send_rc_override(self, values: list[int]) -> None:
+        """RC_CHANNELS_OVERRIDE from the vehicle's GCS system id (ArduPilot accepts it only from
+        there, PROTOCOL.md), then back to our own identity."""
+        mav = self.master.mav
+        own_system = mav.srcSystem
+        mav.srcSystem = self.gcs_sysid
+        try:
+            mav.rc_channels_override_send(self.system_id, self.autopilot_component, *values)
+        finally:
+            mav.srcSystem = own_system
+
+    # ================================================================== commands
+    def execute(self, commands: Sequence[Command]) -> None:
+        """Carry out behaviour commands in order. Set-points (heading, depth, thrust, rolling mass)
+        are sent without waiting: their ACKs are checked as they arrive (``rejected_commands``).
+        SetMode and SetParameters block until verified and raise on failure."""
+        for command in commands:
+            if isinstance(command, OverrideActuator):
+                self.override(command.actuator, command.value)
+            elif isinstance(command, ReleaseActuator):
+                self.release(command.actuator)
+            elif isinstance(command, SetHeading):
+                heading_deg = math.degrees(command.heading) % 360.0
+                self._command_long(MAV_CMD_CONDITION_YAW, (heading_deg, 0.0, 0.0, 0.0))
+            elif isinstance(command, SetDepth):
+                self._command_long(MAV_CMD_DO_CHANGE_ALTITUDE, (-command.depth, 0.0))
+            elif isinstance(command, SetThrust):
+                self._command_long(MAV_CMD_DO_CHANGE_SPEED, (0.0, -1.0, 100.0 * command.thrust_ratio))
+            elif isinstance(command, SetRollingMass):
+                if self._profile().mass_servo is None:
+                    raise ProfileError(f"profile {self._profile().name!r} has no rolling-mass servo")
+                self.set_servo(self._profile().mass_servo, self._profile().angle_to_pwm(command.angle))
+            elif isinstance(command, SetMode):
+                self.set_mode(command.mode)
+            elif isinstance(command, SetParameters):
+                self.set_params(command.values)
+            elif isinstance(command, StatusText):
+                self.status_text(command.text, command.severity)
+            elif isinstance(command, NamedValue):
+                self.named_value(command.name, command.value)
+            else:
+                raise TypeError(f"unknown command {command!r}")
+
+    def _profile(self) -> AutopilotProfile:
+        if self.profile is None:
+            raise ProfileError("no profile yet (still connecting)")
+        return self.profile
+
+    @property
+    def mode(self) -> str:
+        """Neutral name of the mode in the latest autopilot HEARTBEAT."""
+        if self.custom_mode is None:
+            return ""
+        return self._profile().mode_name(self.custom_mode)
+
+    @property
+    def armed(self) -> bool:
+        return bool(self.base_mode & SAFETY_ARMED)
+
+    def set_mode(self, neutral: str) -> None:
+        """Switch mode and wait until the HEARTBEAT shows it (vehicle time, resending each try)."""
+        target = self._profile().mode_number(neutral)
+        tries = max(int(math.ceil(self.timeouts.mode_s / self.timeouts.command_s)), 1)
+        for _attempt in range(tries):
+            since_hb = self._heartbeat_count
+            since_ack = self._command_long(MAV_CMD_DO_SET_MODE, (MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, target))
+
+            def settled() -> bool:
+                ack = self._acks.get(MAV_CMD_DO_SET_MODE)
+                refused = ack is not None and ack[2] > since_ack and ack[0] not in (MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS)
+                return refused or (self._heartbeat_count > since_hb and self.custom_mode == target)
+
+            self._wait_until(settled, self.timeouts.command_s)
+            ack = self._acks.get(MAV_CMD_DO_SET_MODE)
+            if ack is not None and ack[2] > since_ack and ack[0] not in (MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS):
+                raise ModeChangeFailed(f"vehicle refused mode {neutral!r} ({target}): result {ack[0]}")
+            if self._heartbeat_count > since_hb and self.custom_mode == target:
+                return
+        raise ModeChangeFailed(f"heartbeat did not show mode {neutral!r} ({target}) within {self.timeouts.mode_s:g} s")
+
+    def arm(self, armed: bool = True) -> None:
+        """Arm or disarm; verified by the ACK and then the HEARTBEAT's armed flag."""
+        result = self.command(MAV_CMD_COMPONENT_ARM_DISARM, (1.0 if armed else 0.0,))
+        if result != MAV_RESULT_ACCEPTED:
+            raise CommandFailed(f"{'arm' if armed else 'disarm'} refused: result {result}",
+                                command=MAV_CMD_COMPONENT_ARM_DISARM, result=result)
+        since_hb = self._heartbeat_count
+        if not self._wait_until(lambda: self._heartbeat_count > since_hb and self.armed == armed, self.timeouts.mode_s):
+            raise ModeChangeFailed(f"heartbeat did not show armed={armed}")
+
+    # ------------------------------------------------------------------ actuators
+    def override(self, actuator: str, value: float, *, keep_alive: bool = True) -> None:
+        """Drive ``actuator`` ("rudder"/"elevator"/"thrust"; rad or ratio) through RC override.
+        With ``keep_alive`` it is refreshed at every snapshot until :meth:`release`; without, it
+        is sent once and expires on the vehicle after its override timeout."""
+        profile = self._profile()
+        channel = profile.channel(actuator)
+        pwm = profile.actuator_to_pwm(actuator, value)
+        if keep_alive:
+            self.overrides.hold(channel, pwm)
+            self._send_overrides()
+        else:
+            self.overrides.active.pop(channel, None)
+            self._send_rc_override(single_shot(channel, pwm))
+
+    def release(self, actuator: str | None = None) -> None:
+        """Give ``actuator`` (None = every overridden one) back to the autopilot."""
+        if actuator is None:
+            self.overrides.release_all()
+        else:
+            self.overrides.release(self._profile().channel(actuator))
+        if self.overrides.pending:
+            self._send_overrides()
+
+    def set_servo(self, output: int, pwm: int, *, wait: bool = False) -> None:
+        """DO_SET_SERVO on a spare output. With ``wait``, raise CommandFailed unless ACCEPTED."""
+        if not wait:
+            self._command_long(MAV_CMD_DO_SET_SERVO, (float(output), float(pwm)))
+            return
+        result = self.command(MAV_CMD_DO_SET_SERVO, (float(output), float(pwm)))
+        if result != MAV_RESULT_ACCEPTED:
+            raise CommandFailed(f"DO_SET_SERVO output {output} refused: result {result}",
+                                command=MAV_CMD_DO_SET_SERVO, result=result)
+
+    # ------------------------------------------------------------------ ground station
+    def status_text(self, text: str, severity: int = 6) -> None:
+        """STATUSTEXT, split into 50-character chunks (MAVLink 2 id/chunk_seq for multi-chunk)."""
+        encoded = text.encode("ascii", "replace")
+        chunks = [encoded[i:i + STATUSTEXT_CHUNK] for i in range(0, len(encoded), STATUSTEXT_CHUNK)] or [b""]
+        message_id = 0
+        if len(chunks) > 1:
+            self._statustext_id = self._statustext_id % 65535 + 1
+            message_id = self._statustext_id
+        for seq, chunk in enumerate(chunks):
+            self.master.mav.statustext_send(severity, chunk, message_id, seq)
+
+    def named_value(self, name: str, value: float) -> None:
+        """NAMED_VALUE_FLOAT for live graphs; ``name`` must be 1..10 printable ASCII characters."""
+        validate_named_value_name(name)
+        time_ms = int(self.vehicle_time_s * 1000) & 0xFFFFFFFF if math.isfinite(self.vehicle_time_s) else 0
+        self.master.mav.named_value_float_send(time_ms, name.encode("ascii"), float(value))
+
+    # ================================================================== parameters
+    def _request_param(self, name: str) -> None:
+        self.master.mav.param_request_read_send(self.system_id, self.autopilot_component, name.encode("ascii"), -1)
+
+    def get_param(self, name: str, *, retries: int = 3) -> float:
+        """Read one parameter by its autopilot name (PARAM_REQUEST_READ, retried); ParamTimeout."""
+        paramcodec.validate_param_name(name)
+        for _attempt in range(retries):
+            since = self._param_events[name]
+            self._request_param(name)
+            if self._wait_until(lambda: self._param_events[name] > since, self.timeouts.param_try_s):
+                return self.param_cache[name]
+        raise ParamTimeout(f"no PARAM_VALUE for {name} after {retries} tries", name=name)
+
+    def set_param(self, name: str, value: float, *, retries: int = 3) -> float:
+        """Write one parameter by its autopilot name and return the echoed value.
+
+        Trusted only when a PARAM_VALUE echo carries the same name and the float32-rounded value
+        (integers: the same integer, through the vehicle's int encoding). ParamRefused when the
+        echo carries another value, when the vehicle sends a STATUSTEXT warning naming the
+        parameter, or for a non-finite value (refused locally, never sent); ParamTimeout when
+        nothing answers after ``retries`` tries of ``param_try_s`` vehicle seconds each.
+        """
+        paramcodec.validate_param_name(name)
+        if not math.isfinite(value):
+            raise ParamRefused(f"{name}: non-finite value {value!r} refused locally (not sent)", name=name, value=value)
+        if name not in self.param_types and self.int_encoding == "bytewise":
+            self.get_param(name, retries=retries)  # the type decides the bytes we send
+        param_type = self.param_types.get(name, paramcodec.REAL32)
+        wire_value = paramcodec.encode_value(value, param_type, self.int_encoding)
+        for _attempt in range(retries):
+            since_param = self._param_events[name]
+            since_text = self._statustext_count
+            self.master.mav.param_set_send(self.system_id, self.autopilot_component, name.encode("ascii"),
+                                           wire_value, param_type)
+            state = {"mismatch": None, "refusal": None}
+
+            def answered() -> bool:
+                if self._param_events[name] > since_param:
+                    echoed = self.param_cache[name]
+                    if paramcodec.echo_matches(value, echoed, self.param_types.get(name, param_type)):
+                        return True
+                    state["mismatch"] = echoed
+                state["refusal"] = self._refusal_text(name, self._statustext_count - since_text)
+                return state["refusal"] is not None
+
+            if self._wait_until(answered, self.timeouts.param_try_s) and state["refusal"] is None:
+                return self.param_cache[name]
+            if state["refusal"] is not None:
+                raise ParamRefused(f"{name}={value!r} refused by the vehicle: {state['refusal']!r}", name=name,
+                                   value=value, echoed=state["mismatch"])
+            if state["mismatch"] is not None:
+                raise ParamRefused(f"{name}={value!r} refused: the vehicle echoed {state['mismatch']!r}", name=name,
+                                   value=value, echoed=state["mismatch"])
+        raise ParamTimeout(f"no echo for {name}={value!r} after {retries} tries", name=name, value=value)
+
+    def _refusal_text(self, name: str, new_count: int) -> str | None:
+        """The newest STATUSTEXT warning (or worse) among the last ``new_count`` that names ``name``."""
+        if new_count <= 0:
+            return None
+        recent = list(self.statustexts)[-min(new_count, len(self.statustexts)):]
+        for _time, severity, text in reversed(recent):
+            if severity <= MAV_SEVERITY_WARNING and name in text:
+                return text
+        return None
+
+    def get_params(self, neutral_names: Iterable[str]) -> dict[str, float]:
+        """Read parameters by neutral name (profile mapping and unit conversion applied)."""
+        profile = self._profile()
+        names = list(neutral_names)
+        result: dict[str, float] = {}
+        heading = [n for n in names if n in HEADING_PI_NAMES]
+        if heading and profile.cascaded_heading:
+            native = {n: self.get_param(n) for n in profile.heading_native_names()}
+            pi = profile.native_to_heading_pi(native)
+            result.update({n: pi[n] for n in heading})
+            names = [n for n in names if n not in HEADING_PI_NAMES]
+        for neutral in names:
+            native_value = self._read_neutral(neutral)
+            result[neutral] = profile.to_neutral_value(neutral, native_value)
+        return result
+
+    def _read_neutral(self, neutral: str) -> float:
+        candidates = self._profile().native_candidates(neutral)
+        for native in candidates[:-1]:
+            try:
+                return self.get_param(native, retries=1)
+            except ParamTimeout:
+                continue
+        return self.get_param(candidates[-1])
+
+    def set_params(self, neutral_values: dict[str, float]) -> dict[str, float]:
+        """Write parameters by neutral name; returns neutral name → confirmed value.
+
+        On cascaded autopilots the heading PI names go through
+        :meth:`AutopilotProfile.heading_pi_to_native` (missing ones are read from the vehicle).
+        Writes stop at the first failure (ParamRefused / ParamTimeout propagate).
+        """
+        profile = self._profile()
+        confirmed: dict[str, float] = {}
+        values = dict(neutral_values)
+        heading = {n: values.pop(n) for n in HEADING_PI_NAMES if n in values}
+        if heading and profile.cascaded_heading:
+            current = self.get_params([n for n in HEADING_PI_NAMES if n not in heading])
+            gains = {**current, **heading}
+            rate_p = self.get_param(profile.native_param("heading_rate_p"))
+            for native, native_value in profile.heading_pi_to_native(
+                    gains["heading_p"], gains["heading_i"], gains["heading_imax"], rate_p=rate_p).items():
+                self.set_param(native, native_value)
+            confirmed.update(heading)
+        else:
+            values = {**heading, **values}
+        for neutral, value in values.items():
+            native = self._profile().native_param(neutral)
+            echoed = self.set_param(native, profile.to_native_value(neutral, value))
+            confirmed[neutral] = profile.to_neutral_value(neutral, echoed)
+        return confirmed
+
+
+def validate_named_value_name(name: str) -> str:
+    """NAMED_VALUE_FLOAT.name: 1..10 printable ASCII characters (ValueError otherwise)."""
+    if not isinstance(name, str) or not 1 <= len(name) <= NAMED_VALUE_MAX or not name.isascii() \
+            or not name.isprintable():
+        raise ValueError(f"invalid NAMED_VALUE_FLOAT name {name!r} (1..{NAMED_VALUE_MAX} printable ASCII characters)")
+    return name
