@@ -1,0 +1,121 @@
+"""Command line of the simulator: ``python -m sim {run,linearize,presets}`` (SPEC C2, PROTOCOL.md).
+
+``run`` prints exactly one line ``READY <endpoint>`` on stdout once the endpoint is listening, so a
+parent process can wait for it; SIGINT/SIGTERM end it cleanly (exit code 0).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+from typing import Sequence
+
+
+def _current(text: str) -> tuple[float, float]:
+    try:
+        north, east = (float(part) for part in text.split(","))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError("expected VN,VE in m/s, e.g. 0.1,-0.05") from exc
+    return north, east
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m sim", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging on stderr")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="serve the simulated vehicle over MAVLink")
+    run.add_argument("--preset", default="starfish", help="vehicle preset (see `presets`)")
+    run.add_argument("--speedup", type=float, default=1.0,
+                     help="vehicle time / wall time (0 = as fast as possible)")
+    run.add_argument("--listen", default="udpin:127.0.0.1:14550",
+                     help="pymavlink endpoint: udpin:HOST:PORT, tcpin:HOST:PORT or udpout:HOST:PORT")
+    run.add_argument("--seed", type=int, default=0, help="noise / disturbance seed")
+    run.add_argument("--current", type=_current, default=(0.0, 0.0), metavar="VN,VE",
+                     help="water current north,east in m/s")
+    run.add_argument("--duration", type=float, default=None,
+                     help="stop after this many seconds of VEHICLE time")
+    run.add_argument("--depth", type=float, default=5.0, help="initial depth (m)")
+    run.set_defaults(func=_run)
+
+    lin = sub.add_parser("linearize", help="the preset's linearised yaw parameters (truth)")
+    lin.add_argument("--preset", required=True)
+    group = lin.add_mutually_exclusive_group(required=True)
+    group.add_argument("--speed", type=float, help="water speed U (m/s)")
+    group.add_argument("--thrust", type=float, help="thrust ratio TR (0..1): steady speed first")
+    lin.add_argument("--json", action="store_true", help="print JSON (the only format)")
+    lin.set_defaults(func=_linearize)
+
+    presets = sub.add_parser("presets", help="list the vehicle presets")
+    presets.add_argument("--json", action="store_true")
+    presets.set_defaults(func=_presets)
+    return parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    from sim.server import SimConfig, SimServer
+
+    config = SimConfig(
+        preset=args.preset,
+        listen=args.listen,
+        speedup=args.speedup,
+        seed=args.seed,
+        current_north=args.current[0],
+        current_east=args.current[1],
+        duration=args.duration,
+        depth=args.depth,
+    )
+
+    def ready(endpoint: str) -> None:
+        print(f"READY {endpoint}", flush=True)
+
+    server = SimServer(config, on_ready=ready)
+
+    def on_signal(signum: int, _frame: object) -> None:
+        logging.getLogger(__name__).info("signal %d: stopping", signum)
+        server.stop()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    return server.run()
+
+
+def _linearize(args: argparse.Namespace) -> int:
+    from sim.linearize import linearized_yaw, steady_speed
+    from sim.preset import load_preset
+
+    preset = load_preset(args.preset)
+    speed = args.speed if args.speed is not None else steady_speed(preset, args.thrust)
+    result = dict(linearized_yaw(preset, speed))
+    if args.thrust is not None:
+        result["thrust_ratio"] = args.thrust
+    print(json.dumps(result))
+    return 0
+
+
+def _presets(args: argparse.Namespace) -> int:
+    from sim.preset import load_preset, preset_names
+
+    names = preset_names()
+    if args.json:
+        print(json.dumps([{"name": n, "description": load_preset(n).description} for n in names]))
+    else:
+        for name in names:
+            print(name)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        stream=sys.stderr,
+        format="%(asctime)s sim %(levelname)s %(name)s: %(message)s",
+    )
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
