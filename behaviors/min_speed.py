@@ -1,0 +1,231 @@
+"""Minimum-speed seeking (SPEC C7; thesis 002, §5.3, Fig. 5.16–5.17, 5.22–5.26).
+
+Runs in the heading-and-depth holding mode: the autopilot holds heading and depth (depth PI →
+desired pitch θd → pitch PI → elevator) and this behaviour moves only the thrust set-point. It starts
+from the nominal thrust (SetThrust 0.70) and every Ts seconds of vehicle time applies the fuzzy
+decision (:mod:`companion.numerics.fuzzy_seeker`) T_R(k) = T_R(k−1) + {−ΔT, 0, +ΔT} (eq. 5.62),
+clamped to [thrust floor, 1]. It never stops seeking by itself (it keeps following disturbances)
+unless a ``duration_s`` is configured.
+
+Inputs. δs is the actual elevator (telemetry.elevator). The autopilot does not report θd, so the
+behaviour recomputes it with a *shadow depth loop*: the same depth PI the autopilot runs (gains
+DPT_P/DPT_I and the PIT_MAX limit, passed in as parameters, read from the autopilot by the caller),
+θd = clamp(Kpz·(z_sp − z) + I, ±θmax), İ = Kiz·(z_sp − z) (conditional integration while saturated). The unknown initial integrator state is
+taken from the assumption the thesis makes anyway (§5.3.1: the depth subsystem is at steady state
+when the seeker starts, so the pitch loop tracks θd): I(0) = θ(0) − Kpz·(z_sp − z(0)), with θ(0)
+the pitch averaged over the first ``init_average_s``. From then on the shadow integrator sees the same
+depth error as the autopilot's, so the two stay together up to sensor noise and the autopilot's
+own anti-windup; θe = θ − θd then grows exactly when the pitch loop can no longer follow (§5.2.2).
+The depth set-point is the hold mode's (the depth when the mode was entered); pass it in when
+known, otherwise the depth averaged over ``init_average_s`` is used.
+
+Settling rule: the seeker has settled when its thrust set-point has not changed for
+``settle_window_s`` (15 s, i.e. 15 decisions at Ts = 1 s); ``settle_time_s`` is the time from the
+start to the last change before the first such quiet window. ``max_depth_error_m`` is the largest
+|z − z_sp| after the first ``transient_s`` seconds (the start-up transient of stepping to the nominal
+thrust).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from companion.interface import Command, NamedValue, SetThrust, StatusText, Telemetry
+from companion.numerics.fuzzy_seeker import LowPass, SeekerConfig, decide, next_thrust
+from companion.numerics.minspeed import THRUST_DEAD_ZONE
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class MinSpeedConfig:
+    """Parameters of the behaviour; the depth-loop gains must be the autopilot's (DPT_P, DPT_I, PIT_MAX)."""
+
+    seeker: SeekerConfig = field(default_factory=SeekerConfig)
+    nominal_thrust: float = 0.70
+    thrust_floor: float = THRUST_DEAD_ZONE  # below this the thruster gives nothing (Fig. 5.3)
+    thrust_ceiling: float = 1.0
+    depth_p: float = -0.15  # DPT_P, rad pitch per m
+    depth_i: float = -0.01  # DPT_I, rad pitch per m·s
+    pitch_max: float = 0.35  # PIT_MAX, rad
+    depth_setpoint: float | None = None  # m; None: the depth at the start
+    init_average_s: float = 1.0  # s, averaging of pitch/depth for the shadow loop's initial state
+    settle_window_s: float = 15.0
+    transient_s: float = 5.0
+    duration_s: float | None = None  # None: seek until aborted
+
+
+class MinSpeedSeeking:
+    """The minimum-speed seeker as a :class:`companion.interface.Behavior`."""
+
+    def __init__(self, config: MinSpeedConfig = MinSpeedConfig()) -> None:
+        self.config = config
+        self._theta_filter = LowPass(config.seeker)
+        self._delta_filter = LowPass(config.seeker)
+        self._start: float | None = None
+        self._init_pitch: list[float] = []
+        self._init_depth: list[float] = []
+        self._initialised = False
+        self._depth_setpoint = math.nan
+        self._integrator = 0.0
+        self._last_time = math.nan
+        self._next_decision = math.nan
+        self.thrust_ratio = config.nominal_thrust
+        self._done = False
+        self.aborted = False
+        self.abort_reason = ""
+        self.series: dict[str, list[float]] = {
+            name: []
+            for name in ("time", "thrust_ratio", "thrust_setpoint", "speed", "pitch", "pitch_desired",
+                         "pitch_error_filtered", "elevator", "elevator_filtered", "depth", "decision")
+        }
+        self.decisions: list[tuple[float, int, float]] = []  # (time since start, decision, new set-point)
+
+    # ------------------------------------------------------------------ Behavior protocol
+    @property
+    def done(self) -> bool:
+        return self._done
+
+    def abort(self, reason: str) -> Sequence[Command]:
+        """Stop seeking and give the vehicle back its nominal thrust."""
+        self._done = True
+        self.aborted = True
+        self.abort_reason = reason
+        log.info("minimum-speed seeking aborted: %s", reason)
+        return [SetThrust(self.config.nominal_thrust), StatusText(f"minspeed aborted: {reason}"[:50], 4)]
+
+    def step(self, telemetry: Telemetry) -> Sequence[Command]:
+        if self._done or not telemetry.finite("pitch", "depth"):
+            return []
+        cfg = self.config
+        now = telemetry.time_s
+        commands: list[Command] = []
+        if self._start is None:
+            self._start = now
+            self._next_decision = now + cfg.seeker.period_s
+            self.thrust_ratio = cfg.nominal_thrust
+            commands += [SetThrust(self.thrust_ratio), StatusText("minspeed: seeking started")]
+        elapsed = now - self._start
+        theta_d = self._shadow_depth_loop(now, elapsed, telemetry)
+        theta_e = telemetry.pitch - theta_d if math.isfinite(theta_d) else math.nan
+        theta_e_f = self._theta_filter.update(now, theta_e)
+        delta_f = self._delta_filter.update(now, telemetry.elevator)
+        decision = 0
+        decided = False
+        if now >= self._next_decision - 1e-9 and math.isfinite(theta_e_f) and math.isfinite(delta_f):
+            self._next_decision += cfg.seeker.period_s * max(1, math.floor((now - self._next_decision) / cfg.seeker.period_s) + 1)
+            decision = decide(theta_e_f, delta_f, cfg.seeker)
+            decided = True
+            new_thrust = next_thrust(self.thrust_ratio, decision, cfg.seeker, cfg.thrust_floor, cfg.thrust_ceiling)
+            if new_thrust != self.thrust_ratio:
+                self.thrust_ratio = new_thrust
+                commands.append(SetThrust(round(new_thrust, 6)))
+            self.decisions.append((elapsed, decision, self.thrust_ratio))
+            commands.append(NamedValue("MS_TR", self.thrust_ratio))
+        self._record(telemetry, elapsed, theta_d, theta_e_f, delta_f, decision if decided else math.nan)
+        if cfg.duration_s is not None and elapsed >= cfg.duration_s:
+            self._done = True
+            commands.append(StatusText(f"minspeed: done, TR {self.thrust_ratio:.2f}"))
+        return commands
+
+    # ------------------------------------------------------------------ internals
+    def _shadow_depth_loop(self, now: float, elapsed: float, t: Telemetry) -> float:
+        """θd recomputed from the autopilot's depth PI (see module docstring); NaN while initialising."""
+        cfg = self.config
+        if not self._initialised:
+            self._init_pitch.append(t.pitch)
+            self._init_depth.append(t.depth)
+            if elapsed + 1e-9 < cfg.init_average_s:
+                return math.nan
+            depth0 = float(np.mean(self._init_depth))
+            pitch0 = float(np.mean(self._init_pitch))
+            self._depth_setpoint = depth0 if cfg.depth_setpoint is None else cfg.depth_setpoint
+            self._integrator = pitch0 - cfg.depth_p * (self._depth_setpoint - depth0)
+            self._initialised = True
+            self._last_time = now
+        error = self._depth_setpoint - t.depth
+        dt = now - self._last_time
+        self._last_time = now
+        raw = cfg.depth_p * error + self._integrator
+        # conditional integration, the usual anti-windup (and the simulator's): hold the integrator
+        # while the output is saturated and the error would push it further into the limit
+        if dt > 0.0 and (abs(raw) < cfg.pitch_max or (cfg.depth_i * error) * raw <= 0.0):
+            self._integrator += cfg.depth_i * error * dt
+        return min(cfg.pitch_max, max(-cfg.pitch_max, cfg.depth_p * error + self._integrator))
+
+    def _record(self, t: Telemetry, elapsed: float, theta_d: float, theta_e_f: float, delta_f: float,
+                decision: float) -> None:
+        s = self.series
+        s["time"].append(elapsed)
+        s["thrust_ratio"].append(t.thrust_ratio)
+        s["thrust_setpoint"].append(self.thrust_ratio)
+        s["speed"].append(t.speed_water)
+        s["pitch"].append(t.pitch)
+        s["pitch_desired"].append(theta_d)
+        s["pitch_error_filtered"].append(theta_e_f)
+        s["elevator"].append(t.elevator)
+        s["elevator_filtered"].append(delta_f)
+        s["depth"].append(t.depth)
+        s["decision"].append(decision)
+
+    # ------------------------------------------------------------------ results
+    def settle_time(self) -> float | None:
+        """Time from the start to the last set-point change before the first quiet window (see module doc)."""
+        window = self.config.settle_window_s
+        if not self.series["time"]:
+            return None
+        end = self.series["time"][-1]
+        changes = [0.0]
+        previous = self.config.nominal_thrust
+        for time_s, _decision, thrust in self.decisions:
+            if thrust != previous:
+                changes.append(time_s)
+                previous = thrust
+        for i, change in enumerate(changes):
+            following = changes[i + 1] if i + 1 < len(changes) else end
+            if following - change >= window - 1e-9:
+                return change
+        return None
+
+    def reversals(self, since_s: float) -> int:
+        """Direction reversals of the thrust set-point after ``since_s`` (a limit-cycle indicator)."""
+        moves = [d for time_s, d, _ in self.decisions if time_s >= since_s and d != 0]
+        return sum(1 for a, b in zip(moves, moves[1:]) if a != b)
+
+    def max_depth_error(self) -> float:
+        if not math.isfinite(self._depth_setpoint):
+            return math.nan
+        times = np.asarray(self.series["time"])
+        depth = np.asarray(self.series["depth"])
+        mask = times >= self.config.transient_s
+        return float(np.max(np.abs(depth[mask] - self._depth_setpoint))) if mask.any() else math.nan
+
+    def result(self) -> dict:
+        """JSON-serialisable summary and the time series for plots (Fig. 5.22–5.24)."""
+        speed = np.asarray(self.series["speed"], dtype=float)
+        times = np.asarray(self.series["time"], dtype=float)
+        tail = times >= (times[-1] - 10.0) if len(times) else np.zeros(0, dtype=bool)
+        tail_speed = speed[tail & np.isfinite(speed)] if len(speed) else speed
+        end = float(times[-1]) if len(times) else 0.0
+
+        def clean(values: list[float]) -> list[float | None]:
+            return [float(v) if math.isfinite(v) else None for v in values]
+
+        return {
+            "behavior": "min_speed",
+            "aborted": self.aborted,
+            "abort_reason": self.abort_reason,
+            "thrust_ratio_final": self.thrust_ratio,
+            "speed_final": float(np.mean(tail_speed)) if len(tail_speed) else None,
+            "settle_time_s": self.settle_time(),
+            "max_depth_error_m": self.max_depth_error(),
+            "depth_setpoint_m": self._depth_setpoint if math.isfinite(self._depth_setpoint) else None,
+            "reversals_last_30s": self.reversals(end - 30.0),
+            "decisions": len(self.decisions),
+            "duration_s": end,
+            "series": {name: clean(values) for name, values in self.series.items()},
+        }

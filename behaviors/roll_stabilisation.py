@@ -1,0 +1,118 @@
+"""Active roll stabilisation with the internal rolling mass (SPEC C6; thesis 002, §4.4–4.5).
+
+Steps on telemetry.roll at the telemetry rate (vehicle time) and emits SetRollingMass with the PI
+law of :mod:`companion.numerics.roll` (α = −Kp·φ + Kp·z·∫φ for the usual negative plant gain,
+anti-windup clamp at the ±20° mass limit). A new command is sent only when it differs from the last
+one by at least ``command_quantum`` (one microsecond of PWM on a ±30° channel ≈ 0.001 rad), so the
+DO_SET_SERVO traffic stays at most the telemetry rate. ``abort()`` centres the mass.
+
+Records roll and mass-angle series; ``result()`` gives mean and standard deviation of roll (the
+figures of Table 4.3) and of the mass angle, and the fraction of time the command was at its limit.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from companion.interface import Command, SetRollingMass, StatusText, Telemetry
+from companion.numerics.roll import RollPI, RollPIGains, RollVehicle, design_gains, linearise
+
+
+def default_gains() -> RollPIGains:
+    """The seed's design transferred to the Table 4.1 vehicle (Kp ≈ 1.99, zero at 0.01)."""
+    return design_gains(linearise(RollVehicle()))
+
+
+@dataclass(frozen=True)
+class RollStabilisationConfig:
+    gains: RollPIGains = field(default_factory=default_gains)
+    command_quantum: float = 0.001  # rad
+    duration_s: float | None = None  # None: until aborted
+    record_stride: int = 1  # keep every n-th sample in the series
+
+
+class RollStabilisation:
+    """Roll PI on the rolling mass as a :class:`companion.interface.Behavior`."""
+
+    def __init__(self, config: RollStabilisationConfig = RollStabilisationConfig()) -> None:
+        self.config = config
+        self.controller = RollPI(config.gains)
+        self._start: float | None = None
+        self._last_sent = math.nan
+        self._samples = 0
+        self._done = False
+        self.aborted = False
+        self.abort_reason = ""
+        self.series: dict[str, list[float]] = {"time": [], "roll": [], "mass_command": [], "mass_angle": []}
+        self._roll_all: list[float] = []
+        self._command_all: list[float] = []
+
+    @property
+    def done(self) -> bool:
+        return self._done
+
+    def abort(self, reason: str) -> Sequence[Command]:
+        """Stop and centre the mass."""
+        self._done = True
+        self.aborted = True
+        self.abort_reason = reason
+        logging.getLogger(__name__).info("roll stabilisation aborted: %s", reason)
+        self._last_sent = 0.0
+        return [SetRollingMass(0.0), StatusText(f"roll stab aborted: {reason}"[:50], 4)]
+
+    def step(self, telemetry: Telemetry) -> Sequence[Command]:
+        if self._done or not telemetry.finite("roll"):
+            return []
+        now = telemetry.time_s
+        commands: list[Command] = []
+        if self._start is None:
+            self._start = now
+            commands.append(StatusText("roll stabilisation on"))
+        elapsed = now - self._start
+        command = self.controller.update(now, telemetry.roll)
+        if not math.isfinite(self._last_sent) or abs(command - self._last_sent) >= self.config.command_quantum:
+            commands.append(SetRollingMass(command))
+            self._last_sent = command
+        self._roll_all.append(telemetry.roll)
+        self._command_all.append(command)
+        if self._samples % max(1, self.config.record_stride) == 0:
+            s = self.series
+            s["time"].append(elapsed)
+            s["roll"].append(telemetry.roll)
+            s["mass_command"].append(command)
+            s["mass_angle"].append(telemetry.mass_angle)
+        self._samples += 1
+        if self.config.duration_s is not None and elapsed >= self.config.duration_s:
+            self._done = True
+        return commands
+
+    def result(self) -> dict:
+        roll = np.asarray(self._roll_all, dtype=float)
+        command = np.asarray(self._command_all, dtype=float)
+        limit = self.config.gains.limit
+        deg = math.degrees
+
+        def stat(values: np.ndarray, fn) -> float | None:
+            return float(deg(fn(values))) if len(values) else None
+
+        def clean(values: list[float]) -> list[float | None]:
+            return [float(v) if math.isfinite(v) else None for v in values]
+
+        return {
+            "behavior": "roll_stabilisation",
+            "aborted": self.aborted,
+            "abort_reason": self.abort_reason,
+            "samples": int(len(roll)),
+            "roll_mean_deg": stat(roll, np.mean),
+            "roll_std_deg": stat(roll, np.std),
+            "mass_mean_deg": stat(command, np.mean),
+            "mass_std_deg": stat(command, np.std),
+            "mass_saturated_fraction": float(np.mean(np.abs(command) >= limit - 1e-9)) if len(command) else None,
+            "gains": {"kp": self.config.gains.kp, "integral_zero": self.config.gains.integral_zero,
+                      "limit": limit, "plant_sign": self.config.gains.plant_sign},
+            "series": {name: clean(values) for name, values in self.series.items()},
+        }

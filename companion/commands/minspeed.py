@@ -1,0 +1,83 @@
+"""``companion minspeed``: the analytic minimum speed of a vehicle (SPEC C7, eq. 5.28–5.55).
+
+    companion minspeed [--preset NAME | --vehicle FILE.json] [--delta-max D] [--json]
+
+Where the vehicle comes from: ``--vehicle`` reads a JSON file (a simulator preset or a flat dict of
+:class:`~companion.numerics.minspeed.DivePlaneVehicle` fields). ``--preset NAME`` reads the
+simulator's preset file ``sim/presets/NAME.json`` **as data**: the companion must not import the
+simulator, so the file is located with ``importlib.util.find_spec("sim")`` — which, for a
+top-level package, finds its folder without executing it — and read from the filesystem. Without
+either option the Table 5.1 vehicle (the dataclass defaults) is used.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from companion.numerics.minspeed import DivePlaneVehicle, minimum_speed
+
+
+def preset_path(name: str) -> Path:
+    """Path of ``sim/presets/<name>.json`` found without importing ``sim``."""
+    spec = importlib.util.find_spec("sim")
+    if spec is None or not spec.submodule_search_locations:
+        raise FileNotFoundError("the simulator package 'sim' is not installed; use --vehicle FILE.json")
+    for folder in spec.submodule_search_locations:
+        candidate = Path(folder) / "presets" / f"{name}.json"
+        if candidate.is_file():
+            return candidate
+    available = sorted(
+        p.stem for folder in spec.submodule_search_locations for p in (Path(folder) / "presets").glob("*.json")
+    )
+    raise FileNotFoundError(f"no preset {name!r}; available: {', '.join(available) or 'none'}")
+
+
+def load_vehicle(preset: str | None, vehicle_file: str | None) -> tuple[DivePlaneVehicle, str]:
+    """The vehicle and a label saying where it came from."""
+    if vehicle_file:
+        data: dict[str, Any] = json.loads(Path(vehicle_file).read_text(encoding="utf-8"))
+        return DivePlaneVehicle.from_dict(data), vehicle_file
+    if preset:
+        path = preset_path(preset)
+        return DivePlaneVehicle.from_dict(json.loads(path.read_text(encoding="utf-8"))), f"preset:{preset}"
+    return DivePlaneVehicle(), "table-5.1"
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "minspeed",
+        help="analytic minimum speed, pitch, thrust and thrust ratio of a vehicle (eq. 5.28-5.55)",
+        description=__doc__.split("\n\n")[0],
+    )
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument("--preset", help="simulator preset name (sim/presets/NAME.json, read as data)")
+    source.add_argument("--vehicle", metavar="FILE.json", help="vehicle parameters as JSON")
+    parser.add_argument("--delta-max", type=float, default=None, help="elevator limit δmax in rad (default: the vehicle's)")
+    parser.add_argument("--json", action="store_true", help="machine-readable output")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        vehicle, source = load_vehicle(args.preset, args.vehicle)
+    except (OSError, ValueError) as exc:
+        print(f"minspeed: {exc}", file=sys.stderr)
+        return 2
+    result = minimum_speed(vehicle, args.delta_max)
+    delta_max = vehicle.delta_max if args.delta_max is None else args.delta_max
+    out = {**result.as_json(), "delta_max": delta_max, "source": source}
+    if args.json:
+        print(json.dumps(out))
+    elif result.exists:
+        print(
+            f"{source}: δmax {delta_max:.3f} rad → Vmin {result.v_min:.3f} m/s, θ* {result.theta_star_deg:.2f}°, "
+            f"Ft* {result.thrust_star:.2f} N, TR* {result.thrust_ratio_star:.3f}"
+            + ("" if result.condition_548 else " (closed-form condition 5.48 not met)")
+        )
+    else:
+        print(f"{source}: no minimum speed for δmax {delta_max:.3f} rad (condition 5.48: {result.condition_548})")
+    return 0  # "exists" in the output says whether there is a minimum speed

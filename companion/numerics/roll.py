@@ -1,0 +1,227 @@
+"""Roll with an internal rolling mass: linearised model and PI stabiliser (SPEC C6, §3.6).
+
+Thesis 002, ch. 4. The nonlinear model (eq. 4.11)
+
+    (Ixx − Kṗ)·φ̈ = −(yg + (m/M)·l·sin α)·W·cos φ + (zg − (m/M)·l·cos α)·W·sin φ + Kpp·p|p| + τprop
+
+linearised at φ = 0, α small, yg = 0, τprop treated as a disturbance (eq. 4.12–4.13), and with the
+servo lag (eq. 4.15):
+
+    Φ(s)/α_cmd(s) = 1/(τ·s + 1) · k / (s² + a·s + b),
+    k = −(m/M)·l·W / (Ixx − Kṗ),   b = ((m/M)·l − zg)·W / (Ixx − Kṗ),   a = −Kp_lin / (Ixx − Kṗ).
+
+With Table 4.1 this gives k = −1.54 s⁻², b = 5.23 s⁻² (printed: 5.21, agrees) and a static gain
+k/b = −0.293 rad/rad, i.e. 5.9° of roll per 20° of mass angle, as the ±5° design requirement says.
+The printed k = −0.61 (static gain −0.117: 2.3° per 20°) does not follow from the listed values;
+SPEC §3.6 says to trust the nonlinear model, so k is computed. The quadratic drag has no linear
+part; ``a`` comes from a linear drag K_p,lin (−0.133 N·m·s = the printed a = 0.24 × 0.554, as the
+simulator preset also keeps it) plus, optionally, the describing-function equivalent of K_pp at a
+roll amplitude Φ and frequency ω = √b: K_pp·(8/(3π))·ω·Φ (alone it would give a = 0.24 at Φ ≈ 3.3°).
+
+Controller (Table 4.2): the seed's closed loop is s(s+2)(s² + 0.24s + 5.21) − 6.10·(s − 0.01),
+i.e. with the seed's k the law α = −Kp·(φ − z·∫φ dt), Kp = 5, z = 0.01. Its proportional part
+is *positive* feedback through the servo lag (it trades roll stiffness for damping: the loop is
+stable for Kp·|k| < b, the seed's "0 < Kp < 8.50"), its integral part is the slow negative
+feedback that removes the mean roll (propeller torque). Applied to the physical k, Kp = 5 would be
+unstable (limit 3.4); :func:`seed_equivalent_gain` rescales Kp so that Kp·|k| equals the seed's
+loop gain 5 × 0.61, which reproduces the seed's closed-loop poles on the physical plant.
+Pure numerics: no I/O, no clock.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any, Mapping
+
+import control
+import numpy as np
+
+#: the seed's printed linear gain and controller (Table 4.1, 4.2)
+SEED_K = -0.61
+SEED_KP = 5.0
+SEED_INTEGRAL_ZERO = 0.01
+
+_ALIASES = {
+    "inertia": "inertia_xx",
+    "added_inertia": "k_pdot",
+    "moving_mass": "mass_rolling",
+    "damping_quadratic": "k_pp",
+    "servo_time_constant": "servo_lag",
+    "ixx": "inertia_xx",
+    "i_xx": "inertia_xx",
+    "yg": "y_g",
+    "zg": "z_g",
+    "m": "mass_rolling",
+    "mass_mass": "mass_rolling",
+    "rolling_mass": "mass_rolling",
+    "m_mass": "mass_rolling",
+    "total_mass": "mass_total",
+    "big_m": "mass_total",
+    "m_total": "mass_total",
+    "w": "weight",
+    "kpdot": "k_pdot",
+    "k_p_dot": "k_pdot",
+    "kpp": "k_pp",
+    "k_p_p": "k_pp",
+    "l": "arm",
+    "l_mass": "arm",
+    "mass_arm": "arm",
+    "servo_tau": "servo_lag",
+    "tau_servo": "servo_lag",
+    "mass_tau": "servo_lag",
+    "mass_max": "mass_limit",
+    "alpha_max": "mass_limit",
+}
+_SECTIONS = ("roll",)
+
+
+@dataclass(frozen=True)
+class RollVehicle:
+    """Table 4.1 roll parameters (SI units)."""
+
+    inertia_xx: float = 0.474  # kg·m², Ixx
+    y_g: float = 0.0  # m
+    z_g: float = -0.0034  # m (CG below CB: negative, body frame at the CB)
+    mass_rolling: float = 2.00  # kg, m (the rolling tail tray)
+    mass_total: float = 61.41  # kg, M
+    weight: float = 602.5  # N, W
+    k_pdot: float = -0.08  # kg·m², Kṗ (added inertia)
+    k_pp: float = -1.21  # N·m·s², quadratic roll drag
+    damping_linear: float = -0.133  # N·m·s, linear drag: the seed's a = 0.24 × (Ixx − Kṗ)
+    arm: float = 0.04336  # m, l
+    servo_lag: float = 0.5  # s, τ of the mass servo
+    mass_limit: float = math.radians(20.0)  # rad, ±α limit
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "RollVehicle":
+        """From a preset dict: field names of this class, the simulator preset's names
+        (``sim/presets/*.json`` ``roll`` section; ``actuators.mass_max`` gives the limit) or Table
+        4.1 symbols, at top level or nested in ``roll``."""
+        section: Mapping[str, Any] = data
+        for key, value in data.items():
+            if str(key).lower() in _SECTIONS and isinstance(value, Mapping):
+                section = value
+                break
+        known = {f.name for f in fields(cls)}
+        values: dict[str, float] = {}
+        for key, value in section.items():
+            name = str(key).lower()
+            name = name if name in known else _ALIASES.get(name, "")
+            if name in known and isinstance(value, (int, float)) and not isinstance(value, bool):
+                values[name] = float(value)
+        actuators = data.get("actuators")
+        if "mass_limit" not in values and isinstance(actuators, Mapping) and "mass_max" in actuators:
+            values["mass_limit"] = float(actuators["mass_max"])
+        return cls(**values)
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class RollLinearModel:
+    """Φ/α_cmd = 1/(τs+1) · k/(s² + a s + b) (eq. 4.15)."""
+
+    k: float
+    a: float
+    b: float
+    servo_lag: float
+
+    @property
+    def static_gain(self) -> float:
+        """Steady roll per unit mass angle, rad/rad."""
+        return self.k / self.b
+
+    @property
+    def natural_frequency(self) -> float:
+        return math.sqrt(self.b)
+
+    @property
+    def damping_ratio(self) -> float:
+        return self.a / (2.0 * math.sqrt(self.b))
+
+    def transfer_function(self) -> control.TransferFunction:
+        s = control.tf("s")
+        return self.k / ((self.servo_lag * s + 1) * (s**2 + self.a * s + self.b))
+
+
+def linearise(vehicle: RollVehicle, roll_amplitude: float = 0.0) -> RollLinearModel:
+    """Linearise eq. 4.11 (eq. 4.12): k and b from the physical values.
+
+    ``a`` = −(K_p,lin + K_pp·(8/3π)·ω·Φ)/(Ixx − Kṗ): the linear drag plus the describing-function
+    equivalent of the quadratic drag at ``roll_amplitude`` Φ (rad); Φ = 0 gives the seed's a = 0.24
+    with the default linear drag.
+    """
+    v = vehicle
+    inertia = v.inertia_xx - v.k_pdot
+    shift = v.mass_rolling / v.mass_total * v.arm
+    k = -shift * v.weight / inertia
+    b = (shift - v.z_g) * v.weight / inertia
+    omega = math.sqrt(b)
+    equivalent_drag = v.damping_linear + v.k_pp * 8.0 / (3.0 * math.pi) * omega * abs(roll_amplitude)
+    a = -equivalent_drag / inertia
+    return RollLinearModel(k=k, a=a, b=b, servo_lag=v.servo_lag)
+
+
+@dataclass(frozen=True)
+class RollPIGains:
+    """α_cmd = sign(k)·Kp·(φ − z·∫φ dt), clamped to ±limit, integral part clamped to ±limit.
+
+    For the seed's negative k this is α = −Kp·φ + Kp·z·∫φ dt (Table 4.2: C(s) = Kp·(s − z)/s in
+    negative feedback)."""
+
+    kp: float  # rad mass angle per rad roll (magnitude; the sign comes from the plant gain)
+    integral_zero: float = SEED_INTEGRAL_ZERO  # 1/s, z
+    limit: float = math.radians(20.0)  # rad, mass-angle limit (anti-windup clamp)
+    plant_sign: float = -1.0  # sign of k: −1 when a positive mass angle rolls the vehicle negative
+
+
+def seed_equivalent_gain(model: RollLinearModel, seed_kp: float = SEED_KP, seed_k: float = SEED_K) -> float:
+    """Kp that gives the seed's loop gain Kp·|k| = 5 × 0.61 on ``model`` (see module docstring)."""
+    return seed_kp * abs(seed_k) / abs(model.k)
+
+
+def design_gains(model: RollLinearModel, limit: float = math.radians(20.0), integral_zero: float = SEED_INTEGRAL_ZERO) -> RollPIGains:
+    """The seed's design transferred to ``model``: loop gain of Table 4.2, zero at ``integral_zero``."""
+    return RollPIGains(kp=seed_equivalent_gain(model), integral_zero=integral_zero, limit=limit,
+                       plant_sign=math.copysign(1.0, model.k))
+
+
+def closed_loop_poles(model: RollLinearModel, gains: RollPIGains) -> np.ndarray:
+    """Poles of the linear closed loop with the PI law (for design checks and the report)."""
+    s = control.tf("s")
+    plant = model.transfer_function()
+    # α = sign(k)·Kp·(1 − z/s)·φ = −C·φ  ⇒  negative feedback with C = −sign(k)·Kp·(s − z)/s
+    controller = -gains.plant_sign * gains.kp * (s - gains.integral_zero) / s
+    loop = control.feedback(plant * controller, 1)
+    return np.sort_complex(np.asarray(control.poles(loop)))
+
+
+def stability_limit(model: RollLinearModel) -> float:
+    """Largest proportional gain for which the stiffness stays positive: Kp < b/|k|."""
+    return model.b / abs(model.k)
+
+
+class RollPI:
+    """The discrete PI law on vehicle time (forward-Euler integral, the seed's anti-windup clamp)."""
+
+    def __init__(self, gains: RollPIGains) -> None:
+        self.gains = gains
+        self.integral_term = 0.0  # rad, the integral part of the mass command (clamped)
+        self._last_time = math.nan
+
+    def reset(self) -> None:
+        self.integral_term = 0.0
+        self._last_time = math.nan
+
+    def update(self, time_s: float, roll: float) -> float:
+        """Mass-angle command for the roll measured at vehicle time ``time_s``."""
+        g = self.gains
+        direction = g.plant_sign  # −1 for the seed's negative k: α = −Kp·φ + Kp·z·∫φ
+        dt = time_s - self._last_time if math.isfinite(self._last_time) else 0.0
+        self._last_time = time_s
+        if dt > 0.0:
+            self.integral_term -= direction * g.kp * g.integral_zero * roll * dt
+            self.integral_term = min(g.limit, max(-g.limit, self.integral_term))
+        command = direction * g.kp * roll + self.integral_term
+        return min(g.limit, max(-g.limit, command))
