@@ -39,6 +39,7 @@ __all__ = [
     "heading_rate",
     "steady_straight_mask",
     "steady_turn_mask",
+    "water_relative_velocity",
 ]
 
 
@@ -419,3 +420,11 @@ def fit_steady_turn(t, north, east, yaw=None) -> TurnFit:
         iterations=int(sol.nfev),
         initial_guess={"rate_source": source, "rate0": rate0, "rate_scan": rate_init, "radius0": radius0},
     )
+
+
+def water_relative_velocity(roll, pitch, yaw, vel_body, current) -> np.ndarray:
+    """Water-relative body velocity per sample once the current is known, eq. 5 solved for v_wb:
+    ``v_wb = v_b − [c1 c2]·[vc_n, vc_e]`` (e.g. surge/sway in a steady turn), shape (N, 3)."""
+    r_bm = np.transpose(body_to_ned_matrices(roll, pitch, yaw), (0, 2, 1))
+    current = np.asarray(current, float)
+    return np.asarray(vel_body, float) - (r_bm[:, :, 0] * current[0] + r_bm[:, :, 1] * current[1])

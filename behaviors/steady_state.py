@@ -1,0 +1,322 @@
+"""Steady-state manoeuvres under an unknown current (SPEC C8; Hegrenæs et al., §III-B).
+
+Two behaviours, pure step functions of vehicle time and telemetry (SPEC §5):
+
+* :class:`SquarePattern` — straight legs at a fixed thrust in the heading-and-depth holding mode,
+  the heading set-point turned by 90° after each leg (``leg_s`` seconds of vehicle time); the
+  transients after each turn are cut automatically and eq. 7–8 gives the water-relative velocity
+  and the current.
+* :class:`SteadyTurns` — for each rudder angle δ the rudder is held open loop (RC override, depth
+  stays held) at a fixed thrust for ``turn_s`` seconds, then released and the vehicle brought back to
+  its initial heading for ``recover_s`` seconds; the steady part of each turn is fitted with
+  eq. 9–10 (radius, rate, current, residual σ).
+
+``abort`` releases the rudder and restores the heading, thrust and mode the behaviour found;
+``result`` gives the fitted figures (JSON-serialisable).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass
+from typing import Sequence
+
+import numpy as np
+
+from companion.interface import (
+    Command,
+    ReleaseActuator,
+    OverrideActuator,
+    SetDepth,
+    SetHeading,
+    SetMode,
+    SetThrust,
+    StatusText,
+    Telemetry,
+)
+from companion.numerics.steady_state import (
+    fit_steady_turn,
+    fit_straight_legs,
+    ned_to_body,
+    steady_straight_mask,
+    steady_turn_mask,
+    water_relative_velocity,
+)
+
+log = logging.getLogger(__name__)
+
+_NEUTRAL_MODES = ("manual", "hold", "guided")
+_NAV_FIELDS = ("north", "east", "down", "roll", "pitch", "yaw", "vel_north", "vel_east", "vel_down")
+
+
+def _wrap(angle: float) -> float:
+    return math.atan2(math.sin(angle), math.cos(angle))
+
+
+@dataclass
+class _Recorder:
+    """Navigation samples recorded from telemetry (only complete, new-time samples)."""
+
+    rows: list
+
+    def add(self, tel: Telemetry) -> None:
+        if not tel.finite(*_NAV_FIELDS):
+            return
+        if self.rows and tel.time_s <= self.rows[-1][0]:
+            return
+        self.rows.append((tel.time_s, *(getattr(tel, name) for name in _NAV_FIELDS)))
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        data = np.array(self.rows, float).reshape(-1, 1 + len(_NAV_FIELDS))
+        out = {"t": data[:, 0]}
+        out.update({name: data[:, i + 1] for i, name in enumerate(_NAV_FIELDS)})
+        return out
+
+
+@dataclass
+class _StartState:
+    time_s: float
+    heading: float
+    thrust_ratio: float
+    mode: str
+
+    def restore(self) -> list[Command]:
+        commands: list[Command] = [SetHeading(self.heading)]
+        if math.isfinite(self.thrust_ratio):
+            commands.append(SetThrust(self.thrust_ratio))
+        if self.mode in _NEUTRAL_MODES and self.mode != "hold":
+            commands.append(SetMode(self.mode))
+        return commands
+
+
+# --------------------------------------------------------------------------- squares
+@dataclass(frozen=True)
+class SquareConfig:
+    """A square pattern (paper §III-B: one square at a fixed propeller setting)."""
+
+    thrust_ratio: float = 0.8
+    leg_s: float = 150.0  # vehicle time per leg, including the transient after the turn
+    legs: int = 4
+    first_heading: float | None = None  # rad; None = the heading found at the start
+    clockwise: bool = True  # +90° per leg (starboard turns) or −90°
+    depth: float | None = None  # m; None = keep the held depth
+    rate_tol: float = math.radians(0.5)  # transient cutting: |heading rate| below this on a leg
+    speed_tol: float = 0.02  # m/s: body velocity over ground settled within this
+    min_leg_s: float = 20.0
+
+
+class SquarePattern:
+    """Square pattern at fixed thrust in the holding mode; fits eq. 7–8 at the end (SPEC C8)."""
+
+    def __init__(self, config: SquareConfig | None = None) -> None:
+        self.config = config or SquareConfig()
+        self._start: _StartState | None = None
+        self._leg = -1
+        self._done = False
+        self._status = "pending"
+        self._recorder = _Recorder([])
+        self._result: dict = {}
+
+    @property
+    def done(self) -> bool:
+        return self._done
+
+    def leg_heading(self, leg: int) -> float:
+        assert self._start is not None
+        base = self.config.first_heading if self.config.first_heading is not None else self._start.heading
+        step = math.pi / 2 if self.config.clockwise else -math.pi / 2
+        return _wrap(base + leg * step)
+
+    def step(self, telemetry: Telemetry) -> Sequence[Command]:
+        if self._done:
+            return []
+        commands: list[Command] = []
+        cfg = self.config
+        if self._start is None:
+            if not telemetry.finite("yaw"):
+                return []
+            self._start = _StartState(telemetry.time_s, telemetry.yaw, telemetry.thrust_ratio, telemetry.mode)
+            self._status = "running"
+            if telemetry.mode != "hold":
+                commands.append(SetMode("hold"))
+            commands.append(SetThrust(cfg.thrust_ratio))
+            if cfg.depth is not None:
+                commands.append(SetDepth(cfg.depth))
+            commands.append(StatusText(f"squares: {cfg.legs} legs of {cfg.leg_s:.0f} s at thrust {cfg.thrust_ratio:.2f}"))
+        elapsed = telemetry.time_s - self._start.time_s
+        if elapsed >= cfg.legs * cfg.leg_s:
+            self._recorder.add(telemetry)
+            self._finish()
+            commands.extend(self._start.restore())
+            commands.append(StatusText(f"squares: {self._status}"))
+            return commands
+        leg = int(elapsed // cfg.leg_s)
+        if leg != self._leg:
+            self._leg = leg
+            heading = self.leg_heading(leg)
+            commands.append(SetHeading(heading))
+            commands.append(StatusText(f"squares: leg {leg + 1}/{cfg.legs} heading {math.degrees(heading) % 360:.0f} deg"))
+        self._recorder.add(telemetry)
+        return commands
+
+    def _finish(self) -> None:
+        self._done = True
+        try:
+            self._result = analyse_square(self._recorder.arrays(), self.config)
+            self._status = "completed"
+        except ValueError as exc:
+            self._status = "failed"
+            self._result = {"error": str(exc)}
+            log.warning("square pattern fit failed: %s", exc)
+
+    def abort(self, reason: str) -> Sequence[Command]:
+        was_running = self._start is not None and not self._done
+        self._done = True
+        if self._status in ("pending", "running"):
+            self._status = "aborted"
+            self._result = {"error": f"aborted: {reason}"}
+        if not was_running or self._start is None:
+            return []
+        return [*self._start.restore(), StatusText(f"squares aborted: {reason}", severity=4)]
+
+    def result(self) -> dict:
+        return {"behavior": "squares", "status": self._status, "config": asdict(self.config),
+                "samples": len(self._recorder.rows), **self._result}
+
+
+def analyse_square(data: dict[str, np.ndarray], config: SquareConfig = SquareConfig()) -> dict:
+    """Cut the transients of recorded square-pattern data and fit eq. 7–8; the fit's ``as_dict``
+    plus ``samples_used``. ``data`` holds arrays t, roll, pitch, yaw, vel_north/east/down."""
+    vel_body = ned_to_body(data["roll"], data["pitch"], data["yaw"],
+                           np.column_stack([data["vel_north"], data["vel_east"], data["vel_down"]]))
+    if data["t"].size < 10:
+        raise ValueError("too few samples recorded")
+    mask = steady_straight_mask(data["t"], data["yaw"], vel_body, config.rate_tol, config.speed_tol, config.min_leg_s)
+    if mask.sum() < 10:
+        raise ValueError("no steady straight leg found after cutting the transients")
+    fit = fit_straight_legs(data["roll"][mask], data["pitch"][mask], data["yaw"][mask], vel_body[mask])
+    return {**fit.as_dict(), "samples_used": int(mask.sum())}
+
+
+# --------------------------------------------------------------------------- steady turns
+@dataclass(frozen=True)
+class TurnConfig:
+    """Steady turns with the rudder locked (paper §III-B: fixed rudder and propeller set-points)."""
+
+    thrust_ratio: float = 0.8
+    rudder_angles: tuple[float, ...] = (0.22, -0.22)  # rad (≈ ±12.5°, the paper's turns)
+    turn_s: float = 150.0  # vehicle time per rudder angle, including the transient
+    recover_s: float = 30.0  # straight, heading control back, between turns
+    depth: float | None = None
+    rate_tol: float = math.radians(0.3)  # transient cutting: heading rate settled within this
+    min_steady_s: float = 30.0
+
+
+class SteadyTurns:
+    """Rudder held at fixed angles (RC override, depth still held); fits eq. 9–10 per angle."""
+
+    def __init__(self, config: TurnConfig | None = None) -> None:
+        self.config = config or TurnConfig()
+        self._start: _StartState | None = None
+        self._done = False
+        self._status = "pending"
+        self._index = -1
+        self._phase = ""
+        self._phase_start = 0.0
+        self._recorders: list[_Recorder] = [_Recorder([]) for _ in self.config.rudder_angles]
+        self._turns: list[dict] = []
+
+    @property
+    def done(self) -> bool:
+        return self._done
+
+    def step(self, telemetry: Telemetry) -> Sequence[Command]:
+        if self._done:
+            return []
+        cfg = self.config
+        commands: list[Command] = []
+        if self._start is None:
+            if not telemetry.finite("yaw"):
+                return []
+            self._start = _StartState(telemetry.time_s, telemetry.yaw, telemetry.thrust_ratio, telemetry.mode)
+            self._status = "running"
+            if telemetry.mode != "hold":
+                commands.append(SetMode("hold"))
+            commands.append(SetThrust(cfg.thrust_ratio))
+            if cfg.depth is not None:
+                commands.append(SetDepth(cfg.depth))
+            commands.extend(self._begin_turn(0, telemetry.time_s))
+            return commands
+        elapsed = telemetry.time_s - self._phase_start
+        if self._phase == "turn":
+            self._recorders[self._index].add(telemetry)
+            if elapsed >= cfg.turn_s:
+                self._phase, self._phase_start = "recover", telemetry.time_s
+                commands += [ReleaseActuator("rudder"), SetHeading(self._start.heading),
+                             StatusText(f"turns: rudder released after turn {self._index + 1}")]
+        elif self._phase == "recover" and elapsed >= cfg.recover_s:
+            if self._index + 1 < len(cfg.rudder_angles):
+                commands.extend(self._begin_turn(self._index + 1, telemetry.time_s))
+            else:
+                self._finish()
+                commands.extend(self._start.restore())
+                commands.append(StatusText(f"turns: {self._status}"))
+        return commands
+
+    def _begin_turn(self, index: int, time_s: float) -> list[Command]:
+        self._index, self._phase, self._phase_start = index, "turn", time_s
+        angle = self.config.rudder_angles[index]
+        return [OverrideActuator("rudder", angle),
+                StatusText(f"turns: {index + 1}/{len(self.config.rudder_angles)} rudder {math.degrees(angle):+.1f} deg")]
+
+    def _finish(self) -> None:
+        self._done = True
+        ok = 0
+        for angle, recorder in zip(self.config.rudder_angles, self._recorders):
+            entry: dict = {"rudder_rad": angle, "rudder_deg": math.degrees(angle)}
+            try:
+                entry.update(analyse_turn(recorder.arrays(), self.config))
+                ok += 1
+            except ValueError as exc:
+                entry["error"] = str(exc)
+                log.warning("turn fit (rudder %.3f rad) failed: %s", angle, exc)
+            self._turns.append(entry)
+        self._status = "completed" if ok == len(self._recorders) else ("partial" if ok else "failed")
+
+    def abort(self, reason: str) -> Sequence[Command]:
+        was_running = self._start is not None and not self._done
+        self._done = True
+        if self._status in ("pending", "running"):
+            self._status = "aborted"
+        if not was_running or self._start is None:
+            return []
+        return [ReleaseActuator("rudder"), *self._start.restore(), StatusText(f"turns aborted: {reason}", severity=4)]
+
+    def result(self) -> dict:
+        out = {"behavior": "turns", "status": self._status, "config": asdict(self.config), "turns": self._turns}
+        speeds = [(t["current_north"], t["current_east"]) for t in self._turns if "current_north" in t]
+        if speeds:
+            mean = np.mean(np.array(speeds), axis=0)
+            out["current_north"], out["current_east"] = float(mean[0]), float(mean[1])
+        return out
+
+
+def analyse_turn(data: dict[str, np.ndarray], config: TurnConfig = TurnConfig()) -> dict:
+    """Cut the transient of one recorded turn and fit eq. 9–10; adds the mean water-relative
+    surge/sway over the steady part (eq. 5 with the fitted current) when velocities are present."""
+    t = data["t"]
+    if t.size < 20:
+        raise ValueError("too few samples recorded in the turn")
+    mask = steady_turn_mask(t, data["yaw"], config.rate_tol)
+    if mask.sum() < 20 or t[mask][-1] - t[mask][0] < config.min_steady_s:
+        raise ValueError("the turn did not reach a steady rate long enough")
+    fit = fit_steady_turn(t[mask], data["north"][mask], data["east"][mask], data["yaw"][mask])
+    out = {**fit.as_dict(), "samples_used": int(mask.sum())}
+    if "vel_north" in data:
+        vel_body = ned_to_body(data["roll"][mask], data["pitch"][mask], data["yaw"][mask],
+                               np.column_stack([data["vel_north"], data["vel_east"], data["vel_down"]])[mask])
+        v_wb = water_relative_velocity(data["roll"][mask], data["pitch"][mask], data["yaw"][mask], vel_body, fit.current)
+        mean = v_wb.mean(axis=0)
+        out.update({"surge_water": float(mean[0]), "sway_water": float(mean[1]),
+                    "sideslip_deg": math.degrees(math.atan2(mean[1], mean[0]))})
+    return out
