@@ -42,6 +42,10 @@ class HeadingPI:
     def reset(self) -> None:
         self.integral = 0.0
 
+    def initialize(self, rudder: float) -> None:
+        """Bumpless transfer: preload the integrator so that zero error gives the current rudder."""
+        self.integral = _clamp(rudder - self.trim, self.imax)
+
 
 @dataclass
 class DepthPitchCascade:
@@ -75,3 +79,10 @@ class DepthPitchCascade:
         self.depth_integral = 0.0
         self.pitch_integral = 0.0
         self.pitch_setpoint = 0.0
+
+    def initialize(self, pitch: float, elevator: float) -> None:
+        """Bumpless transfer: preload both integrators so that, at zero depth error, the desired
+        pitch is the current pitch and the elevator stays where it is (no start-up transient)."""
+        self.depth_integral = _clamp(pitch, self.pitch_max)
+        self.pitch_integral = _clamp(elevator, self.elevator_max)
+        self.pitch_setpoint = self.depth_integral

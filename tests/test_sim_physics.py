@@ -273,3 +273,59 @@ def test_depth_cascade_signs_follow_table_5_1():
     assert cascade.pitch_setpoint < 0.0  # too shallow → nose down
     elevator = DepthPitchCascade().update(0.01, depth_setpoint=5.0, depth=5.0, pitch=0.1)
     assert elevator > 0.0  # nose too high → positive elevator = nose-down moment
+
+
+def test_cascade_initialize_gives_bumpless_start(starfish):
+    vehicle = Vehicle(starfish)  # trimmed: pitch −1.36°, elevator ≈ 0.005
+    cascade = DepthPitchCascade()
+    cascade.initialize(vehicle.pitch, vehicle.elevator)
+    demand = ActuatorDemand(thrust_ratio=0.70)
+    worst = 0.0
+    for _ in range(1000):
+        demand.elevator = cascade.update(DT, 5.0, vehicle.depth, vehicle.pitch)
+        vehicle.step(DT, demand)
+        worst = max(worst, abs(vehicle.elevator))
+    assert worst < 0.02 and abs(vehicle.depth - 5.0) < 0.01
+    heading = HeadingPI(kp=1.0, ki=0.1, imax=0.15, trim=0.0)
+    heading.initialize(0.01)
+    assert heading.update(DT, 0.3, 0.3) == pytest.approx(0.01)
+
+
+def test_slow_thrust_ramp_saturates_elevator_near_analytic_minimum(starfish):
+    """Lowering thrust slowly under the cascade: the elevator saturates near TR* ≈ 0.433–0.44."""
+    vehicle = Vehicle(starfish)
+    cascade = DepthPitchCascade()
+    cascade.initialize(vehicle.pitch, vehicle.elevator)
+    demand = ActuatorDemand(thrust_ratio=0.70)
+    for k in range(1, 40_000):
+        if k % 500 == 0:
+            demand.thrust_ratio -= 0.005  # 0.001/s: quasi-static
+        demand.elevator = cascade.update(DT, 5.0, vehicle.depth, vehicle.pitch)
+        vehicle.step(DT, demand)
+        if vehicle.elevator >= starfish.actuators.elevator_max - 1e-6:
+            break
+    assert 0.42 < demand.thrust_ratio < 0.45
+    assert vehicle.state.speed_water == pytest.approx(0.68, abs=0.03)
+
+
+def test_doublet_stays_near_linear_enough_for_identification(starfish):
+    """Noise-free least squares on a 0.26 rad doublet recovers the linearised a22, b2 within 5 %:
+    the quadratic yaw damping is small enough for SPEC C3's identification target."""
+    speed = steady_speed(starfish, 0.70)
+    lin = linearized_yaw(starfish, speed)
+    vehicle = Vehicle(starfish, speed=speed)
+    demand = ActuatorDemand(thrust_ratio=0.70, elevator=vehicle.elevator)
+    rates, rudders = [], []
+    for k in range(1600):
+        t = k * DT
+        demand.rudder = lin["delta0"] + (0.26 if 2 <= t < 4 else -0.26 if 4 <= t < 6 else 0.0)
+        vehicle.step(DT, demand)
+        rates.append(vehicle.yaw_rate)
+        rudders.append(vehicle.rudder)
+    rates = np.array(rates)
+    regressors = np.c_[rates, rudders, -np.ones_like(rates)]
+    a22, b2, c0 = np.linalg.lstsq(regressors, np.gradient(rates, DT), rcond=None)[0]
+    assert a22 == pytest.approx(lin["a22"], rel=0.05)
+    assert b2 == pytest.approx(lin["b2"], rel=0.05)
+    assert c0 / b2 == pytest.approx(lin["delta0"], abs=0.003)
+    assert abs(a22 / lin["a22"] - 1) > 0.005  # and the physics is genuinely nonlinear
