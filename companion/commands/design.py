@@ -1,0 +1,95 @@
+"""``companion design``: heading PI gains and turning performance from a yaw model (SPEC C5).
+
+    companion design --a22 -1.62 --b2 1.25 --delta0 0.036 --speed 1.4 [--delta-max 0.26] [--json]
+
+Prints kp, ki, trim (gains.py) and, for the speed given, ψ̇max, the U-turn time and the turning
+radius (turning.py, eq. 3.47–3.50). Without ``--speed`` the radius is not printed (it needs V).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+from companion.numerics.gains import GainBounds, design_heading_gains
+from companion.numerics.identification import YawModel
+from companion.numerics.turning import DEFAULT_DELTA_MAX, turning_performance
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        "design",
+        help="heading PI gains and turning performance from an identified yaw model",
+        description=(
+            "Design heading PI gains (Kp = a22^2/(2 b2), zeta 0.7071; integral zero 100x below wn; "
+            "trim = delta0) and predict turning performance (eq. 3.47-3.50) for the yaw model "
+            "r' = a22 r + b2 (rudder - delta0)."
+        ),
+    )
+    parser.add_argument("--a22", type=float, required=True, help="yaw damping a22, 1/s (negative)")
+    parser.add_argument("--b2", type=float, required=True, help="rudder authority b2, 1/s^2 (positive)")
+    parser.add_argument("--delta0", type=float, default=0.0, help="steady-state rudder offset, rad (default 0)")
+    parser.add_argument("--speed", type=float, default=None, help="speed through water, m/s (for the radius)")
+    parser.add_argument(
+        "--delta-max", type=float, default=DEFAULT_DELTA_MAX, help=f"rudder limit, rad (default {DEFAULT_DELTA_MAX})"
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def _validate(args) -> str | None:
+    for name in ("a22", "b2", "delta0", "delta_max"):
+        if not math.isfinite(getattr(args, name)):
+            return f"--{name.replace('_', '-')} must be a finite number"
+    if args.speed is not None and not (math.isfinite(args.speed) and args.speed >= 0.0):
+        return "--speed must be a finite number >= 0"
+    if args.a22 >= 0.0:
+        return f"--a22 must be negative (a stable yaw damping), got {args.a22}"
+    if args.b2 <= 0.0:
+        return f"--b2 must be positive (rudder authority), got {args.b2}"
+    if args.delta_max <= args.delta0:
+        return f"--delta-max ({args.delta_max}) must exceed --delta0 ({args.delta0})"
+    return None
+
+
+def run(args) -> int:
+    error = _validate(args)
+    if error:
+        print(f"companion design: error: {error}", file=sys.stderr)
+        return 2
+    model = YawModel(a22=args.a22, b2=args.b2, delta0=args.delta0)
+    gains = design_heading_gains(model, GainBounds(), speed=args.speed)
+    turning = turning_performance(model, args.speed if args.speed is not None else 0.0, args.delta_max)
+    result = {
+        "kp": gains.kp,
+        "ki": gains.ki,
+        "trim": gains.trim,
+        "clamped": list(gains.clamped),
+        "yaw_rate_max_deg_s": turning.yaw_rate_max_deg_s,
+        "settle_time_s": turning.settle_time_s,
+        "u_turn_time_s": turning.u_turn_time_s,
+        "turning_radius_m": turning.turning_radius_m if args.speed is not None else None,
+        "speed": args.speed,
+    }
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    rows = [
+        ("kp", f"{gains.kp:.4f}", "rad rudder / rad heading error"),
+        ("ki", f"{gains.ki:.5f}", "rad rudder / (rad s)"),
+        ("trim", f"{gains.trim:.4f}", "rad (delta0 feed-forward)"),
+        ("yaw_rate_max_deg_s", f"{turning.yaw_rate_max_deg_s:.2f}", "deg/s"),
+        ("u_turn_time_s", f"{turning.u_turn_time_s:.2f}", "s"),
+        (
+            "turning_radius_m",
+            f"{turning.turning_radius_m:.2f}" if args.speed is not None else "n/a",
+            "m" if args.speed is not None else "(give --speed)",
+        ),
+    ]
+    for name, value, unit in rows:
+        print(f"{name:<20} {value:>10}  {unit}")
+    if gains.clamped:
+        print(f"clamped to bounds: {', '.join(gains.clamped)}")
+    return 0

@@ -1,0 +1,260 @@
+"""Online SVF-RLS identification of the yaw and pitch models (SPEC C3; thesis 002 §3.2, App. B).
+
+Yaw (eq. 3.5–3.8, 3.14–3.15): ψ̇ = r, ṙ = a22·r + b2·(δr − δ0), i.e.
+``ψ̈f = [ψ̇f, δf, −1]·[a22, b2, C0]ᵀ`` with C0 = b2·δ0, where ψf, δf are the heading and rudder
+passed through the same state-variable filter λ²/(s+λ)² (:mod:`companion.numerics.svf`).
+
+Pitch (App. B, eq. B.10/B.12): q̇ = −c22·q − c23·θ + d2·δs + Cb, i.e.
+``θ̈f = [−θ̇f, −θf, δsf, 1]·[c22, c23, d2, Cb]ᵀ``.
+
+Discretisation of the two SVFs (both exact, at the actual interval of every sample): the actuator
+is commanded and held between samples, so its filter uses the thesis' zero-order hold (eq. 3.29–3.31,
+``input_hold="zoh"``). The measured output (heading, pitch) is a smooth continuous signal, for which
+a ZOH amounts to a half-sample lag against the actuator; at 20 Hz that lag biases b2 by ≈ 2 % on
+noise-free data (measured: tests/test_numerics_identification.py). The output filter therefore
+uses a first-order hold by default (``output_hold="foh"``, bias < 0.05 %); ``output_hold="zoh"``
+reproduces the thesis' discretisation exactly.
+
+Note on P0: the thesis' P0 = 100·I acts as a ridge prior pulling Θ towards 0 with weight 1/P0;
+on a single 16.5 s doublet at 20 Hz (noise-free) it leaves a22 ≈ 8 % and b2 ≈ 4–6 % low. P0 is the
+thesis' value by default (SPEC C3) and exposed; P0 ≥ 1e4 removes the effect.
+
+Both filters are started at rest at the first sample (the campaign settles the vehicle on a
+straight course first, so the first sample is a steady state); the RLS is fed from that sample on.
+Convergence follows eq. 3.39, ‖Θk − Θk−1‖₂ < tolerance, required on ``consecutive`` successive
+samples (thesis §3.4: "the criterion should be met consecutively for a certain number of times
+before the training is stopped") and not before ``min_time_s`` of data (see :class:`ConvergenceRule`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .rls import RecursiveLeastSquares
+from .svf import DEFAULT_BANDWIDTH, StateVariableFilter
+
+
+@dataclass(frozen=True)
+class ConvergenceRule:
+    """Stopping rule of eq. 3.39.
+
+    ``consecutive`` = 20 samples (1 s at the thesis' 20 Hz): long enough that the quiet samples
+    while the rudder is held between the doublet's switches do not end training, short enough to
+    stop near the thesis' "converged after about 12 s" of a 16.5 s window. ``min_time_s`` = 6 s is
+    the thesis procedure's end of excitation (2 s lead + 4 s doublet): before it the estimate
+    has not yet seen the whole excitation and a quiet stretch (e.g. before the doublet, where Θ
+    does not move at all) must not count as convergence.
+    """
+
+    tolerance: float = 1e-3
+    consecutive: int = 20
+    min_time_s: float = 6.0
+
+
+@dataclass
+class YawModel:
+    """ṙ = a22·r + b2·(δr − δ0) (eq. 3.6). ``covariance`` is the 3×3 covariance of [a22, b2, C0]."""
+
+    a22: float
+    b2: float
+    delta0: float
+    covariance: list | np.ndarray | None = None
+
+    @property
+    def c0(self) -> float:
+        """C0 = b2·δ0 (eq. 3.7)."""
+        return self.b2 * self.delta0
+
+
+@dataclass
+class PitchModel:
+    """q̇ = −c22·q − c23·θ + d2·δs + Cb (eq. B.10). ``covariance`` is that of [c22, c23, d2, Cb]."""
+
+    c22: float
+    c23: float
+    d2: float
+    cb: float
+    covariance: list | np.ndarray | None = None
+
+    @property
+    def delta_s0(self) -> float:
+        """Steady-state elevator term δs0 = Cb/d2 (eq. B.13); NaN while d2 = 0."""
+        return self.cb / self.d2 if self.d2 != 0.0 else math.nan
+
+
+@dataclass
+class IdentificationHistory:
+    """Per accepted sample: time since the first sample, the parameter vector and its step norm."""
+
+    time_s: list[float] = field(default_factory=list)
+    theta: list[list[float]] = field(default_factory=list)
+    step_norm: list[float] = field(default_factory=list)
+
+
+def _wrap_pi(angle: float) -> float:
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class _SvfRlsIdentifier:
+    """Shared machinery: two SVFs (output, input), an RLS, the convergence test, the history."""
+
+    n_parameters = 0
+    wraps_output = False
+
+    def __init__(
+        self,
+        bandwidth: float = DEFAULT_BANDWIDTH,
+        p0: float = 100.0,
+        rule: ConvergenceRule = ConvergenceRule(),
+        forgetting: float = 1.0,
+        output_hold: str = "foh",
+        input_hold: str = "zoh",
+    ) -> None:
+        self.bandwidth = bandwidth
+        self.rule = rule
+        self._output_filter = StateVariableFilter(bandwidth, hold=output_hold)
+        self._input_filter = StateVariableFilter(bandwidth, hold=input_hold)
+        self.rls = RecursiveLeastSquares(self.n_parameters, p0=p0, forgetting=forgetting)
+        self.history = IdentificationHistory()
+        self.samples = 0
+        self.skipped = 0
+        self.converged = False
+        self.converged_at_s: float | None = None
+        self._first_time: float | None = None
+        self._last_time: float | None = None
+        self._last_raw_output: float | None = None
+        self._output_unwrapped = 0.0
+        self._quiet_count = 0
+
+    def _regression(self, out_f: tuple[float, float, float], in_f: tuple[float, float, float]):
+        raise NotImplementedError
+
+    def _step(self, time_s: float, output: float, actuator: float) -> None:
+        if not (math.isfinite(time_s) and math.isfinite(output) and math.isfinite(actuator)):
+            self.skipped += 1
+            return
+        if self._last_time is not None and not (time_s > self._last_time):
+            self.skipped += 1  # duplicate or out-of-order time stamp
+            return
+        if self.wraps_output and self._last_raw_output is not None:
+            self._output_unwrapped += _wrap_pi(output - self._last_raw_output)
+        else:
+            self._output_unwrapped = output
+        self._last_raw_output = output
+
+        if self._first_time is None:
+            self._first_time = time_s
+            self._output_filter.reset(self._output_unwrapped)
+            self._input_filter.reset(actuator)
+            out_f = self._output_filter.outputs(self._output_unwrapped)
+            in_f = self._input_filter.outputs(actuator)
+        else:
+            dt = time_s - self._last_time
+            out_f = self._output_filter.update(self._output_unwrapped, dt)
+            in_f = self._input_filter.update(actuator, dt)
+        self._last_time = time_s
+
+        previous = self.rls.theta.copy()
+        regressor, target = self._regression(out_f, in_f)
+        theta = self.rls.update(regressor, target)
+        self.samples += 1
+        elapsed = time_s - self._first_time
+        step_norm = float(np.linalg.norm(theta - previous))
+        self.history.time_s.append(elapsed)
+        self.history.theta.append(theta.tolist())
+        self.history.step_norm.append(step_norm)
+
+        # eq. 3.39, met on `consecutive` successive samples after min_time_s
+        if elapsed >= self.rule.min_time_s and step_norm < self.rule.tolerance:
+            self._quiet_count += 1
+        else:
+            self._quiet_count = 0
+        if not self.converged and self._quiet_count >= self.rule.consecutive:
+            self.converged = True
+            self.converged_at_s = elapsed
+
+    @property
+    def theta(self) -> np.ndarray:
+        return self.rls.theta.copy()
+
+
+class YawIdentifier(_SvfRlsIdentifier):
+    """Online yaw identification, thesis §3.2 (SVF eq. 3.26–3.31, regression eq. 3.14–3.15, RLS, eq. 3.39).
+
+    ``update(time_s, heading, rudder)``: heading in rad (wrapped or not; unwrapped internally),
+    rudder deflection in rad, time in vehicle seconds. Samples with a NaN/inf value or a
+    non-increasing time stamp are skipped (counted in ``skipped``).
+    """
+
+    n_parameters = 3
+    wraps_output = True
+
+    def _regression(self, out_f, in_f):
+        heading_f, heading_rate_f, heading_acc_f = out_f
+        rudder_f = in_f[0]
+        return (heading_rate_f, rudder_f, -1.0), heading_acc_f
+
+    def update(self, time_s: float, heading: float, rudder: float) -> YawModel:
+        self._step(time_s, heading, rudder)
+        return self.model()
+
+    def model(self) -> YawModel:
+        """Current estimate; δ0 = C0/b2 (reported as 0 while b2 is still exactly 0)."""
+        a22, b2, c0 = (float(v) for v in self.rls.theta)
+        delta0 = c0 / b2 if b2 != 0.0 else 0.0
+        covariance = self.rls.parameter_covariance() if self.rls.samples > self.n_parameters else None
+        return YawModel(a22=a22, b2=b2, delta0=delta0, covariance=covariance)
+
+    @property
+    def history_table(self) -> dict[str, list[float]]:
+        """For the convergence plot (Fig. 3.7): time_s, a22, b2, delta0, step_norm per sample."""
+        thetas = np.asarray(self.history.theta) if self.history.theta else np.zeros((0, 3))
+        b2 = thetas[:, 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            delta0 = np.where(b2 != 0.0, thetas[:, 2] / np.where(b2 != 0.0, b2, 1.0), 0.0)
+        return {
+            "time_s": list(self.history.time_s),
+            "a22": thetas[:, 0].tolist(),
+            "b2": b2.tolist(),
+            "delta0": delta0.tolist(),
+            "step_norm": list(self.history.step_norm),
+        }
+
+
+class PitchIdentifier(_SvfRlsIdentifier):
+    """Online pitch identification, thesis App. B (eq. B.10, B.12) with the chapter-3 machinery.
+
+    ``update(time_s, pitch, elevator)``; same skipping rules as :class:`YawIdentifier`; pitch is
+    not wrapped.
+    """
+
+    n_parameters = 4
+    wraps_output = False
+
+    def _regression(self, out_f, in_f):
+        pitch_f, pitch_rate_f, pitch_acc_f = out_f
+        elevator_f = in_f[0]
+        return (-pitch_rate_f, -pitch_f, elevator_f, 1.0), pitch_acc_f
+
+    def update(self, time_s: float, pitch: float, elevator: float) -> PitchModel:
+        self._step(time_s, pitch, elevator)
+        return self.model()
+
+    def model(self) -> PitchModel:
+        c22, c23, d2, cb = (float(v) for v in self.rls.theta)
+        covariance = self.rls.parameter_covariance() if self.rls.samples > self.n_parameters else None
+        return PitchModel(c22=c22, c23=c23, d2=d2, cb=cb, covariance=covariance)
+
+    @property
+    def history_table(self) -> dict[str, list[float]]:
+        thetas = np.asarray(self.history.theta) if self.history.theta else np.zeros((0, 4))
+        return {
+            "time_s": list(self.history.time_s),
+            "c22": thetas[:, 0].tolist(),
+            "c23": thetas[:, 1].tolist(),
+            "d2": thetas[:, 2].tolist(),
+            "cb": thetas[:, 3].tolist(),
+            "step_norm": list(self.history.step_norm),
+        }

@@ -1,0 +1,99 @@
+"""Speed schedule of the yaw model and of the heading gains (SPEC C5; thesis 002 §3.3.2, §3.6, Fig. 3.8).
+
+Laws fitted over the stored models (one per speed):
+
+- a22(u) ≈ constant: the weighted mean (thesis: "small variation around its mean value of 1.1");
+- b2(u) = k·u² + c: weighted linear least squares in u² (``numpy.linalg.lstsq``; Fig. 3.8 /
+  eq. 3.51: b2 = 0.31·u² + 0.26), since control authority scales with dynamic pressure;
+- δ0(u) ≈ constant: the weighted mean.
+
+Weights default to 1 (pass e.g. each model's validation R²).
+
+Extrapolation is **clamped**: the laws are evaluated at the speed limited to
+[u_min·(1 − margin), u_max·(1 + margin)] of the identified range (margin 0.2 by default), so a
+speed far outside what was identified does not produce gains from an unsupported extrapolation
+(the thesis itself warns that Fig. 3.13's extrapolation holds only if the laws do). b2 is further
+floored at ``b2_floor_fraction`` (0.5) of the smallest identified b2, so a negative fitted intercept
+can never produce b2 ≤ 0 at low speed.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from .gains import GainBounds, HeadingGains, design_heading_gains
+from .identification import YawModel
+
+
+@dataclass
+class YawSchedule:
+    a22: float
+    b2_slope: float  # k in b2 = k·u² + c, s⁻² per (m/s)²
+    b2_intercept: float  # c, s⁻²
+    delta0: float
+    speed_range: tuple[float, float]
+    b2_residual_rms: float = math.nan  # RMS of b2 − (k·u² + c) over the models
+    a22_std: float = math.nan  # weighted standard deviation of a22 around the mean
+    b2_min_identified: float = math.nan
+    margin: float = 0.2
+    b2_floor_fraction: float = 0.5
+    speeds: list[float] = field(default_factory=list)
+
+    def clamp_speed(self, speed: float) -> float:
+        """The speed at which the laws are evaluated (clamped extrapolation, see module docstring)."""
+        low, high = self.speed_range
+        return min(max(float(speed), low * (1.0 - self.margin)), high * (1.0 + self.margin))
+
+    def b2_at(self, speed: float) -> float:
+        u = self.clamp_speed(speed)
+        b2 = self.b2_slope * u * u + self.b2_intercept
+        return max(b2, self.b2_floor_fraction * self.b2_min_identified)
+
+    def model_at(self, speed: float) -> YawModel:
+        return YawModel(a22=self.a22, b2=self.b2_at(speed), delta0=self.delta0)
+
+    def gains_at(self, speed: float, bounds: GainBounds = GainBounds()) -> HeadingGains:
+        return design_heading_gains(self.model_at(speed), bounds, speed=float(speed))
+
+
+def fit_yaw_schedule(
+    speeds: Sequence[float],
+    models: Sequence[YawModel],
+    weights: Sequence[float] | None = None,
+    margin: float = 0.2,
+) -> YawSchedule:
+    """Fit the speed laws to ≥ 2 models at ≥ 2 distinct speeds (ValueError otherwise)."""
+    speeds_arr = np.asarray(speeds, dtype=float)
+    if speeds_arr.size != len(models):
+        raise ValueError("speeds and models must have the same length")
+    w = np.ones(speeds_arr.size) if weights is None else np.asarray(weights, dtype=float)
+    a22 = np.array([m.a22 for m in models], dtype=float)
+    b2 = np.array([m.b2 for m in models], dtype=float)
+    delta0 = np.array([m.delta0 for m in models], dtype=float)
+    ok = np.isfinite(speeds_arr) & np.isfinite(a22) & np.isfinite(b2) & np.isfinite(delta0) & np.isfinite(w) & (w > 0)
+    speeds_arr, w, a22, b2, delta0 = speeds_arr[ok], w[ok], a22[ok], b2[ok], delta0[ok]
+    if speeds_arr.size < 2 or np.unique(speeds_arr).size < 2:
+        raise ValueError("need models at two or more distinct speeds")
+    if np.any(a22 >= 0.0) or np.any(b2 <= 0.0):
+        raise ValueError("every model needs a22 < 0 and b2 > 0")
+    a22_mean = float(np.average(a22, weights=w))
+    a22_std = float(math.sqrt(np.average((a22 - a22_mean) ** 2, weights=w)))
+    sqrt_w = np.sqrt(w)
+    design = np.column_stack([speeds_arr**2, np.ones_like(speeds_arr)])
+    (slope, intercept), *_ = np.linalg.lstsq(design * sqrt_w[:, None], b2 * sqrt_w, rcond=None)
+    residual = b2 - (slope * speeds_arr**2 + intercept)
+    return YawSchedule(
+        a22=a22_mean,
+        b2_slope=float(slope),
+        b2_intercept=float(intercept),
+        delta0=float(np.average(delta0, weights=w)),
+        speed_range=(float(speeds_arr.min()), float(speeds_arr.max())),
+        b2_residual_rms=float(np.sqrt(np.mean(residual**2))),
+        a22_std=a22_std,
+        b2_min_identified=float(b2.min()),
+        margin=margin,
+        speeds=speeds_arr.tolist(),
+    )
