@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass
 from typing import Sequence
 
 import numpy as np
+from scipy.signal import savgol_filter
 
 from companion.interface import Command, SetHeading, SetParameters, SetThrust, StatusText, Telemetry
 
@@ -22,10 +23,25 @@ class StepTestConfig:
     hold_s: float = 25.0
 
 
+def smooth_heading(times: np.ndarray, heading: np.ndarray, window_s: float = 1.0) -> np.ndarray:
+    """Savitzky–Golay smoothing (quadratic, ``window_s`` long) of a measured heading.
+
+    The maximum of a noisy signal is biased upwards by a few noise σ (σ 0.3° of compass noise reads
+    as 3–5 % of extra overshoot on a 20° step); a quadratic local fit over 1 s removes the noise
+    and keeps the response peak, which is several seconds wide."""
+    if len(times) < 7:
+        return heading
+    dt = float(np.median(np.diff(times)))
+    window = int(round(window_s / dt)) | 1  # odd
+    window = min(window, len(heading) - (1 - len(heading) % 2))
+    return savgol_filter(heading, window, 2) if window >= 5 else heading
+
+
 def step_metrics(times: Sequence[float], heading: Sequence[float], start: float, target: float) -> dict:
-    """Overshoot (% of the step) and 90 % rise time of one heading step (headings unwrapped)."""
+    """Overshoot (% of the step) and 90 % rise time of one heading step (headings unwrapped,
+    smoothed by :func:`smooth_heading` first)."""
     t = np.asarray(times, dtype=float)
-    psi = np.asarray(heading, dtype=float)
+    psi = smooth_heading(t, np.asarray(heading, dtype=float))
     size = target - start
     if len(t) < 2 or abs(size) < 1e-9:
         return {"overshoot_pct": math.nan, "rise_time_s": math.nan}

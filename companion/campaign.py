@@ -75,6 +75,15 @@ class DesignOutcome:
     error: str | None = None
 
 
+def constant_schedule(speed: float, model: YawModel) -> YawSchedule:
+    """A campaign at a single speed cannot fit b2(u): keep that model's gains at every speed
+    (no extrapolation of an unknown law) — the honest fallback, logged by the caller."""
+    if not (model.a22 < 0 and model.b2 > 0):
+        raise ValueError("the model needs a22 < 0 and b2 > 0")
+    return YawSchedule(a22=model.a22, b2_slope=0.0, b2_intercept=model.b2, delta0=model.delta0,
+                       speed_range=(speed, speed), b2_min_identified=model.b2, speeds=[speed])
+
+
 def design_from_attempts(accepted: Sequence[dict], bounds: GainBounds) -> DesignOutcome:
     """Fit the schedule over the accepted yaw attempts and design gains at each of their speeds."""
     usable = [a for a in accepted if a["axis"] == "yaw" and math.isfinite(a.get("speed") or math.nan)]
@@ -83,7 +92,10 @@ def design_from_attempts(accepted: Sequence[dict], bounds: GainBounds) -> Design
     models = [YawModel(a["model"]["a22"], a["model"]["b2"], a["model"]["delta0"]) for a in usable]
     speeds = [a["speed"] for a in usable]
     try:
-        schedule = fit_yaw_schedule(speeds, models)
+        if len({round(u, 3) for u in speeds}) == 1:
+            schedule = constant_schedule(speeds[-1], models[-1])
+        else:
+            schedule = fit_yaw_schedule(speeds, models)
     except ValueError as exc:
         return DesignOutcome(None, error=f"schedule fit failed: {exc}")
     per_thrust = []
