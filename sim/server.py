@@ -126,6 +126,7 @@ class SimServer:
         self._next_emit = 0
         self._measure = None
         self._measure_tick = -1
+        self._after_ack: list = []  # replies a command asked for, sent after its COMMAND_ACK
         self.conn: mavutil.mavfile | None = None
         self._tcp = config.listen.startswith("tcpin:")
         self.stats = {"ticks": 0, "sent": 0, "received": 0, "bad": 0, "wall_s": 0.0}
@@ -501,13 +502,22 @@ class SimServer:
         if not self._for_us(msg):
             return
         params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
-        self._ack(msg, msg.command, self._command(msg.command, params, msg))
+        self._answer(msg, params)
 
     def _handle_command_int(self, msg) -> None:
         if not self._for_us(msg):
             return
         params = (msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), msg.z)
-        self._ack(msg, msg.command, self._command(msg.command, params, msg))
+        self._answer(msg, params)
+
+    def _answer(self, msg, params: tuple) -> None:
+        """Execute, ACK, then send what the command asked for (ArduPilot's order)."""
+        self._after_ack = []
+        result = self._command(msg.command, params, msg)
+        self._ack(msg, msg.command, result)
+        for reply in self._after_ack:
+            self._send(reply)
+        self._after_ack = []
 
     def _ack(self, msg, command: int, result: int) -> None:
         self._send(
@@ -545,10 +555,10 @@ class SimServer:
             built = self._build(int(p[0])) if int(p[0]) in self._requestable else None
             if built is None:
                 return Result.DENIED
-            self._send(built)
+            self._after_ack.append(built)
             return Result.ACCEPTED
         if command == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
-            self._send(self._autopilot_version())
+            self._after_ack.append(self._autopilot_version())
             return Result.ACCEPTED
         if command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             return self._set_interval(int(p[0]), p[1])
@@ -557,7 +567,7 @@ class SimServer:
             if stream is None:
                 return Result.DENIED
             interval = int(round(stream.period * self.dt * 1e6)) if stream.period else -1
-            self._send(mavlink.MAVLink_message_interval_message(stream.msg_id, interval))
+            self._after_ack.append(mavlink.MAVLink_message_interval_message(stream.msg_id, interval))
             return Result.ACCEPTED
         log.info("unsupported command %d from %d/%d", command, msg.get_srcSystem(),
                  msg.get_srcComponent())
