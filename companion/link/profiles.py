@@ -246,7 +246,9 @@ ARDUSUB = AutopilotProfile(
     channels={"rudder": 4, "elevator": 1, "thrust": 5},
     servo_outputs={},  # thruster outputs are mixed: no fin position to read back without a custom frame
     params={
-        "heading_p": "ATC_ANG_YAW_P", "heading_rate_p": "ATC_RAT_YAW_P", "heading_rate_i": "ATC_RAT_YAW_I",
+        # heading_p/heading_i/heading_imax are realised through heading_pi_to_native, not 1:1
+        "heading_p": "ATC_ANG_YAW_P", "heading_i": "ATC_RAT_YAW_I", "heading_imax": "ATC_RAT_YAW_IMAX",
+        "heading_rate_p": "ATC_RAT_YAW_P", "heading_rate_i": "ATC_RAT_YAW_I",
         "heading_rate_d": "ATC_RAT_YAW_D", "heading_rate_ff": "ATC_RAT_YAW_FF",
         "heading_rate_imax": "ATC_RAT_YAW_IMAX", "pitch_p": "ATC_ANG_PIT_P",
         "gcs_sysid": "SYSID_MYGCS", "override_timeout": "RC_OVERRIDE_TIME", "system_id": "SYSID_THISMAV",
@@ -271,7 +273,9 @@ ARDUROVER = AutopilotProfile(
     channels={"rudder": 1, "thrust": 3},
     servo_outputs={"rudder": 1, "thrust": 3},
     params={
-        "heading_p": "ATC_STR_ANG_P", "heading_rate_p": "ATC_STR_RAT_P", "heading_rate_i": "ATC_STR_RAT_I",
+        # heading_p/heading_i/heading_imax are realised through heading_pi_to_native, not 1:1
+        "heading_p": "ATC_STR_ANG_P", "heading_i": "ATC_STR_RAT_I", "heading_imax": "ATC_STR_RAT_IMAX",
+        "heading_rate_p": "ATC_STR_RAT_P", "heading_rate_i": "ATC_STR_RAT_I",
         "heading_rate_d": "ATC_STR_RAT_D", "heading_rate_ff": "ATC_STR_RAT_FF",
         "heading_rate_imax": "ATC_STR_RAT_IMAX", "rudder_trim": "SERVO1_TRIM",
         "cruise_speed": "CRUISE_SPEED", "cruise_thrust": "CRUISE_THROTTLE",
