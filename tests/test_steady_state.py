@@ -6,6 +6,7 @@ the simulator's ``hugin`` preset in-process (tests may import ``sim``).
 """
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -303,6 +304,7 @@ def test_square_behavior_recovers_current_and_restores():
     assert behavior.done
     res = behavior.result()
     assert res["status"] == "completed"
+    json.dumps(res)  # the store keeps it as JSON
     assert np.hypot(res["current_north"] - cur[0], res["current_east"] - cur[1]) < 0.003
     assert res["surge_water"] == pytest.approx(1.6, abs=0.003)
     assert res["condition_number"] < 1.2
@@ -320,6 +322,7 @@ def test_turn_behavior_fits_each_rudder_angle_and_releases():
     commands = run_behavior(behavior, vehicle, 400.0)
     res = behavior.result()
     assert res["status"] == "completed", res
+    json.dumps(res)
     for turn, angle in zip(res["turns"], (0.2, -0.2)):
         omega = 0.4 * angle
         assert turn["radius_m"] == pytest.approx(1.6 / abs(omega), rel=0.01)
