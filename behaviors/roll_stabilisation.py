@@ -1,8 +1,9 @@
 """Active roll stabilisation with the internal rolling mass (SPEC C6; thesis 002, §4.4–4.5).
 
 Steps on telemetry.roll at the telemetry rate (vehicle time) and emits SetRollingMass with the PI
-law of :mod:`companion.numerics.roll` (α = −Kp·φ + Kp·z·∫φ for the usual negative plant gain,
-anti-windup clamp at the ±20° mass limit). A new command is sent only when it differs from the last
+law of :mod:`companion.numerics.roll` (default: restoring angle + roll-rate feedback with the
+seed's integral zero at 0.01 and anti-windup clamp at the ±20° mass limit; the seed's own law,
+``seed_gains``, can be passed in the config). A new command is sent only when it differs from the last
 one by at least ``command_quantum`` (one microsecond of PWM on a ±30° channel ≈ 0.001 rad), so the
 DO_SET_SERVO traffic stays at most the telemetry rate. ``abort()`` centres the mass.
 
@@ -19,12 +20,12 @@ from typing import Sequence
 import numpy as np
 
 from companion.interface import Command, SetRollingMass, StatusText, Telemetry
-from companion.numerics.roll import RollPI, RollPIGains, RollVehicle, design_gains, linearise
+from companion.numerics.roll import RollPI, RollPIGains, RollVehicle, linearise, rate_feedback_gains
 
 
 def default_gains() -> RollPIGains:
-    """The seed's design transferred to the Table 4.1 vehicle (Kp ≈ 1.99, zero at 0.01)."""
-    return design_gains(linearise(RollVehicle()))
+    """The rate-feedback design on the Table 4.1 vehicle (kp ≈ 3, kd ≈ 6, zero at 0.01)."""
+    return rate_feedback_gains(linearise(RollVehicle()))
 
 
 @dataclass(frozen=True)
@@ -73,7 +74,7 @@ class RollStabilisation:
             self._start = now
             commands.append(StatusText("roll stabilisation on"))
         elapsed = now - self._start
-        command = self.controller.update(now, telemetry.roll)
+        command = self.controller.update(now, telemetry.roll, telemetry.roll_rate)
         if not math.isfinite(self._last_sent) or abs(command - self._last_sent) >= self.config.command_quantum:
             commands.append(SetRollingMass(command))
             self._last_sent = command

@@ -25,6 +25,8 @@ stable for Kp·|k| < b, the seed's "0 < Kp < 8.50"), its integral part is the sl
 feedback that removes the mean roll (propeller torque). Applied to the physical k, Kp = 5 would be
 unstable (limit 3.4); :func:`seed_equivalent_gain` rescales Kp so that Kp·|k| equals the seed's
 loop gain 5 × 0.61, which reproduces the seed's closed-loop poles on the physical plant.
+The default law of the product is therefore :func:`rate_feedback_gains` (restoring angle feedback
+plus roll-rate damping, same integral zero); :func:`seed_gains` keeps the seed's law for comparison.
 Pure numerics: no I/O, no clock.
 """
 from __future__ import annotations
@@ -165,13 +167,17 @@ def linearise(vehicle: RollVehicle, roll_amplitude: float = 0.0) -> RollLinearMo
 
 @dataclass(frozen=True)
 class RollPIGains:
-    """α_cmd = sign(k)·Kp·(φ − z·∫φ dt), clamped to ±limit, integral part clamped to ±limit.
+    """Roll law in the *restoring* convention (positive gains oppose roll):
 
-    For the seed's negative k this is α = −Kp·φ + Kp·z·∫φ dt (Table 4.2: C(s) = Kp·(s − z)/s in
-    negative feedback)."""
+        α_cmd = −sign(k)·(kp·φ + kd·p + ki·∫φ dt),  |α_cmd| ≤ limit, |ki·∫φ| ≤ limit (anti-windup)
 
-    kp: float  # rad mass angle per rad roll (magnitude; the sign comes from the plant gain)
-    integral_zero: float = SEED_INTEGRAL_ZERO  # 1/s, z
+    The seed's law (Table 4.2) is kp = −Kp (negative: it softens the roll through the servo lag to
+    gain damping), ki = Kp·z, kd = 0; see :func:`seed_gains`. ``kd`` uses the measured roll rate p.
+    """
+
+    kp: float  # rad mass per rad roll
+    ki: float = 0.0  # rad mass per rad·s of roll
+    kd: float = 0.0  # rad mass per rad/s of roll rate
     limit: float = math.radians(20.0)  # rad, mass-angle limit (anti-windup clamp)
     plant_sign: float = -1.0  # sign of k: −1 when a positive mass angle rolls the vehicle negative
 
@@ -181,18 +187,39 @@ def seed_equivalent_gain(model: RollLinearModel, seed_kp: float = SEED_KP, seed_
     return seed_kp * abs(seed_k) / abs(model.k)
 
 
-def design_gains(model: RollLinearModel, limit: float = math.radians(20.0), integral_zero: float = SEED_INTEGRAL_ZERO) -> RollPIGains:
+def seed_gains(model: RollLinearModel, limit: float = math.radians(20.0),
+               integral_zero: float = SEED_INTEGRAL_ZERO) -> RollPIGains:
     """The seed's design transferred to ``model``: loop gain of Table 4.2, zero at ``integral_zero``."""
-    return RollPIGains(kp=seed_equivalent_gain(model), integral_zero=integral_zero, limit=limit,
-                       plant_sign=math.copysign(1.0, model.k))
+    kp = seed_equivalent_gain(model)
+    return RollPIGains(kp=-kp, ki=kp * integral_zero, kd=0.0, limit=limit, plant_sign=math.copysign(1.0, model.k))
+
+
+#: loop gains |k|·kp (s⁻²) and |k|·kd (s⁻¹) of the default rate-feedback design (kp = 3, kd = 6 on
+#: the Table 4.1 plant): found by a grid search minimising the linear model's roll variance under a
+#: band-limited (1 s) random roll moment, then checked on the nonlinear simulator (bench/bench_roll.py)
+RATE_DESIGN_LOOP_KP = 4.6
+RATE_DESIGN_LOOP_KD = 9.2
+
+
+def rate_feedback_gains(model: RollLinearModel, limit: float = math.radians(20.0),
+                        integral_zero: float = SEED_INTEGRAL_ZERO) -> RollPIGains:
+    """The default design: restoring angle feedback plus roll-rate damping, integral zero at z.
+
+    The seed's law only trades stiffness for damping, so against a broadband disturbance it does
+    not lower the roll standard deviation (measured: bench/bench_roll.py); feeding back the roll rate
+    adds damping directly. Gains are scaled by 1/|k| so the loop gains carry over to another plant.
+    """
+    kp = RATE_DESIGN_LOOP_KP / abs(model.k)
+    kd = RATE_DESIGN_LOOP_KD / abs(model.k)
+    return RollPIGains(kp=kp, ki=kp * integral_zero, kd=kd, limit=limit, plant_sign=math.copysign(1.0, model.k))
 
 
 def closed_loop_poles(model: RollLinearModel, gains: RollPIGains) -> np.ndarray:
-    """Poles of the linear closed loop with the PI law (for design checks and the report)."""
+    """Poles of the linear closed loop (for design checks and the report)."""
     s = control.tf("s")
     plant = model.transfer_function()
-    # α = sign(k)·Kp·(1 − z/s)·φ = −C·φ  ⇒  negative feedback with C = −sign(k)·Kp·(s − z)/s
-    controller = -gains.plant_sign * gains.kp * (s - gains.integral_zero) / s
+    # α = −sign(k)·(kp + kd·s + ki/s)·φ = −C·φ  ⇒  negative feedback with C = sign(k)·(kp + kd·s + ki/s)
+    controller = gains.plant_sign * (gains.kp + gains.kd * s + gains.ki / s)
     loop = control.feedback(plant * controller, 1)
     return np.sort_complex(np.asarray(control.poles(loop)))
 
@@ -203,7 +230,7 @@ def stability_limit(model: RollLinearModel) -> float:
 
 
 class RollPI:
-    """The discrete PI law on vehicle time (forward-Euler integral, the seed's anti-windup clamp)."""
+    """The discrete roll law on vehicle time (forward-Euler integral, the seed's anti-windup clamp)."""
 
     def __init__(self, gains: RollPIGains) -> None:
         self.gains = gains
@@ -214,14 +241,15 @@ class RollPI:
         self.integral_term = 0.0
         self._last_time = math.nan
 
-    def update(self, time_s: float, roll: float) -> float:
-        """Mass-angle command for the roll measured at vehicle time ``time_s``."""
+    def update(self, time_s: float, roll: float, roll_rate: float = 0.0) -> float:
+        """Mass-angle command for roll (and roll rate) measured at vehicle time ``time_s``."""
         g = self.gains
-        direction = g.plant_sign  # −1 for the seed's negative k: α = −Kp·φ + Kp·z·∫φ
+        direction = -g.plant_sign  # +1 for the usual negative k
         dt = time_s - self._last_time if math.isfinite(self._last_time) else 0.0
         self._last_time = time_s
         if dt > 0.0:
-            self.integral_term -= direction * g.kp * g.integral_zero * roll * dt
+            self.integral_term += direction * g.ki * roll * dt
             self.integral_term = min(g.limit, max(-g.limit, self.integral_term))
-        command = direction * g.kp * roll + self.integral_term
+        rate = roll_rate if math.isfinite(roll_rate) else 0.0
+        command = direction * (g.kp * roll + g.kd * rate) + self.integral_term
         return min(g.limit, max(-g.limit, command))
