@@ -196,12 +196,13 @@ class MinSpeedSeeking:
         moves = [d for time_s, d, _ in self.decisions if time_s >= since_s and d != 0]
         return sum(1 for a, b in zip(moves, moves[1:]) if a != b)
 
-    def max_depth_error(self) -> float:
+    def max_depth_error(self, since_s: float | None = None) -> float:
+        """Largest |z − z_sp| after ``since_s`` (default: after the start-up transient)."""
         if not math.isfinite(self._depth_setpoint):
             return math.nan
         times = np.asarray(self.series["time"])
         depth = np.asarray(self.series["depth"])
-        mask = times >= self.config.transient_s
+        mask = times >= (self.config.transient_s if since_s is None else since_s)
         return float(np.max(np.abs(depth[mask] - self._depth_setpoint))) if mask.any() else math.nan
 
     def result(self) -> dict:
@@ -223,6 +224,8 @@ class MinSpeedSeeking:
             "speed_final": float(np.mean(tail_speed)) if len(tail_speed) else None,
             "settle_time_s": self.settle_time(),
             "max_depth_error_m": self.max_depth_error(),
+            "max_depth_error_settled_m": (self.max_depth_error(settle) if (settle := self.settle_time()) is not None
+                                          else None),
             "depth_setpoint_m": self._depth_setpoint if math.isfinite(self._depth_setpoint) else None,
             "reversals_last_30s": self.reversals(end - 30.0),
             "decisions": len(self.decisions),
