@@ -88,6 +88,7 @@ def servo_rudder_series(messages):
 def hold_mode(conn) -> None:
     """Armed, ALT_HOLD, default RC timeout, nothing overridden."""
     override(conn, 0, 0, 0)
+    assert param_set(conn, "RC_OVR_TIME", 3.0).param_value == 3.0
     assert command(conn, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mav.MAV_RESULT_ACCEPTED
     assert command(conn, mav.MAV_CMD_DO_SET_MODE, 1, 19) == mav.MAV_RESULT_ACCEPTED
     assert command(conn, mav.MAV_CMD_DO_SET_MODE, 1, 2) == mav.MAV_RESULT_ACCEPTED
@@ -240,10 +241,13 @@ def test_rudder_override_in_alt_hold_then_release(client):
 def test_override_expires_after_rc_ovr_time(client):
     hold_mode(client)
     assert param_set(client, "RC_OVR_TIME", 2.0).param_value == 2.0
-    collect(client, 5.0)
-    t_send = recv_until(client, lambda m: m.get_type() == "ATTITUDE").time_boot_ms / 1000
-    override(client, rudder=fin_pwm(0.25))
-    rudder = servo_rudder_series(collect(client, 8.0, {"SERVO_OUTPUT_RAW", "ATTITUDE"}))
+    try:
+        collect(client, 5.0)
+        t_send = recv_until(client, lambda m: m.get_type() == "ATTITUDE").time_boot_ms / 1000
+        override(client, rudder=fin_pwm(0.25))
+        rudder = servo_rudder_series(collect(client, 8.0, {"SERVO_OUTPUT_RAW", "ATTITUDE"}))
+    finally:
+        param_set(client, "RC_OVR_TIME", 3.0)
     held = [r for t, r in rudder if t_send + 1.0 <= t <= t_send + 1.8]
     released = [r for t, r in rudder if t >= t_send + 3.5]
     assert held and min(held) > 0.24  # honoured while fresh (reached through the rate limit)
@@ -266,7 +270,7 @@ def test_manual_mode_rc_and_disarmed_outputs(client):
     last = collect(client, 3.0, {"SERVO_OUTPUT_RAW"})[-1]
     assert (last.servo1_raw, last.servo2_raw, last.servo3_raw) == (1500, 1500, 1000)  # no RC
     override(client, rudder=fin_pwm(-0.1), elevator=fin_pwm(0.05), thrust=1600)
-    last = collect(client, 2.0, {"SERVO_OUTPUT_RAW"})[-1]
+    last = collect(client, 1.5, {"SERVO_OUTPUT_RAW"})[-1]  # within RC_OVR_TIME (3 s)
     assert pwm_fin(last.servo1_raw) == pytest.approx(-0.1, abs=0.003)
     assert pwm_fin(last.servo2_raw) == pytest.approx(0.05, abs=0.003)
     assert last.servo3_raw == 1600
