@@ -1,0 +1,142 @@
+"""Gain design (SPEC C5, eq. 3.55–3.57, Table 3.4), turning performance (Table 3.3), schedule (Fig. 3.8)."""
+from __future__ import annotations
+
+import json
+import math
+
+import control
+import numpy as np
+import pytest
+
+from companion.cli import main as cli_main
+from companion.numerics.gains import DESIGN_DAMPING, GainBounds, design_heading_gains
+from companion.numerics.identification import YawModel
+from companion.numerics.schedule import fit_yaw_schedule
+from companion.numerics.turning import turning_performance
+
+#: Table 3.4: (a22, b2) → Kp
+TABLE_3_4 = [((-1.28, 0.65), 1.26), ((-1.51, 1.04), 1.09), ((-1.70, 1.41), 1.02),
+             ((-1.54, 1.30), 0.91), ((-1.69, 1.85), 0.77), ((-1.48, 2.02), 0.54)]
+TABLE_3_1_SPEEDS = [1.07, 1.36, 1.63, 1.92, 2.19]
+TABLE_3_1 = [(-0.95, 0.60, 0.012), (-1.12, 0.87, 0.012), (-1.07, 1.08, 0.011), (-1.14, 1.37, 0.004), (-1.21, 1.77, 0.003)]
+
+
+@pytest.mark.parametrize("pair, kp", TABLE_3_4)
+def test_table_3_4_proportional_gains(pair, kp):
+    gains = design_heading_gains(YawModel(pair[0], pair[1], 0.02), speed=1.5)
+    assert gains.kp == pytest.approx(kp, abs=0.01)
+    assert gains.trim == 0.02 and gains.speed == 1.5 and gains.clamped == ()
+
+
+@pytest.mark.parametrize("pair, kp", TABLE_3_4)
+def test_pi_keeps_the_damping_and_overshoot_below_6_percent(pair, kp):
+    """python-control: heading loop b2/(s² − a22 s) with PI on the error; dominant pair ζ within
+    0.005 of 0.7071, step overshoot ≤ 6 %, zero steady-state error, third pole real and slow."""
+    a22, b2 = pair
+    gains = design_heading_gains(YawModel(a22, b2, 0.0))
+    assert gains.ki > 0.0
+    plant = control.tf([b2], [1.0, -a22, 0.0])
+    controller = control.tf([gains.kp, gains.ki], [1.0, 0.0])
+    closed = control.feedback(controller * plant, 1)
+    wn, zeta, poles = control.damp(closed, doprint=False)
+    complex_idx = np.flatnonzero(np.abs(poles.imag) > 1e-9)
+    assert complex_idx.size == 2
+    assert np.all(np.abs(zeta[complex_idx] - DESIGN_DAMPING) < 0.005)
+    real_pole = poles[np.abs(poles.imag) <= 1e-9]
+    assert real_pole.size == 1 and -abs(a22) / 20 < real_pole[0].real < 0.0
+    info = control.step_info(closed, T=np.linspace(0, 3000, 60001))
+    assert info["Overshoot"] <= 6.0
+    assert control.dcgain(closed) == pytest.approx(1.0)
+
+
+def test_p_only_loop_overshoot_is_the_second_order_value():
+    """Eq. 3.55 with eq. 3.57: ζ = 0.7071 ⇒ 4.3 % overshoot (the thesis' "approximately 5 %")."""
+    a22, b2 = -1.51, 1.04
+    kp = design_heading_gains(YawModel(a22, b2, 0.0)).kp
+    closed = control.tf([kp * b2], [1.0, -a22, kp * b2])
+    assert control.step_info(closed)["Overshoot"] == pytest.approx(4.32, abs=0.05)
+
+
+def test_bounds_clamp_and_invalid_models_raise():
+    tiny_authority = design_heading_gains(YawModel(-1.5, 0.01, 0.4))
+    assert tiny_authority.kp == GainBounds().kp_max
+    assert tiny_authority.trim == GainBounds().trim_limit
+    assert set(tiny_authority.clamped) >= {"kp", "trim"}
+    tight = design_heading_gains(YawModel(-1.28, 0.65, -0.3), GainBounds(kp_max=1.0, trim_limit=0.05))
+    assert tight.kp == 1.0 and tight.trim == -0.05
+    for bad in (YawModel(0.5, 1.0, 0.0), YawModel(-1.0, -1.0, 0.0), YawModel(math.nan, 1.0, 0.0)):
+        with pytest.raises(ValueError):
+            design_heading_gains(bad)
+
+
+def test_table_3_3_turning_performance():
+    perf = turning_performance(YawModel(-1.62, 1.25, 0.036), speed=1.4, delta_max=0.26)
+    assert perf.yaw_rate_max_deg_s == pytest.approx(9.90, rel=0.03)
+    assert perf.u_turn_time_s == pytest.approx(20.65, rel=0.03)
+    assert perf.turning_radius_m == pytest.approx(9.20, rel=0.03)
+    assert perf.settle_time_s == pytest.approx(4 / 1.62)
+    assert perf.u_turn_time_s == pytest.approx(perf.settle_time_s + math.pi / perf.yaw_rate_max)
+
+
+def test_eq_3_52_radius_curve():
+    """Eq. 3.52 (a22 −1.1, b2 = 0.31V² + 0.26, δ0 0): R(0.25 m/s) ≈ 4 m ("at speed 0.25 m/s, the
+    turning radius is 4 m"); the local minimum of the high-speed region is ≈ 7.6 m near 3 m/s
+    (SPEC §3: not the printed 5.9 m at 4.2 m/s)."""
+    def radius(v):
+        return turning_performance(YawModel(-1.1, 0.31 * v * v + 0.26, 0.0), v).turning_radius_m
+    assert radius(0.25) == pytest.approx(4.0, abs=0.2)
+    speeds = np.linspace(2.0, 5.0, 301)
+    radii = [radius(v) for v in speeds]
+    assert min(radii) == pytest.approx(7.6, abs=0.1)
+    assert speeds[int(np.argmin(radii))] == pytest.approx(3.0, abs=0.15)
+    with pytest.raises(ValueError):
+        turning_performance(YawModel(-1.1, 1.0, 0.3), 1.0, delta_max=0.26)
+
+
+def test_schedule_fit_of_table_3_1():
+    models = [YawModel(*row) for row in TABLE_3_1]
+    schedule = fit_yaw_schedule(TABLE_3_1_SPEEDS, models)
+    assert schedule.a22 == pytest.approx(-1.1, abs=0.01)
+    assert schedule.b2_slope == pytest.approx(0.31, abs=0.01)  # Fig. 3.8: 0.31 u² + 0.26
+    assert schedule.b2_intercept == pytest.approx(0.26, abs=0.01)
+    assert schedule.b2_residual_rms < 0.05
+    assert schedule.speed_range == (1.07, 2.19)
+    # inside the range: the law; gains follow it
+    model = schedule.model_at(1.5)
+    assert model.b2 == pytest.approx(0.3109 * 2.25 + 0.2592, abs=1e-3)
+    gains = schedule.gains_at(1.5)
+    assert gains.kp == pytest.approx(schedule.a22**2 / (2 * model.b2)) and gains.speed == 1.5
+    # clamped extrapolation: beyond 1.2 × u_max (and below 0.8 × u_min) the laws are held
+    assert schedule.model_at(10.0).b2 == pytest.approx(schedule.model_at(2.19 * 1.2).b2)
+    assert schedule.model_at(0.0).b2 == pytest.approx(schedule.model_at(1.07 * 0.8).b2)
+    assert schedule.gains_at(3.0).kp < schedule.gains_at(1.0).kp  # more authority, less gain
+
+
+def test_schedule_weights_and_errors():
+    models = [YawModel(-1.0, 1.0, 0.0), YawModel(-2.0, 2.0, 0.01)]
+    weighted = fit_yaw_schedule([1.0, 2.0], models, weights=[3.0, 1.0])
+    assert weighted.a22 == pytest.approx(-1.25)
+    # a negative fitted intercept cannot make b2 ≤ 0 at low speed
+    steep = fit_yaw_schedule([1.0, 2.0], [YawModel(-1.0, 0.2, 0.0), YawModel(-1.0, 2.0, 0.0)])
+    assert steep.b2_intercept < 0 and steep.model_at(0.1).b2 >= 0.1
+    with pytest.raises(ValueError):
+        fit_yaw_schedule([1.0, 1.0], models)
+    with pytest.raises(ValueError):
+        fit_yaw_schedule([1.0, 2.0], [YawModel(0.1, 1.0, 0.0), YawModel(-1.0, 1.0, 0.0)])
+
+
+def test_design_command_json_and_errors(capsys):
+    code = cli_main(["design", "--a22", "-1.62", "--b2", "1.25", "--delta0", "0.036", "--speed", "1.4", "--json"])
+    assert code == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["kp"] == pytest.approx(1.62**2 / 2.5)
+    assert result["trim"] == pytest.approx(0.036)
+    assert result["yaw_rate_max_deg_s"] == pytest.approx(9.90, abs=0.01)
+    assert result["u_turn_time_s"] == pytest.approx(20.65, abs=0.01)
+    assert result["turning_radius_m"] == pytest.approx(9.20, abs=0.01)
+    assert cli_main(["design", "--a22", "-1.62", "--b2", "1.25"]) == 0
+    assert "turning_radius_m" in capsys.readouterr().out
+    for bad in (["--a22", "0.5", "--b2", "1"], ["--a22", "-1", "--b2", "-1"], ["--a22", "nan", "--b2", "1"],
+                ["--a22", "-1", "--b2", "1", "--delta0", "0.3"]):
+        assert cli_main(["design", *bad]) == 2
+        assert "error" in capsys.readouterr().err
