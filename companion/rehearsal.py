@@ -30,15 +30,20 @@ class SimulatorError(RuntimeError):
     pass
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as sock:
         sock.bind(("127.0.0.1", 0))
         return sock.getsockname()[1]
 
 
 @dataclass
 class SimulatorProcess:
-    """``python -m sim run`` as a child process on a free loopback UDP port.
+    """``python -m sim run`` as a child process on a free loopback port.
+
+    The rehearsal uses TCP by default: at 50x the simulator sends ~4,000 messages per wall second,
+    one UDP datagram each, and the kernel charges ~1 KB per datagram against the receive buffer, so
+    a companion descheduled for some tens of milliseconds on a busy 2-core machine loses samples
+    over UDP. TCP on loopback is flow-controlled and lossless; a vehicle at 1x has no such burst.
 
     Waiting for its READY line is the one wall-clock wait of the companion: it is a process start,
     not vehicle logic.
@@ -50,18 +55,25 @@ class SimulatorProcess:
     current: tuple[float, float] = (0.0, 0.0)
     extra_args: list[str] = field(default_factory=list)
     ready_timeout_s: float = 60.0
+    transport: str = "tcp"  # or "udp"
     process: subprocess.Popen | None = None
     port: int = 0
 
     @property
     def endpoint(self) -> str:
-        """The connection string a client uses (the simulator listens with ``udpin``)."""
-        return f"udpout:127.0.0.1:{self.port}"
+        """The connection string a client uses (the simulator listens with ``tcpin``/``udpin``)."""
+        return f"tcp:127.0.0.1:{self.port}" if self.transport == "tcp" else f"udpout:127.0.0.1:{self.port}"
+
+    @property
+    def listen(self) -> str:
+        return f"{'tcpin' if self.transport == 'tcp' else 'udpin'}:127.0.0.1:{self.port}"
 
     def start(self) -> "SimulatorProcess":
-        self.port = free_udp_port()
+        if self.transport not in ("tcp", "udp"):
+            raise SimulatorError(f"transport must be tcp or udp, not {self.transport!r}")
+        self.port = free_port(socket.SOCK_STREAM if self.transport == "tcp" else socket.SOCK_DGRAM)
         command = [sys.executable, "-m", "sim", "run", "--preset", self.preset, "--speedup", str(self.speedup),
-                   "--listen", f"udpin:127.0.0.1:{self.port}", "--seed", str(self.seed),
+                   "--listen", self.listen, "--seed", str(self.seed),
                    "--current", f"{self.current[0]},{self.current[1]}", *self.extra_args]
         log.info("starting simulator: %s", " ".join(command))
         self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -189,9 +201,11 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
 def _run_behaviors(link, store, config: RehearsalConfig, vehicle_id: int, campaign_id: int, abort: AbortFlag,
                    summary: dict) -> dict:
     """Roll stabilisation and minimum-speed seeking after the campaign (issue 4)."""
-    from companion.behavior_runs import run_named_behavior  # noqa: PLC0415 - optional until built
+    extra: dict = {}
+    if not config.behaviors:
+        return extra
+    from companion.behavior_runs import run_named_behavior
 
-    extra = {}
     for name in config.behaviors:
         result = run_named_behavior(name, link, store, vehicle_id=vehicle_id, campaign_id=campaign_id, abort=abort,
                                     preset=config.preset)

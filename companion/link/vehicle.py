@@ -72,6 +72,11 @@ class LinkTimeouts:
     mode_s: float = 3.0  # vehicle time for the heartbeat to show a mode / armed state
     command_s: float = 1.0  # vehicle time per COMMAND_LONG try awaiting its ACK
     wall_guard_s: float = 3.0  # wall-clock guard of one try when the vehicle clock stops
+    # A try also lasts at least this much wall clock: the round trip of a request is a property of
+    # the link and of how far the companion lags behind the stream, not of the vehicle clock. At 1x
+    # the vehicle-time budget dominates; at 50x a companion a few tens of ms behind would otherwise
+    # time out (and then read the late echo as a refusal of its next write).
+    min_try_wall_s: float = 0.5
     heartbeat_period_s: float = 1.0  # our HEARTBEAT, vehicle time
 
 
@@ -118,7 +123,9 @@ class VehicleLink:
         self._acks: dict[int, tuple[int, int, int]] = {}  # command -> (result, progress, arrival counter)
         self._ack_count = 0
         self._heartbeat_count = 0
-        self._unread_snapshot: Telemetry | None = None
+        # every snapshot is delivered, in order: a companion that falls behind (one pump draining
+        # several ATTITUDEs) must not drop samples, or the estimator sees holes in its data
+        self._unread_snapshots: collections.deque[Telemetry] = collections.deque()
         self._user_callback: Callable[[int, tuple[float, ...]], None] | None = None
         self._user_queue: collections.deque[UserCommand] = collections.deque()
         self.last_user_command: UserCommand | None = None
@@ -266,9 +273,11 @@ class VehicleLink:
     def _wait_until(self, done: Callable[[], bool], vehicle_timeout_s: float, wall_guard_s: float | None = None) -> bool:
         """Pump until ``done()``; False after ``vehicle_timeout_s`` of vehicle time or the wall guard."""
         start_vehicle = self.vehicle_time_s
-        wall_deadline = time.monotonic() + (self.timeouts.wall_guard_s if wall_guard_s is None else wall_guard_s)
+        wall_start = time.monotonic()
+        wall_deadline = wall_start + (self.timeouts.wall_guard_s if wall_guard_s is None else wall_guard_s)
         while not done():
-            if math.isfinite(start_vehicle) and self.vehicle_time_s - start_vehicle >= vehicle_timeout_s:
+            if (math.isfinite(start_vehicle) and self.vehicle_time_s - start_vehicle >= vehicle_timeout_s
+                    and time.monotonic() - wall_start >= self.timeouts.min_try_wall_s):
                 return False
             if not math.isfinite(start_vehicle) and math.isfinite(self.vehicle_time_s):
                 start_vehicle = self.vehicle_time_s  # vehicle clock appeared while waiting
@@ -286,14 +295,14 @@ class VehicleLink:
         snapshot, VehicleRebooted when time_boot_ms jumps back.
         """
         deadline = time.monotonic() + timeout_s
-        while self._unread_snapshot is None:
+        while not self._unread_snapshots:
             remaining = deadline - time.monotonic()
             if remaining <= 0.0:
                 silent = time.monotonic() - self._last_rx_wall
                 raise LinkLost(f"no telemetry snapshot for {timeout_s:g} s of wall clock "
                                f"(last message of any kind {silent:.1f} s ago)")
             self._pump(min(remaining, 0.5))
-        snapshot, self._unread_snapshot = self._unread_snapshot, None
+        snapshot = self._unread_snapshots.popleft()
         self._deliver_user_commands()
         return snapshot
 
@@ -327,7 +336,7 @@ class VehicleLink:
             return
         self._last_attitude_ms = time_ms
         self._advance_clock(time_ms)
-        self._unread_snapshot = snapshot
+        self._unread_snapshots.append(snapshot)
         if self.overrides.pending:
             self._send_overrides()
 
