@@ -189,9 +189,10 @@ def test_current_does_not_change_water_speed_optimum():
 
 
 def test_ts_1s_oscillation_stays_bounded_around_the_optimum():
-    """At the seed's Ts = 1 s this simulator shows a bounded thrust oscillation (reported, not hidden):
-    it must neither run away nor lose depth control."""
-    result = _seek(1, period_s=1.0, seconds=150.0)
+    """At the seed's Ts = 1 s this simulator oscillates for ~100-160 s before settling (bench): the
+    oscillation must stay bounded, not lose depth control, and end at the optimum."""
+    result = _seek(1, period_s=1.0, seconds=200.0)
+    assert abs(result["thrust_ratio_final"] - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR + 0.008
     tail = [tr for t, tr in zip(result["series"]["time"], result["series"]["thrust_setpoint"]) if t >= 60.0]
     assert min(tail) >= ANALYTIC_TR - 0.06
     assert max(tail) <= ANALYTIC_TR + 0.10
