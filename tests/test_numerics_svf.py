@@ -82,12 +82,18 @@ def test_reset_gives_steady_state_and_rejects_bad_interval():
         StateVariableFilter(-1.0)
 
 
-def test_discretisation_cache_is_bounded():
+def test_discretisation_cache_is_bounded_and_shared():
+    from companion.numerics.svf import _discretise
+
     svf = StateVariableFilter(1.0)
     svf.reset(0.0)
     for k in range(600):
         svf.update(0.0, 0.04 + k * 1e-5)
-    assert len(svf._cache) <= 512
+    info = _discretise.cache_info()
+    assert info.currsize <= info.maxsize == 512
+    hits = info.hits
+    StateVariableFilter(1.0).update(0.0, 0.04 + 599e-5)  # a new filter reuses the memo
+    assert _discretise.cache_info().hits == hits + 1
 
 
 def test_rls_equals_regularised_batch_least_squares():

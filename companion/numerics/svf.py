@@ -8,8 +8,8 @@ controllable-canonical state ``x = [w_f⁽¹⁾/λ², w_f⁽⁰⁾/λ²]`` with
 
 so that ``y = C x + D w = [w_f⁽²⁾, w_f⁽¹⁾, w_f⁽⁰⁾]`` (eq. 3.24, 3.27). The state equation is
 discretised exactly with a zero-order hold at the *actual* interval ``h_k`` of every sample
-(eq. 3.29–3.31, ``scipy.signal.cont2discrete``); the discrete matrices are cached per interval
-rounded to 1 µs, so the hot path is a dictionary look-up and a 2×2 product.
+(eq. 3.29–3.31, ``scipy.signal.cont2discrete``); the discrete matrices are memoised per
+(λ, hold, interval rounded to 1 µs), so the hot path is a cache look-up and a 2×2 product.
 
 Timing convention (causal, eq. 3.29–3.30): on ``update(w_k, h_k)`` the state is propagated from
 t_{k-1} to t_k with the previous input ``w_{k-1}`` held over the interval, then the output at t_k is
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import OrderedDict
+from functools import lru_cache
 
 import numpy as np
 from scipy.signal import cont2discrete
@@ -35,6 +35,31 @@ logger = logging.getLogger(__name__)
 DEFAULT_BANDWIDTH = 1.0
 _CACHE_SIZE = 512
 _DT_RESOLUTION_DIGITS = 6  # cache key: dt rounded to 1 µs
+
+
+@lru_cache(maxsize=_CACHE_SIZE)
+def _discretise(bandwidth: float, hold: str, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact discretisation of eq. 3.26/3.28 over ``dt`` (eq. 3.31) for the given hold.
+
+    A memo of a pure function (read-only results), shared by all filters of the same λ and hold so
+    that a fresh identifier per thrust setting does not pay ``cont2discrete`` again for every
+    interval it meets.
+    """
+    lam = bandwidth
+    a = np.array([[-2.0 * lam, -lam * lam], [1.0, 0.0]])
+    b = np.array([[1.0], [0.0]])
+    ad, bd, _, dd, _ = cont2discrete((a, b, np.eye(2), np.zeros((2, 1))), dt, method=hold)
+    if hold == "zoh":
+        b_prev, b_now = bd[:, 0].copy(), np.zeros(2)
+    else:
+        # scipy's FOH realisation uses the shifted state ξ_k = x_k − dd·w_k with
+        # ξ_{k+1} = Ad ξ_k + bd w_k; back in x: x_{k+1} = Ad x_k + (bd − Ad·dd) w_k + dd·w_{k+1}
+        # (C = I here, so dd is the direct term on x).
+        b_prev = bd[:, 0] - ad @ dd[:, 0]
+        b_now = dd[:, 0].copy()
+    for matrix in (ad, b_prev, b_now):
+        matrix.flags.writeable = False
+    return ad, b_prev, b_now
 
 
 class StateVariableFilter:
@@ -57,34 +82,13 @@ class StateVariableFilter:
         self._b = np.array([[1.0], [0.0]])
         self._c = lam * lam * np.array([[-2.0 * lam, -lam * lam], [1.0, 0.0], [0.0, 1.0]])
         self._d = lam * lam * np.array([[1.0], [0.0], [0.0]])
-        self._cache: OrderedDict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = OrderedDict()
         self._state = np.zeros(2)
         self._last_input = 0.0
 
     # ------------------------------------------------------------------ discretisation
     def _discrete(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(Ad, B_prev, B_now): x_k = Ad x_{k-1} + B_prev w_{k-1} + B_now w_k (exact for the hold)."""
-        key = round(dt, _DT_RESOLUTION_DIGITS)
-        cached = self._cache.get(key)
-        if cached is not None:
-            self._cache.move_to_end(key)
-            return cached
-        c_state = np.eye(2)
-        d_state = np.zeros((2, 1))
-        ad, bd, cd, dd, _ = cont2discrete((self._a, self._b, c_state, d_state), key, method=self.hold)
-        if self.hold == "zoh":
-            b_prev, b_now = bd[:, 0], np.zeros(2)
-        else:
-            # scipy's FOH realisation uses the shifted state ξ_k = x_k − dd·w_k with
-            # ξ_{k+1} = Ad ξ_k + bd w_k; back in x: x_{k+1} = Ad x_k + (bd − Ad·dd) w_k + dd·w_{k+1}
-            # (cd = I here, so dd is the direct term on x).
-            b_prev = bd[:, 0] - ad @ dd[:, 0]
-            b_now = dd[:, 0]
-        entry = (ad, b_prev, b_now)
-        self._cache[key] = entry
-        if len(self._cache) > _CACHE_SIZE:
-            self._cache.popitem(last=False)
-        return entry
+        return _discretise(self.bandwidth, self.hold, round(dt, _DT_RESOLUTION_DIGITS))
 
     # ------------------------------------------------------------------ use
     def reset(self, value: float = 0.0) -> None:

@@ -33,7 +33,8 @@ def _simulate_linear(
     d = np.zeros((a.shape[0], b.shape[1]))
     cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
     x = np.asarray(x0, dtype=float)
-    u_held = inputs[0]
+    finite_rows = np.flatnonzero(np.all(np.isfinite(inputs), axis=1))
+    u_held = inputs[finite_rows[0]] if finite_rows.size else np.zeros(inputs.shape[1])
     for k in range(1, n):
         dt = times[k] - times[k - 1]
         if not (dt > 0.0):
