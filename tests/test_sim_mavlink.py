@@ -77,7 +77,10 @@ def param_read(conn, name: str = "", index: int = -1):
 
 
 def override(conn, rudder: int = 65535, elevator: int = 65535, thrust: int = 65535) -> None:
+    """RC_CHANNELS_OVERRIDE, then a parameter round trip: every stream message read afterwards was
+    produced after the simulator applied the override (it handles its input in order)."""
     conn.mav.rc_channels_override_send(1, 1, rudder, elevator, thrust, *([65535] * 5))
+    assert param_read(conn, "SYSID_MYGCS") is not None
 
 
 def servo_rudder_series(messages):
@@ -242,16 +245,19 @@ def test_override_expires_after_rc_ovr_time(client):
     hold_mode(client)
     assert param_set(client, "RC_OVR_TIME", 2.0).param_value == 2.0
     try:
-        collect(client, 5.0)
-        t_send = recv_until(client, lambda m: m.get_type() == "ATTITUDE").time_boot_ms / 1000
+        before = servo_rudder_series(collect(client, 5.0, {"SERVO_OUTPUT_RAW", "ATTITUDE"}))
         override(client, rudder=fin_pwm(0.25))
-        rudder = servo_rudder_series(collect(client, 8.0, {"SERVO_OUTPUT_RAW", "ATTITUDE"}))
+        rudder = before + servo_rudder_series(collect(client, 8.0, {"SERVO_OUTPUT_RAW", "ATTITUDE"}))
     finally:
         param_set(client, "RC_OVR_TIME", 3.0)
-    held = [r for t, r in rudder if t_send + 1.0 <= t <= t_send + 1.8]
-    released = [r for t, r in rudder if t >= t_send + 3.5]
+    assert max(abs(r) for _, r in before) < 0.05
+    # Arrival of the override, from the data: the rudder leaves the autopilot's ~0 at 0.5 rad/s,
+    # so the override arrived at most 0.2 s before it crossed 0.05 rad.
+    onset = next(t for t, r in rudder if r > 0.05)
+    held = [r for t, r in rudder if onset + 0.6 <= t <= onset + 1.6]
+    released = [r for t, r in rudder if t >= onset + 3.0]
     assert held and min(held) > 0.24  # honoured while fresh (reached through the rate limit)
-    assert released and max(released) < 0.1  # the autopilot took the rudder back
+    assert released and max(released) < 0.1  # expired after 2 s: the autopilot took it back
 
 
 def test_override_from_non_gcs_system_is_ignored(shared_sim, mav_client):
