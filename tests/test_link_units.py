@@ -19,7 +19,7 @@ from companion.link.errors import (LinkLost, ParamRefused, ParamTimeout, Profile
 from companion.link.overrides import OverrideTable, single_shot  # noqa: E402
 from companion.link.profiles import ARDUROVER, ARDUSUB, PROFILES, SIM, detect_profile  # noqa: E402
 from companion.link.snapshot import DepthSensor, TelemetryAssembler  # noqa: E402
-from companion.link.vehicle import VehicleLink, validate_named_value_name  # noqa: E402
+from companion.link.vehicle import LinkTimeouts, VehicleLink, validate_named_value_name  # noqa: E402
 
 
 def wire(msg, src: int = 1, comp: int = 1):
@@ -207,6 +207,7 @@ class FakeAutopilot:
         self.encoding = "cast"
         self.custom_mode = 19
         self.silent = False
+        self.reply_lag_ticks = 0
 
     # -- mavfile surface used by VehicleLink
     def write(self, buf) -> None:
@@ -218,9 +219,12 @@ class FakeAutopilot:
         if self.silent:
             return None
         if not self.queue:
-            self.time_ms += 50
-            self.emit(mavlink.MAVLink_attitude_message(self.time_ms, 0.0, 0.0, 0.1, 0.0, 0.0, 0.01))
+            self.tick()
         return self.queue.popleft()
+
+    def tick(self) -> None:
+        self.time_ms += 50
+        self.emit(mavlink.MAVLink_attitude_message(self.time_ms, 0.0, 0.0, 0.1, 0.0, 0.0, 0.01))
 
     def close(self) -> None:
         pass
@@ -230,6 +234,8 @@ class FakeAutopilot:
         self.queue.append(wire(msg, src, comp))
 
     def _param_value(self, name: str) -> None:
+        for _ in range(self.reply_lag_ticks):  # telemetry keeps flowing before the answer
+            self.tick()
         value, param_type = self.params[name]
         on_wire = pc.encode_value(value, param_type, self.encoding)
         self.emit(mavlink.MAVLink_param_value_message(name.encode(), on_wire, param_type, len(self.params), 0))
@@ -265,8 +271,11 @@ class FakeAutopilot:
 @pytest.fixture
 def fake_link():
     fake = FakeAutopilot()
-    link = VehicleLink(fake, system_id=1, autopilot_component=1, component=191)
+    # the fake answers synchronously (no lag), so a try needs no minimum wall time
+    link = VehicleLink(fake, system_id=1, autopilot_component=1, component=191,
+                       timeouts=LinkTimeouts(min_try_wall_s=0.0))
     link._setup(None, {}, DepthSensor())
+    link.skip_to_now()  # snapshots queued during set-up
     return fake, link
 
 
@@ -351,7 +360,6 @@ def test_user_commands_reach_the_callback_from_next_telemetry(fake_link):
     link.on_user_command(lambda command, params: received.append((command, params)))
     fake.emit(mavlink.MAVLink_command_long_message(1, 191, 31011, 0, 0.7, 0, 0, 0, 0, 0, 0), src=255, comp=190)
     fake.emit(mavlink.MAVLink_command_long_message(1, 1, 31012, 0, 0, 0, 0, 0, 0, 0, 0), src=255, comp=190)  # for the autopilot
-    link.next_telemetry()  # may return the snapshot already pending from set-up
     link.next_telemetry()
     assert received == [(31011, (pytest.approx(0.7), 0, 0, 0, 0, 0, 0))]
     link.send_command_ack(31011, 5, progress=40)
@@ -359,7 +367,6 @@ def test_user_commands_reach_the_callback_from_next_telemetry(fake_link):
     assert (ack.command, ack.result, ack.progress, ack.target_system, ack.target_component) == (31011, 5, 40, 255, 190)
     link.on_user_command(None)
     fake.emit(mavlink.MAVLink_command_long_message(1, 191, 31010, 0, 0, 0, 0, 0, 0, 0, 0), src=255, comp=190)
-    link.next_telemetry()
     link.next_telemetry()
     assert fake.sent_of("COMMAND_ACK")[-1].result == 3  # UNSUPPORTED without a handler
 
@@ -374,6 +381,18 @@ def test_status_text_chunks_and_named_value(fake_link):
     assert fake.sent_of("NAMED_VALUE_FLOAT")[-1].value == pytest.approx(1.08)
     with pytest.raises(ValueError):
         link.named_value("much_too_long", 1.0)
+
+
+def test_every_snapshot_is_queued_in_order_during_blocking_calls(fake_link):
+    fake, link = fake_link
+    fake.reply_lag_ticks = 4
+    link.set_param("HDG_P", 0.7)  # blocks while telemetry keeps arriving
+    assert link.pending_snapshots >= 1
+    times = [link.next_telemetry().time_s for _ in range(link.pending_snapshots + 3)]
+    assert all(b - a == pytest.approx(0.05) for a, b in zip(times, times[1:]))  # no holes, in order
+    link.set_param("HDG_P", 0.8)
+    newest = link.latest_telemetry.time_s
+    assert link.skip_to_now() >= 1 and link.next_telemetry().time_s > newest
 
 
 def test_reboot_and_silence_are_reported(fake_link):

@@ -61,6 +61,7 @@ DEFAULT_STREAM_RATES: dict[int, float] = {
     29: 10.0,  # SCALED_PRESSURE
 }
 STATUSTEXT_CHUNK = 50
+SNAPSHOT_QUEUE_MAX = 2000
 NAMED_VALUE_MAX = 10
 
 
@@ -125,7 +126,9 @@ class VehicleLink:
         self._heartbeat_count = 0
         # every snapshot is delivered, in order: a companion that falls behind (one pump draining
         # several ATTITUDEs) must not drop samples, or the estimator sees holes in its data
-        self._unread_snapshots: collections.deque[Telemetry] = collections.deque()
+        # bounded (SNAPSHOT_QUEUE_MAX, ~100 s at 20 Hz) so a caller that never reads cannot grow it forever
+        self._unread_snapshots: collections.deque[Telemetry] = collections.deque(maxlen=SNAPSHOT_QUEUE_MAX)
+        self.snapshots_dropped = 0
         self._user_callback: Callable[[int, tuple[float, ...]], None] | None = None
         self._user_queue: collections.deque[UserCommand] = collections.deque()
         self.last_user_command: UserCommand | None = None
@@ -288,11 +291,14 @@ class VehicleLink:
         return True
 
     def next_telemetry(self, timeout_s: float = 5.0) -> Telemetry:
-        """Block until the next ATTITUDE completes a snapshot and return it.
+        """The next telemetry snapshot, in order; blocks until an ATTITUDE completes one.
 
-        Everything else received meanwhile is processed; queued user commands are handed to the
-        callback before returning. Raises LinkLost after ``timeout_s`` of wall clock without a
-        snapshot, VehicleRebooted when time_boot_ms jumps back.
+        Every snapshot is delivered (an estimator must not see holes): those completed while
+        another call was blocking (connect, set_mode, set_params ...) are queued and returned
+        first, so right after such a call the snapshots returned may predate it — use
+        :meth:`skip_to_now` to drop that backlog. Everything else received meanwhile is processed;
+        queued user commands are handed to the callback before returning. Raises LinkLost after
+        ``timeout_s`` of wall clock without a snapshot, VehicleRebooted when time_boot_ms jumps back.
         """
         deadline = time.monotonic() + timeout_s
         while not self._unread_snapshots:
@@ -305,6 +311,18 @@ class VehicleLink:
         snapshot = self._unread_snapshots.popleft()
         self._deliver_user_commands()
         return snapshot
+
+    @property
+    def pending_snapshots(self) -> int:
+        """Snapshots received but not yet returned by :meth:`next_telemetry`."""
+        return len(self._unread_snapshots)
+
+    def skip_to_now(self) -> int:
+        """Drop the queued snapshots (the next one returned is newer than anything seen so far);
+        returns how many were dropped."""
+        dropped = len(self._unread_snapshots)
+        self._unread_snapshots.clear()
+        return dropped
 
     @property
     def latest_telemetry(self) -> Telemetry | None:
@@ -336,6 +354,10 @@ class VehicleLink:
             return
         self._last_attitude_ms = time_ms
         self._advance_clock(time_ms)
+        if len(self._unread_snapshots) == SNAPSHOT_QUEUE_MAX:
+            self.snapshots_dropped += 1
+            if self.snapshots_dropped == 1 or self.snapshots_dropped % 1000 == 0:
+                log.warning("telemetry not read: %d old snapshots dropped", self.snapshots_dropped)
         self._unread_snapshots.append(snapshot)
         if self.overrides.pending:
             self._send_overrides()
