@@ -19,6 +19,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from conftest import connect_client, start_sim  # noqa: E402
 
 
+def _process_cpu_s(pid: int) -> float:
+    """user + system CPU seconds of a process (Linux /proc; NaN elsewhere)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return float("nan")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--speedup", type=float, default=50.0)
@@ -41,6 +50,7 @@ def main() -> int:
         prev = None
         t0 = time.monotonic()
         cpu0 = time.process_time()
+        sim_cpu0 = _process_cpu_s(sim.process.pid)
         while time.monotonic() - t0 < args.seconds:
             msg = conn.recv_match(blocking=True, timeout=0.5)
             if msg is None:
@@ -55,6 +65,7 @@ def main() -> int:
                     gaps += 1
                 prev = msg.time_boot_ms
         client_cpu = time.process_time() - cpu0
+        sim_cpu = _process_cpu_s(sim.process.pid) - sim_cpu0
         wall = last_att[0] - first_att[0]
         vehicle = (last_att[1] - first_att[1]) / 1000.0
         ratio = vehicle / wall
@@ -69,6 +80,7 @@ def main() -> int:
         print(f"attitude gaps > 50 ms: {gaps} (lost or late samples seen by the client)")
         print(f"messages received    : {total} in {wall:.1f} s wall = {total / wall:.0f} msg/s")
         print(f"client CPU           : {client_cpu:.1f} s")
+        print(f"simulator CPU        : {sim_cpu:.1f} s = {100 * sim_cpu / args.seconds:.0f} % of one core")
         print("per type             : " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
         conn.close()
     finally:
