@@ -266,6 +266,7 @@ class Autopilot:
         limits.elevator_rate = p["ELEV_RATE"]
         limits.mass_max = p["MASS_MAX"]
         self.depth_pitch.elevator_max = p["ELEV_MAX"]
+        self.heading_pi.output_max = p["RUD_MAX"]  # the PI's anti-windup needs the real limit
         self.mass_angle_demand = min(p["MASS_MAX"], max(-p["MASS_MAX"], self.mass_angle_demand))
 
     # ------------------------------------------------------------------ the loop
