@@ -105,11 +105,30 @@ def test_schedule_fit_of_table_3_1():
     model = schedule.model_at(1.5)
     assert model.b2 == pytest.approx(0.3109 * 2.25 + 0.2592, abs=1e-3)
     gains = schedule.gains_at(1.5)
-    assert gains.kp == pytest.approx(schedule.a22**2 / (2 * model.b2)) and gains.speed == 1.5
+    assert gains.kp == pytest.approx(model.a22**2 / (2 * model.b2)) and gains.speed == 1.5
     # clamped extrapolation: beyond 1.2 × u_max (and below 0.8 × u_min) the laws are held
     assert schedule.model_at(10.0).b2 == pytest.approx(schedule.model_at(2.19 * 1.2).b2)
     assert schedule.model_at(0.0).b2 == pytest.approx(schedule.model_at(1.07 * 0.8).b2)
     assert schedule.gains_at(3.0).kp < schedule.gains_at(1.0).kp  # more authority, less gain
+
+
+def test_schedule_a22_trend_kept_only_when_significant():
+    speeds = [1.1, 1.4, 1.65, 1.9, 2.2]
+    # a22 growing with speed (the simulator's STARFISH law): the trend is kept and recovered
+    trend = [YawModel(-0.78 - 0.19 * u + noise, 0.31 * u * u + 0.26, 0.01)
+             for u, noise in zip(speeds, (0.004, -0.003, 0.002, -0.004, 0.003))]
+    schedule = fit_yaw_schedule(speeds, trend)
+    assert schedule.a22_per_speed == pytest.approx(-0.19, abs=0.02)
+    assert schedule.model_at(1.1).a22 == pytest.approx(-0.78 - 0.19 * 1.1, abs=0.01)
+    assert schedule.model_at(2.2).a22 == pytest.approx(-0.78 - 0.19 * 2.2, abs=0.01)
+    # scatter without a trend: a22 stays the constant mean (the thesis' law)
+    flat = [YawModel(-1.1 + noise, 0.31 * u * u + 0.26, 0.01)
+            for u, noise in zip(speeds, (0.05, -0.06, 0.04, 0.05, -0.05))]
+    schedule = fit_yaw_schedule(speeds, flat)
+    assert schedule.a22_per_speed == 0.0
+    assert schedule.model_at(1.1).a22 == schedule.model_at(2.2).a22 == pytest.approx(schedule.a22)
+    # two speeds cannot show a significant trend
+    assert fit_yaw_schedule(speeds[:2], trend[:2]).a22_per_speed == 0.0
 
 
 def test_schedule_weights_and_errors():

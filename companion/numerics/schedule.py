@@ -2,7 +2,12 @@
 
 Laws fitted over the stored models (one per speed):
 
-- a22(u) ≈ constant: the weighted mean (thesis: "small variation around its mean value of 1.1");
+- a22(u) ≈ constant: the weighted mean (thesis: "small variation around its mean value of 1.1"),
+  **unless** the models show a significant trend: with ≥ 3 distinct speeds and a weighted LS slope
+  β of a22 against u larger than twice its standard error, a22(u) = ā22 + β·(u − ū). A vehicle
+  whose damping grows with speed (the simulator's STARFISH: a22 −1.0 → −1.2 over 1.1–2.2 m/s) would
+  otherwise get gains ~25 % too high at low speed (Kp ∝ a22²), i.e. ~10 % step overshoot instead of
+  the design's 5.8 % (bench/bench_identification.py);
 - b2(u) = k·u² + c: weighted linear least squares in u² (``numpy.linalg.lstsq``; Fig. 3.8 /
   eq. 3.51: b2 = 0.31·u² + 0.26), since control authority scales with dynamic pressure;
 - δ0(u) ≈ constant: the weighted mean.
@@ -38,6 +43,8 @@ class YawSchedule:
     b2_residual_rms: float = math.nan  # RMS of b2 − (k·u² + c) over the models
     a22_std: float = math.nan  # weighted standard deviation of a22 around the mean
     b2_min_identified: float = math.nan
+    a22_per_speed: float = 0.0  # β: 0 when a22 is constant (see module docstring)
+    a22_reference_speed: float = 0.0  # ū, the weighted mean speed of the models
     margin: float = 0.2
     b2_floor_fraction: float = 0.5
     speeds: list[float] = field(default_factory=list)
@@ -52,8 +59,13 @@ class YawSchedule:
         b2 = self.b2_slope * u * u + self.b2_intercept
         return max(b2, self.b2_floor_fraction * self.b2_min_identified)
 
+    def a22_at(self, speed: float) -> float:
+        """ā22 + β·(u − ū) at the clamped speed; never above 0.1·ā22 (stays stable, a22 < 0)."""
+        value = self.a22 + self.a22_per_speed * (self.clamp_speed(speed) - self.a22_reference_speed)
+        return min(value, 0.1 * self.a22)
+
     def model_at(self, speed: float) -> YawModel:
-        return YawModel(a22=self.a22, b2=self.b2_at(speed), delta0=self.delta0)
+        return YawModel(a22=self.a22_at(speed), b2=self.b2_at(speed), delta0=self.delta0)
 
     def gains_at(self, speed: float, bounds: GainBounds = GainBounds()) -> HeadingGains:
         return design_heading_gains(self.model_at(speed), bounds, speed=float(speed))
@@ -85,6 +97,7 @@ def fit_yaw_schedule(
     design = np.column_stack([speeds_arr**2, np.ones_like(speeds_arr)])
     (slope, intercept), *_ = np.linalg.lstsq(design * sqrt_w[:, None], b2 * sqrt_w, rcond=None)
     residual = b2 - (slope * speeds_arr**2 + intercept)
+    a22_slope, reference_speed = _a22_trend(speeds_arr, a22, w)
     return YawSchedule(
         a22=a22_mean,
         b2_slope=float(slope),
@@ -94,6 +107,26 @@ def fit_yaw_schedule(
         b2_residual_rms=float(np.sqrt(np.mean(residual**2))),
         a22_std=a22_std,
         b2_min_identified=float(b2.min()),
+        a22_per_speed=a22_slope,
+        a22_reference_speed=reference_speed,
         margin=margin,
         speeds=speeds_arr.tolist(),
     )
+
+
+def _a22_trend(speeds: np.ndarray, a22: np.ndarray, weights: np.ndarray) -> tuple[float, float]:
+    """Weighted LS slope of a22 against u, kept only when |β| > 2·σ_β with ≥ 3 distinct speeds.
+
+    Returns (β, ū); β = 0 means "a22 constant" (the thesis' law)."""
+    reference = float(np.average(speeds, weights=weights))
+    if np.unique(speeds).size < 3:
+        return 0.0, reference
+    sqrt_w = np.sqrt(weights)
+    design = np.column_stack([np.ones_like(speeds), speeds - reference]) * sqrt_w[:, None]
+    coef, *_ = np.linalg.lstsq(design, a22 * sqrt_w, rcond=None)
+    residual = a22 * sqrt_w - design @ coef
+    dof = speeds.size - 2
+    sigma2 = float(residual @ residual) / dof
+    covariance = sigma2 * np.linalg.inv(design.T @ design)
+    slope, slope_sigma = float(coef[1]), math.sqrt(max(covariance[1, 1], 0.0))
+    return (slope, reference) if abs(slope) > 2.0 * slope_sigma else (0.0, reference)
