@@ -47,6 +47,9 @@ PRESSURE_RHO = 1000.0  # kg/m³, fixed so a client can invert SCALED_PRESSURE (P
 SEA_LEVEL_HPA = 1013.25
 UDP_CLIENT_TIMEOUT_S = 30.0  # wall seconds: a silent UDP client is dropped if others remain
 MAX_TICKS_PER_POLL = 10  # physics steps between two polls of the socket
+TCP_KERNEL_BUFFER = 32 * 1024  # SO_SNDBUF of an accepted TCP client
+TCP_HIGH_WATER = 16 * 1024  # bytes queued for a TCP client before the physics waits for it
+TCP_MAX_QUEUE = 4 * 1024 * 1024  # never queue more (replies beyond it are dropped whole)
 MAX_BACKLOG_S = 0.25  # wall seconds behind schedule before the pacing drops the backlog
 REPORT_EVERY_S = 10.0  # wall seconds between achieved-ratio log lines
 
@@ -126,11 +129,12 @@ class SimServer:
         self._next_emit = 0
         self._measure = None
         self._measure_tick = -1
-        self._after_ack: list = []
-        self._batch: bytearray | None = None  # frames collected during one tick's emission  # replies a command asked for, sent after its COMMAND_ACK
+        self._after_ack: list = []  # replies a command asked for, sent after its COMMAND_ACK
+        self._batch: bytearray | None = None  # frames collected during one tick's emission
+        self._tcp_out = bytearray()  # whole frames not yet accepted by the TCP socket
         self.conn: mavutil.mavfile | None = None
         self._tcp = config.listen.startswith("tcpin:")
-        self.stats = {"ticks": 0, "sent": 0, "received": 0, "bad": 0, "wall_s": 0.0}
+        self.stats = {"ticks": 0, "sent": 0, "received": 0, "bad": 0, "dropped": 0, "wall_s": 0.0}
         for name in ("SR_ATT_HZ", "SR_POS_HZ"):
             self._apply_stream_param(name)
         for msg_id in ONE_HZ_STREAMS:
@@ -199,6 +203,10 @@ class SimServer:
             batch_end = min(due, self.tick + MAX_TICKS_PER_POLL)
             if end_tick is not None:
                 batch_end = min(batch_end, end_tick)
+            if self._tcp_backlogged():
+                # The TCP client is behind: vehicle time waits for it (lossless, flow-controlled).
+                self._wait_writable(0.005)
+                batch_end = self.tick
             while self.tick < batch_end:
                 step()
             self._poll()
@@ -232,6 +240,14 @@ class SimServer:
                 time.sleep(timeout)
         except (OSError, ValueError):
             time.sleep(timeout)
+
+    def _wait_writable(self, timeout: float) -> None:
+        port = self.conn.port if self.conn is not None else None
+        try:
+            if port is not None:
+                select.select([], [port], [], timeout)
+        except (OSError, ValueError):
+            pass
 
     def _step_once(self) -> None:
         self.autopilot.step(self.dt)
@@ -283,11 +299,58 @@ class SimServer:
         self._refresh_next_emit()
 
     def _write(self, data: bytes) -> None:
-        if data and self.conn is not None:
+        if not data or self.conn is None:
+            return
+        if self._tcp:
+            self._tcp_write(data)
+            return
+        try:
+            self.conn.write(data)  # pymavlink: sendto every known UDP client
+        except (OSError, ValueError) as exc:
+            log.debug("write failed: %s", exc)
+
+    # TCP is lossless and flow-controlled: frames are queued whole (a partial send would corrupt
+    # the stream), and the main loop pauses the physics while the client is TCP_HIGH_WATER behind.
+    def _tcp_write(self, data: bytes) -> None:
+        if self.conn is None or self.conn.port is None:
+            return  # no client connected: nothing to send to
+        if len(self._tcp_out) + len(data) > TCP_MAX_QUEUE:
+            self.stats["dropped"] += 1
+            return
+        self._tcp_out += data
+        self._tcp_flush()
+
+    def _tcp_flush(self) -> None:
+        port = self.conn.port if self.conn is not None else None
+        if port is None:
+            self._tcp_out.clear()
+            return
+        while self._tcp_out:
             try:
-                self.conn.write(data)
-            except (OSError, ValueError) as exc:
-                log.debug("write failed: %s", exc)
+                sent = port.send(self._tcp_out)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                self._tcp_disconnected()
+                return
+            del self._tcp_out[:sent]
+
+    def _tcp_backlogged(self) -> bool:
+        if not self._tcp or len(self._tcp_out) <= TCP_HIGH_WATER:
+            return False
+        self._tcp_flush()
+        return len(self._tcp_out) > TCP_HIGH_WATER
+
+    def _tcp_disconnected(self) -> None:
+        conn = self.conn
+        log.info("TCP client disconnected")
+        try:
+            conn.port.close()
+        except OSError:
+            pass
+        conn.port = None
+        conn.fd = conn.listen.fileno()
+        self._tcp_out.clear()
 
     def _measurements(self):
         if self._measure_tick != self.tick:
@@ -299,17 +362,18 @@ class SimServer:
         conn = self.conn
         if conn is None:
             return
-        if self._batch is None:
-            try:
-                conn.mav.send(msg)
-                self.stats["sent"] += 1
-            except (OSError, ValueError) as exc:
-                log.debug("send failed: %s", exc)
+        encoder = conn.mav  # what MAVLink.send does, minus the write: pack and sequence number
+        try:
+            frame = msg.pack(encoder)
+        except Exception as exc:  # a value out of a field's range must not stop the simulator
+            log.warning("cannot pack %s: %s", msg.get_type(), exc)
             return
-        encoder = conn.mav  # what MAVLink.send does, minus the write: sequence number and pack
-        self._batch += msg.pack(encoder)
         encoder.seq = (encoder.seq + 1) % 256
         self.stats["sent"] += 1
+        if self._batch is not None:
+            self._batch += frame
+        else:
+            self._write(frame)
 
     def _send_stream(self, msg_id: int) -> None:
         msg = self._build(msg_id)
@@ -400,9 +464,12 @@ class SimServer:
             except OSError:
                 return b""
             sock.setsockopt(socket.SOL_TCP, socket.TCP_NODELAY, 1)
+            # A small kernel buffer bounds how far a slow client lags behind vehicle time.
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, TCP_KERNEL_BUFFER)
             sock.setblocking(False)
             conn.port = sock
             conn.fd = sock.fileno()
+            self._tcp_out.clear()
             log.info("TCP client connected from %s:%d", *addr)
         try:
             data = conn.port.recv(65536)
@@ -411,10 +478,7 @@ class SimServer:
         except OSError:
             data = b""
         if not data:
-            log.info("TCP client disconnected")
-            conn.port.close()
-            conn.port = None
-            conn.fd = conn.listen.fileno()
+            self._tcp_disconnected()
         return data
 
     def _poll(self) -> None:

@@ -350,3 +350,34 @@ def test_two_udp_clients_both_served(shared_sim, mav_client):
     b = mav_client(shared_sim.endpoint, source_system=254)
     assert recv_until(a, lambda m: m.get_type() == "ATTITUDE") is not None
     assert recv_until(b, lambda m: m.get_type() == "ATTITUDE") is not None
+
+
+def test_tcp_client_stall_loses_nothing(sim_factory):
+    """TCP is flow-controlled: a client that stops reading delays vehicle time, never drops."""
+    sim = sim_factory(transport="tcp", speedup=100)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connect: small window
+    sock.connect(("127.0.0.1", sim.port))
+    parser = mav.MAVLink(None, srcSystem=255, srcComponent=190)
+    parser.robust_parsing = True
+    stamps: list[int] = []
+
+    def read(vehicle_seconds: float) -> None:
+        start = None
+        deadline = time.monotonic() + WALL_LIMIT_S
+        while time.monotonic() < deadline:
+            for msg in parser.parse_buffer(sock.recv(65536)) or []:
+                if msg.get_type() == "ATTITUDE":
+                    stamps.append(msg.time_boot_ms)
+                    start = msg.time_boot_ms if start is None else start
+                    if msg.time_boot_ms - start >= vehicle_seconds * 1000:
+                        return
+        raise AssertionError("no progress")
+
+    try:
+        read(2.0)
+        time.sleep(2.0)  # ~200 s of vehicle time of traffic at 100x if nothing waited for us
+        read(80.0)  # well past what the kernel buffers hold (~40 s of traffic)
+    finally:
+        sock.close()
+    assert {b - a for a, b in zip(stamps, stamps[1:])} == {50}
