@@ -165,6 +165,11 @@ def connect_client(endpoint: str, source_system: int = 255, source_component: in
         endpoint, source_system=source_system, source_component=source_component
     )
     mav = mavutil.mavlink
+    if endpoint.startswith("udp"):
+        try:  # room for bursts at high speed-up (UDP has no flow control; capped by rmem_max)
+            conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 * 1024 * 1024)
+        except OSError:
+            pass
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         conn.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
