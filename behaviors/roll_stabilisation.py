@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -113,7 +113,6 @@ class RollStabilisation:
             "mass_mean_deg": stat(command, np.mean),
             "mass_std_deg": stat(command, np.std),
             "mass_saturated_fraction": float(np.mean(np.abs(command) >= limit - 1e-9)) if len(command) else None,
-            "gains": {"kp": self.config.gains.kp, "integral_zero": self.config.gains.integral_zero,
-                      "limit": limit, "plant_sign": self.config.gains.plant_sign},
+            "gains": asdict(self.config.gains),
             "series": {name: clean(values) for name, values in self.series.items()},
         }

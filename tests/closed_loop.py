@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Callable
 
+from companion.numerics.roll import settle_time  # noqa: F401 - re-exported for the tests
 from companion.interface import (
     Behavior,
     Command,
@@ -121,16 +122,3 @@ class ClosedLoop:
     @property
     def time_s(self) -> float:
         return self.vehicle.time_s
-
-
-def settle_time(times, values, band: float, start: float = 0.0) -> float:
-    """Time after ``start`` from which |value| stays within ``band`` to the end (NaN if it never does)."""
-    last_outside = math.nan
-    for t, v in zip(times, values):
-        if t >= start and abs(v) > band:
-            last_outside = t
-    if math.isnan(last_outside):
-        return 0.0
-    if last_outside >= times[-1]:
-        return math.nan
-    return last_outside - start

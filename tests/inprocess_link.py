@@ -149,6 +149,14 @@ class InProcessLink:
             echoed[name] = self.autopilot.params[native]
         return echoed
 
+    def set_param(self, native: str, value: float) -> float:
+        if native in self.refuse:
+            raise ParamRefused(f"{native} refused")
+        result = self.autopilot.set_param(native, float(value))
+        if not result.accepted:
+            raise ParamRefused(f"{native} = {value} refused")
+        return self.autopilot.params[native]
+
     def set_mode(self, neutral: str) -> None:
         self.mode_changes.append(neutral)
         self.autopilot.set_mode(self.profile.mode_number(neutral))

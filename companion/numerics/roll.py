@@ -253,3 +253,18 @@ class RollPI:
         rate = roll_rate if math.isfinite(roll_rate) else 0.0
         command = direction * (g.kp * roll + g.kd * rate) + self.integral_term
         return min(g.limit, max(-g.limit, command))
+
+
+def settle_time(times, values, band: float, start: float = 0.0) -> float:
+    """Time after ``start`` from which |value| stays within ``band`` to the end of the record
+    (0 if it never leaves the band, NaN if it is still outside at the end). Used for the roll
+    impulse response (thesis §4.5: 25° settles in 4 s closed loop)."""
+    last_outside = math.nan
+    for t, v in zip(times, values):
+        if t >= start and abs(v) > band:
+            last_outside = t
+    if math.isnan(last_outside):
+        return 0.0
+    if last_outside >= times[-1]:
+        return math.nan
+    return last_outside - start
