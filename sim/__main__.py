@@ -1,7 +1,8 @@
 """Command line of the simulator: ``python -m sim {run,linearize,presets}`` (SPEC C2, PROTOCOL.md).
 
 ``run`` prints exactly one line ``READY <endpoint>`` on stdout once the endpoint is listening, so a
-parent process can wait for it; SIGINT/SIGTERM end it cleanly (exit code 0).
+parent process can wait for it (with the port actually bound: ``--listen udpin:127.0.0.1:0`` lets
+the OS choose a free one); SIGINT/SIGTERM end it cleanly (exit code 0).
 """
 from __future__ import annotations
 
@@ -71,7 +72,11 @@ def _run(args: argparse.Namespace) -> int:
     def ready(endpoint: str) -> None:
         print(f"READY {endpoint}", flush=True)
 
-    server = SimServer(config, on_ready=ready)
+    try:
+        server = SimServer(config, on_ready=ready)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
 
     def on_signal(signum: int, _frame: object) -> None:
         logging.getLogger(__name__).info("signal %d: stopping", signum)

@@ -109,8 +109,10 @@ class SimServer:
         self._on_ready = on_ready
         preset = load_preset(config.preset)
         self.params = ParamTable.for_preset(preset)
-        self.params.set("SIM_CUR_VN", config.current_north)
-        self.params.set("SIM_CUR_VE", config.current_east)
+        for name, value in (("SIM_CUR_VN", config.current_north), ("SIM_CUR_VE", config.current_east)):
+            result = self.params.set(name, value)
+            if not result.accepted:
+                raise ValueError(f"--current: {result.message}")
         self.vehicle = Vehicle(
             preset,
             seed=config.seed,
@@ -159,6 +161,20 @@ class SimServer:
         )
         self.conn.mav.robust_parsing = True
 
+    def bound_endpoint(self) -> str:
+        """The listen endpoint with the port actually bound (``…:0`` asks the OS for a free one)."""
+        listen = self.config.listen
+        sock = None
+        if self.conn is not None:
+            sock = self.conn.listen if self._tcp else getattr(self.conn, "port", None)
+        if sock is None or not listen.startswith(("udpin:", "tcpin:")):
+            return listen
+        try:
+            host, port = sock.getsockname()[:2]
+        except OSError:
+            return listen
+        return f"{listen.split(':', 1)[0]}:{host}:{port}"
+
     def close(self) -> None:
         if self.conn is not None:
             try:
@@ -172,7 +188,7 @@ class SimServer:
         if self.conn is None:
             self.open()
         if self._on_ready is not None:
-            self._on_ready(self.config.listen)
+            self._on_ready(self.bound_endpoint())
         try:
             self._loop()
         finally:
@@ -228,8 +244,8 @@ class SimServer:
         ratio = sim_s / wall_s
         target = self.config.speedup
         level = logging.WARNING if target > 0 and ratio < 0.9 * target else logging.INFO
-        log.log(level, "%s: %.1f s vehicle in %.1f s wall = %.1fx (target %sx)", label, sim_s,
-                wall_s, ratio, target if target > 0 else "max")
+        log.log(level, "%s: %.1f s vehicle in %.1f s wall = %.1fx (target %s)", label, sim_s,
+                wall_s, ratio, f"{target:g}x" if target > 0 else "as fast as possible")
 
     def _wait_readable(self, timeout: float) -> None:
         fds = [self.conn.fd] if self.conn is not None and self.conn.fd is not None else []

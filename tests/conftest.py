@@ -48,7 +48,7 @@ class SimProcess:
     """A running ``python -m sim run``. ``endpoint`` is what a CLIENT passes to pymavlink."""
 
     process: subprocess.Popen
-    listen: str  # what the simulator listens on (udpin:/tcpin:)
+    listen: str  # what the simulator listens on (udpin:/tcpin:, with the bound port)
     endpoint: str  # what a client connects to (udpout:/tcp:)
     port: int
     speedup: float
@@ -86,15 +86,14 @@ def start_sim(
     extra_args: tuple[str, ...] = (),
     log_dir: str | None = None,
 ) -> SimProcess:
-    """Start the simulator on a free loopback port and wait for its ``READY`` line."""
-    if transport == "udp":
-        port = free_port(socket.SOCK_DGRAM)
-        listen, endpoint = f"udpin:127.0.0.1:{port}", f"udpout:127.0.0.1:{port}"
-    elif transport == "tcp":
-        port = free_port(socket.SOCK_STREAM)
-        listen, endpoint = f"tcpin:127.0.0.1:{port}", f"tcp:127.0.0.1:{port}"
-    else:
+    """Start the simulator on a free loopback port and wait for its ``READY`` line.
+
+    The simulator binds port 0 (the OS picks a free port, no race between tests) and reports the
+    port it got in ``READY udpin:127.0.0.1:PORT``.
+    """
+    if transport not in ("udp", "tcp"):
         raise ValueError(f"transport must be 'udp' or 'tcp', not {transport!r}")
+    listen = "udpin:127.0.0.1:0" if transport == "udp" else "tcpin:127.0.0.1:0"
     log_file = tempfile.NamedTemporaryFile(
         prefix="sim-", suffix=".log", dir=log_dir, delete=False
     )
@@ -107,15 +106,19 @@ def start_sim(
         command, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=log_file, text=True, env=env
     )
     log_file.close()
-    sim = SimProcess(process, listen, endpoint, port, speedup, Path(log_file.name))
+    sim = SimProcess(process, listen, "", 0, speedup, Path(log_file.name))
     deadline = time.monotonic() + READY_TIMEOUT_S
     while time.monotonic() < deadline:
         if process.poll() is not None:
             raise RuntimeError(f"simulator exited with {process.returncode}:\n{sim.log_text()}")
         ready, _, _ = select.select([process.stdout], [], [], 0.2)
         if ready:
-            line = process.stdout.readline()
-            if line.startswith("READY"):
+            line = process.stdout.readline().strip()
+            if line.startswith("READY "):
+                sim.listen = line.split(" ", 1)[1]  # e.g. udpin:127.0.0.1:40892
+                kind, host, port = sim.listen.split(":")
+                sim.port = int(port)
+                sim.endpoint = f"{'udpout' if kind == 'udpin' else 'tcp'}:{host}:{port}"
                 return sim
     sim.stop()
     raise RuntimeError(f"simulator not READY within {READY_TIMEOUT_S} s:\n{sim.log_text()}")

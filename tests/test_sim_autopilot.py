@@ -149,4 +149,7 @@ def test_cli_presets_and_linearize():
 def test_cli_run_duration_exits_cleanly():
     done = _cli("run", "--listen", "udpin:127.0.0.1:0", "--speedup", "0", "--duration", "5")
     assert done.returncode == 0, done.stderr
-    assert done.stdout.startswith("READY udpin:127.0.0.1:0")
+    assert done.stdout.count("\n") == 1  # one line on stdout, with the port the OS gave
+    kind, host, port = done.stdout.split()[1].split(":")
+    assert done.stdout.startswith("READY ") and (kind, host) == ("udpin", "127.0.0.1")
+    assert int(port) > 0
