@@ -15,6 +15,7 @@ import sys
 SUBCOMMANDS = (
     "rehearse",
     "identify",
+    "run",
     "run_behavior",
     "sim",
     "status",

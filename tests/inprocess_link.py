@@ -68,6 +68,9 @@ class InProcessLink:
         self.autopilot.arm(True)
         self.autopilot.set_mode(2)  # ALT_HOLD, as a vehicle waiting for its mission would be
         self._steps_per_sample = max(1, round(1.0 / (self.telemetry_hz * self.physics_dt)))
+        self._user_callback = None
+        self._user_queue: list[tuple[float, int, tuple]] = []
+        self.acks: list[tuple[int, int, int]] = []
 
     # ------------------------------------------------------------------ state
     @property
@@ -85,6 +88,11 @@ class InProcessLink:
         now = self.vehicle.time_s
         if self.lose_link_at_s is not None and now >= self.lose_link_at_s:
             raise LinkLost(f"no message for {timeout_s} s")
+        due = [item for item in self._user_queue if item[0] <= now]
+        for item in due:
+            self._user_queue.remove(item)
+            if self._user_callback is not None:
+                self._user_callback(item[1], item[2])
         m = self.vehicle.measure()
         attitude_nan = self.nan_from_s is not None and now >= self.nan_from_s
         nan = math.nan
@@ -172,5 +180,13 @@ class InProcessLink:
     def status_text(self, text: str, severity: int = 6) -> None:
         self.status_texts.append(text)
 
-    def send_command_ack(self, *args) -> None:
-        self.status_texts.append(f"ack {args}")
+    # ------------------------------------------------------------------ ground station
+    def on_user_command(self, callback) -> None:
+        self._user_callback = callback
+
+    def inject_user_command(self, command: int, at_s: float, params: tuple = (0.0,) * 7) -> None:
+        """A COMMAND_LONG from a ground station, delivered at vehicle time ``at_s``."""
+        self._user_queue.append((at_s, command, params))
+
+    def send_command_ack(self, command: int, result: int, progress: int = 0, *_targets) -> None:
+        self.acks.append((command, result, progress))

@@ -1,0 +1,57 @@
+"""``companion run``: stay beside the vehicle — gain scheduling, ground-station procedures (SPEC C1, C5)."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from companion.commands._common import add_connect_arguments, add_store_argument, signing_key
+
+
+def add_parser(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "run", help="run beside the vehicle: keep gains matched to speed, serve ground-station commands",
+        description="The resident companion. Keeps the heading gains matched to speed with the schedule "
+                    "of the store's latest identification campaign, and runs procedures on COMMAND_LONG "
+                    "aimed at component 191: MAV_CMD_USER_1 identification campaign, USER_2 roll "
+                    "stabilisation, USER_3 minimum-speed seeking, USER_4 abort. Ctrl-C stops (aborting "
+                    "and restoring whatever runs).")
+    add_connect_arguments(parser)
+    add_store_argument(parser)
+    parser.add_argument("--no-scheduling", action="store_true", help="do not write scheduled gains between procedures")
+    parser.add_argument("--preset", default=None, help="simulator preset (analytic minimum speed in results)")
+    parser.add_argument("--max-vehicle-time", type=float, default=None, metavar="S",
+                        help="stop after S seconds of vehicle time (default: run until interrupted)")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from companion.app import AbortFlag, install_signal_handlers, vehicle_record
+    from companion.link.errors import LinkError
+    from companion.link.vehicle import VehicleLink
+    from companion.serve import Companion, ServeConfig
+    from companion.store import Store
+
+    stop = AbortFlag()
+    undo = install_signal_handlers(stop)
+    try:
+        link = VehicleLink.connect(args.connect, profile=args.profile, signing_key=signing_key(args))
+    except LinkError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        undo()
+        return 1
+    config = ServeConfig(schedule_gains=not args.no_scheduling, preset=args.preset, max_vehicle_s=args.max_vehicle_time)
+    try:
+        with Store(args.store) as store:
+            companion = Companion(link, store, vehicle_record(store, link), config, stop)
+            print(f"companion running on {args.connect} (system {link.system_id}, component 191, profile "
+                  f"{link.profile.name}); Ctrl-C to stop", file=sys.stderr)
+            history = companion.run()
+    except LinkError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        link.close()
+        undo()
+    for entry in history:
+        print(entry)
+    return 0

@@ -1,0 +1,107 @@
+"""The resident loop (``companion run``) on the in-process autopilot: scheduling and ground-station
+procedures started, reported and aborted by MAV_CMD_USER_1..4 (SPEC C1, C5)."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+
+from behaviors.gain_scheduling import SchedulingConfig
+from behaviors.identification import ManoeuvreConfig
+from companion.app import (MAV_CMD_USER_1, MAV_CMD_USER_3, MAV_CMD_USER_4, MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED,
+                           MAV_RESULT_IN_PROGRESS, AbortFlag)
+from companion.behavior_runs import MinSpeedProcedureConfig
+from companion.campaign import CampaignConfig
+from companion.serve import MAV_RESULT_TEMPORARILY_REJECTED, Companion, ServeConfig, schedule_from_store
+from companion.store import Store
+from tests.inprocess_link import InProcessLink
+
+CAMPAIGN = CampaignConfig(thrusts=(0.7, 1.0), axes=("yaw",), step_labels=(),
+                          yaw=ManoeuvreConfig(settle_s=12.0, resettle_s=10.0))
+
+
+def stored_models(store: Store) -> None:
+    vehicle = store.add_vehicle("v")
+    campaign = store.start_campaign(vehicle, "identification")
+    for thrust, speed, a22, b2 in ((0.6, 1.13, -1.0, 0.66), (0.8, 1.65, -1.1, 1.11), (1.0, 2.17, -1.2, 1.72)):
+        store.add_run(campaign, {"axis": "yaw", "thrust": thrust, "speed": speed, "r2": 0.98, "accepted": True,
+                                 "model": {"a22": a22, "b2": b2, "delta0": 0.01}})
+    store.finish_campaign(campaign, "completed")
+
+
+def test_schedule_from_the_latest_campaign(tmp_path):
+    with Store(tmp_path / "s.sqlite") as store:
+        assert schedule_from_store(store) is None
+        stored_models(store)
+        schedule = schedule_from_store(store)
+        assert schedule is not None and schedule.b2_slope == pytest.approx(0.31, abs=0.03)
+
+
+def test_gains_follow_speed_between_procedures(tmp_path):
+    link = InProcessLink(seed=3)
+    with Store(tmp_path / "s.sqlite") as store:
+        stored_models(store)
+        config = ServeConfig(max_vehicle_s=120.0, scheduling=SchedulingConfig(min_interval_s=10.0))
+        companion = Companion(link, store, store.add_vehicle("v"), config, AbortFlag())
+        link.autopilot.set_thrust(0.6)
+        original_run = link.next_telemetry
+
+        def speeding_up(timeout_s=5.0):
+            telemetry = original_run(timeout_s)
+            if telemetry.time_s > 60.0:
+                link.autopilot.set_thrust(1.0)
+            return telemetry
+
+        link.next_telemetry = speeding_up
+        companion.run()
+    writes = companion.scheduler.writes
+    assert len(writes) >= 2, writes
+    assert writes[0]["speed"] < 1.45 and writes[-1]["speed"] > 1.9  # starts at cruise (~1.39 m/s)
+    assert writes[-1]["heading_p"] < writes[0]["heading_p"]  # more rudder authority, less gain
+    assert all(b["time_s"] - a["time_s"] >= 10.0 for a, b in zip(writes, writes[1:]))  # rate-limited
+    assert link.param("heading_p") == pytest.approx(writes[-1]["heading_p"])
+
+
+def test_user_1_runs_the_campaign_and_reports_progress(tmp_path):
+    link = InProcessLink(seed=3)
+    link.inject_user_command(MAV_CMD_USER_1, at_s=2.0)
+    with Store(tmp_path / "s.sqlite") as store:
+        companion = Companion(link, store, store.add_vehicle("v"), ServeConfig(campaign=CAMPAIGN, max_vehicle_s=250.0), AbortFlag())
+        history = companion.run()
+        assert history and history[0]["status"] == "completed"
+        assert len(store.models(history[0]["campaign_id"], axis="yaw")) == 2
+        assert companion.scheduler is not None  # scheduling resumes from the new models
+    acks = [a for a in link.acks if a[0] == MAV_CMD_USER_1]
+    assert acks[0][1] == MAV_RESULT_IN_PROGRESS
+    progress = [a[2] for a in acks if a[1] == MAV_RESULT_IN_PROGRESS]
+    assert progress == sorted(progress) and max(progress) >= 50
+    assert acks[-1][:2] == (MAV_CMD_USER_1, MAV_RESULT_ACCEPTED)
+
+
+def test_user_4_aborts_the_running_procedure_and_restores(tmp_path):
+    link = InProcessLink(seed=3)
+    before = {name: link.param(name) for name in ("heading_p", "heading_i", "rudder_trim")}
+    link.inject_user_command(MAV_CMD_USER_1, at_s=1.0)
+    link.inject_user_command(MAV_CMD_USER_4, at_s=20.0)  # during the first training doublet
+    with Store(tmp_path / "s.sqlite") as store:
+        companion = Companion(link, store, store.add_vehicle("v"), ServeConfig(campaign=CAMPAIGN, max_vehicle_s=40.0), AbortFlag())
+        history = companion.run()
+        assert history[0]["status"] == "aborted" and "USER_4" in history[0]["reason"]
+        assert store.campaigns()[0]["status"] == "aborted"
+    assert (MAV_CMD_USER_4, MAV_RESULT_ACCEPTED, 0) in link.acks
+    assert [a for a in link.acks if a[0] == MAV_CMD_USER_1][-1][1] == MAV_RESULT_FAILED
+    assert not link.overrides and link.mode == "hold"
+    assert {name: link.param(name) for name in before} == before
+
+
+def test_abort_with_nothing_running_and_second_start_are_rejected(tmp_path):
+    link = InProcessLink(seed=3)
+    link.inject_user_command(MAV_CMD_USER_4, at_s=1.0)
+    link.inject_user_command(MAV_CMD_USER_3, at_s=2.0)
+    link.inject_user_command(MAV_CMD_USER_1, at_s=10.0)  # while seeking
+    with Store(tmp_path / "s.sqlite") as store:
+        config = ServeConfig(min_speed=MinSpeedProcedureConfig(settle_s=2.0, duration_s=20.0), max_vehicle_s=40.0)
+        Companion(link, store, store.add_vehicle("v"), config, AbortFlag()).run()
+    assert (MAV_CMD_USER_4, MAV_RESULT_TEMPORARILY_REJECTED, 0) in link.acks
+    assert (MAV_CMD_USER_1, MAV_RESULT_TEMPORARILY_REJECTED, 0) in link.acks
+    assert [a for a in link.acks if a[0] == MAV_CMD_USER_3][-1][1] == MAV_RESULT_ACCEPTED
