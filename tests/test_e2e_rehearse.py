@@ -1,0 +1,62 @@
+"""End to end: ``companion rehearse`` runs the simulator as a child process and the whole product over
+MAVLink on loopback, sped up (issue 3: "companion rehearse on a fresh clone produces the report and
+the JSON summary"). A reduced campaign (two thrusts, yaw, no step checks) keeps it short."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from companion.store import Store
+
+pytestmark = pytest.mark.e2e
+
+
+@pytest.fixture(scope="module")
+def rehearsal(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rehearsal")
+    command = [sys.executable, "-m", "companion", "rehearse", "--out", str(out), "--thrusts", "0.7,1.0",
+               "--axes", "yaw", "--no-steps", "--behaviors", "roll,min-speed", "--speedup", "50", "--seed", "4", "--json"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return out, json.loads(done.stdout)
+
+
+def test_summary_has_one_run_per_accepted_thrust_close_to_the_truth(rehearsal):
+    _, summary = rehearsal
+    assert summary["status"] == "completed"
+    runs = summary["runs"]
+    assert [r["thrust"] for r in runs] == [0.7, 1.0]
+    for run in runs:
+        assert set(run) >= {"thrust", "speed", "a22", "b2", "delta0", "r2", "converged_s", "true_a22", "true_b2",
+                            "true_delta0", "kp", "ki"}
+        assert run["a22"] == pytest.approx(run["true_a22"], rel=0.08)
+        assert run["b2"] == pytest.approx(run["true_b2"], rel=0.08)
+        assert run["r2"] >= 0.9
+        assert run["kp"] == pytest.approx(run["a22"] ** 2 / (2 * run["b2"]), rel=1e-6)
+    assert summary["wall_time_s"] > 0
+
+
+def test_behaviours_ran_over_mavlink(rehearsal):
+    _, summary = rehearsal
+    roll, seek = summary["roll"], summary["min_speed"]
+    assert roll["status"] == "completed" and roll["std_closed_deg"] < roll["std_open_deg"]
+    assert seek["status"] == "completed"
+    assert seek["thrust_ratio_final"] < 0.6  # it went down from 0.70 towards TR* ≈ 0.43
+    assert seek["thrust_ratio_star"] == pytest.approx(0.432, abs=0.002)
+
+
+def test_report_and_store_are_written(rehearsal):
+    out, summary = rehearsal
+    report = (out / "report.html").read_text()
+    for image in ("convergence.png", "validation.png", "b2_law.png", "turning.png", "roll.png", "min_speed.png"):
+        assert image in report and (out / image).stat().st_size > 5000, image
+    with Store(summary["store"]) as store:
+        campaigns = store.campaigns()
+        assert campaigns[0]["status"] == "completed"
+        assert len(store.models(campaigns[0]["id"], axis="yaw")) == 2
+        assert store.gains(campaigns[0]["id"])  # written, with the originals kept as "before"
+        kinds = {b["kind"] for b in store.behavior_results()}
+        assert {"roll", "min_speed", "gain_design"} <= kinds
