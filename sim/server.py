@@ -462,23 +462,29 @@ class SimServer:
         self._send(mavlink.MAVLink_statustext_message(severity, text.encode("ascii", "replace")[:50]))
 
     # ------------------------------------------------------------------ incoming
-    def _read_bytes(self) -> bytes:
+    def _read_bytes(self) -> tuple[bytes, tuple | None]:
+        """One UDP datagram (with its sender) or what the TCP stream has; b"" when nothing."""
         conn = self.conn
         if conn is None:
-            return b""
+            return b"", None
         if not self._tcp:
             try:
-                data = conn.recv()
-            except OSError as exc:
+                data, sender = conn.port.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return b"", None
+            except OSError as exc:  # e.g. ECONNREFUSED reported for an earlier datagram
                 log.debug("recv failed: %s", exc)
-                return b""
-            return data if isinstance(data, (bytes, bytearray)) else b""
+                return b"", None
+            if getattr(conn, "udp_server", False):  # pymavlink's client list, used by conn.write
+                conn.clients.add(sender)
+                conn.clients_last_alive[sender] = time.time()
+            return data, sender
         # tcpin: pymavlink keeps a closed peer forever; accept and detect EOF here.
         if conn.port is None:
             try:
                 sock, addr = conn.listen.accept()
             except OSError:
-                return b""
+                return b"", None
             sock.setsockopt(socket.SOL_TCP, socket.TCP_NODELAY, 1)
             # A small kernel buffer bounds how far a slow client lags behind vehicle time.
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, TCP_KERNEL_BUFFER)
@@ -490,31 +496,62 @@ class SimServer:
         try:
             data = conn.port.recv(65536)
         except (BlockingIOError, InterruptedError):
-            return b""
+            return b"", None
         except OSError:
             data = b""
         if not data:
             self._tcp_disconnected()
-        return data
+        return data, None
 
     def _poll(self) -> None:
         for _ in range(64):  # bounded: never starve the physics
-            data = self._read_bytes()
+            data, sender = self._read_bytes()
             if not data:
                 return
+            parser = self.conn.mav
             try:
-                messages = self.conn.mav.parse_buffer(data) or []
+                messages = parser.parse_buffer(data) or []
             except Exception as exc:  # malformed input must never stop the simulator
                 self.stats["bad"] += 1
                 log.debug("unparseable input (%s)", exc)
-                continue
+                messages = []
+            if sender is not None:
+                # A frame never spans UDP datagrams: drop a partial tail so that garbage from one
+                # client cannot swallow the next datagram (of any client).
+                parser.buf = bytearray()
+                parser.buf_index = 0
             for msg in messages:
                 self.stats["received"] += 1
                 try:
                     self.handle(msg)
+                    if sender is not None:
+                        self._route(msg, sender)
                 except Exception:  # a handler bug on odd input is logged, never fatal
                     self.stats["bad"] += 1
                     log.exception("error handling %s", msg.get_type())
+
+    def _route(self, msg, sender: tuple) -> None:
+        """Forward a UDP client's message to the other clients unless it was for the autopilot only.
+
+        This is what an autopilot's MAVLink routing does for a GCS and a companion computer on
+        different links: the companion's STATUSTEXT/NAMED_VALUE_FLOAT reach the GCS, and a GCS's
+        COMMAND_LONG to component 191 reaches the companion.
+        """
+        clients = getattr(self.conn, "clients", None)
+        if not clients or len(clients) < 2 or msg.get_type() == "BAD_DATA":
+            return
+        target_system = getattr(msg, "target_system", 0)
+        target_component = getattr(msg, "target_component", 0)
+        if target_system == int(self.params["SYSID_THISMAV"]) and \
+                target_component == mavlink.MAV_COMP_ID_AUTOPILOT1:
+            return
+        frame = msg.get_msgbuf()
+        for client in list(clients):
+            if client != sender:
+                try:
+                    self.conn.port.sendto(frame, client)
+                except OSError as exc:
+                    log.debug("forward to %s failed: %s", client, exc)
 
     def _for_us(self, msg, component_field: bool = True) -> bool:
         sysid = int(self.params["SYSID_THISMAV"])
