@@ -179,6 +179,10 @@ class SquarePattern:
             return []
         return [*self._start.restore(), StatusText(f"squares aborted: {reason}", severity=4)]
 
+    def data(self) -> dict[str, np.ndarray]:
+        """The navigation samples recorded on the legs (arrays t, north, east, … as analysed)."""
+        return self._recorder.arrays()
+
     def result(self) -> dict:
         return {"behavior": "squares", "status": self._status, "config": asdict(self.config),
                 "samples": len(self._recorder.rows), **self._result}
@@ -291,6 +295,10 @@ class SteadyTurns:
         if not was_running or self._start is None:
             return []
         return [ReleaseActuator("rudder"), *self._start.restore(), StatusText(f"turns aborted: {reason}", severity=4)]
+
+    def data(self) -> list[dict[str, np.ndarray]]:
+        """The navigation samples recorded in each turn, in the order of ``rudder_angles``."""
+        return [recorder.arrays() for recorder in self._recorders]
 
     def result(self) -> dict:
         out = {"behavior": "turns", "status": self._status, "config": asdict(self.config), "turns": self._turns}

@@ -129,7 +129,20 @@ class RehearsalConfig:
     campaign: CampaignConfig = CampaignConfig()
     behaviors: tuple[str, ...] = ("roll", "min_speed")
     current: tuple[float, float] = (0.0, 0.0)
+    steady_state: bool = False
     progress: bool = True
+
+
+def preset_defaults(preset: str) -> dict:
+    """What a rehearsal does on each kind of preset unless told otherwise.
+
+    STARFISH presets are the seeds' small AUV (Tables 3.1, 4.1, 5.1): identification, roll
+    stabilisation and minimum-speed seeking in still water. The HUGIN-like preset is the large AUV of
+    Hegrenæs et al.: identification plus the steady-state squares and turns, in a known current of
+    14 mm/s towards 300° (0.007 N, −0.012 E m/s) so the current estimate can be scored."""
+    if preset.startswith("hugin"):
+        return {"behaviors": (), "steady_state": True, "current": (0.007, -0.012)}
+    return {"behaviors": ("roll", "min_speed"), "steady_state": False, "current": (0.0, 0.0)}
 
 
 def _run_rows(campaign, truth: dict) -> list[dict]:
@@ -176,6 +189,8 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
             extra: dict = {}
             if outcome.status == "completed":
                 extra = _run_behaviors(link, store, config, vehicle_id, campaign_id, abort, summary)
+            if outcome.status == "completed" and config.steady_state:
+                extra["steady_state"] = _run_steady_state(link, store, config, campaign_id, abort, summary)
         finally:
             link.close()
         truth = {}
@@ -196,6 +211,16 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
         summary["wall_time_s"] = round(time.monotonic() - started, 2)
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
+
+
+def _run_steady_state(link, store, config: RehearsalConfig, campaign_id: int, abort: AbortFlag, summary: dict) -> dict:
+    """Squares and turns (issue 5), scored against the current the simulator was started with."""
+    from companion.steady_runs import steady_state_procedure, steady_summary
+
+    result = steady_state_procedure(link, abort)
+    store.add_behavior_result(campaign_id, "steady_state", result["status"], result)
+    summary["steady_state"] = steady_summary(result, config.current)
+    return result
 
 
 def _run_behaviors(link, store, config: RehearsalConfig, vehicle_id: int, campaign_id: int, abort: AbortFlag,

@@ -226,6 +226,60 @@ def plot_roll(result: dict, path: Path) -> str | None:
     return _figure(path, draw, (9, 6))
 
 
+def plot_steady_state(result: dict, path: Path) -> str | None:
+    """Squares: measured path and the fitted current; turns: measured path, fitted path (eq. 9) and
+    the water-relative circle without current (Hegrenæs et al., Fig. 6–7)."""
+    squares, turns = result.get("squares") or {}, result.get("turns") or {}
+    paths = turns.get("paths") or []
+    if not (squares.get("path", {}).get("t") or paths):
+        return None
+
+    def draw():
+        ax = plt.subplot(1, 2, 1)
+        sq = squares.get("path") or {}
+        if sq.get("t"):
+            ax.plot(sq["east"], sq["north"], ".", ms=2, label="measured (1 Hz)")
+            if "current_north" in squares:
+                e0, n0 = np.mean(sq["east"]), np.mean(sq["north"])
+                scale = 0.25 * (max(sq["north"]) - min(sq["north"]) + 1.0) / max(squares["current_speed"], 1e-6)
+                ax.annotate("", xy=(e0 + scale * squares["current_east"], n0 + scale * squares["current_north"]),
+                            xytext=(e0, n0), arrowprops={"arrowstyle": "->", "color": "r", "lw": 2})
+                ax.plot([], [], "r-", label=f"current {1000 * squares['current_speed']:.1f} mm/s "
+                                            f"towards {squares['current_dir_deg']:.0f}°")
+            ax.set_title(f"Square pattern: surge {squares.get('surge_water', math.nan):.3f} m/s, "
+                         f"cond(H) {squares.get('condition_number', math.nan):.2f}", fontsize=9)
+        ax.set_xlabel("east (m)")
+        ax.set_ylabel("north (m)")
+        ax.axis("equal")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7)
+        ax = plt.subplot(1, 2, 2)
+        for turn, measured in zip(turns.get("turns", []), paths):
+            if not measured.get("t"):
+                continue
+            line, = ax.plot(measured["east"], measured["north"], ".", ms=2,
+                            label=f"rudder {turn.get('rudder_deg', math.nan):+.1f}° measured")
+            if "radius_m" not in turn:
+                continue
+            t = np.asarray(measured["t"]) - turn["t0"]
+            angle = math.radians(turn["turn_rate_deg_s"]) * t - turn["phase_rad"]
+            circle = turn["radius_m"] * np.column_stack([np.cos(angle), np.sin(angle)])
+            drift = np.outer(t, [turn["current_north"], turn["current_east"]])
+            center = np.array([turn["center_north"], turn["center_east"]])
+            fitted = center + drift + circle
+            still = center + circle
+            ax.plot(fitted[:, 1], fitted[:, 0], "-", color=line.get_color(), lw=0.8,
+                    label=f"fit R {turn['radius_m']:.2f} m, σ {turn['residual_std_m']:.2f} m")
+            ax.plot(still[:, 1], still[:, 0], ":", color=line.get_color(), lw=0.8)
+        ax.set_title("Steady turns: measured, fitted (—), circle without current (···)", fontsize=9)
+        ax.set_xlabel("east (m)")
+        ax.axis("equal")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7)
+
+    return _figure(path, draw, (12, 5.5))
+
+
 def _table(rows: list[dict], columns: list[tuple[str, str, str]]) -> str:
     head = "".join(f"<th>{html.escape(title)}</th>" for _, title, _ in columns)
     body = []
@@ -254,7 +308,7 @@ def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: 
     steps = [b["result"] for b in behaviour_rows if b["kind"] == "heading_steps"]
     extra = dict(extra_results or {})
     for row in behaviour_rows:
-        if row["kind"] in ("roll", "min_speed") and row["kind"] not in extra:
+        if row["kind"] in ("roll", "min_speed", "steady_state") and row["kind"] not in extra:
             extra[row["kind"]] = row["result"]
 
     images = [
@@ -265,6 +319,8 @@ def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: 
         ("Heading steps", plot_heading_steps(steps, out / "heading_steps.png")),
         ("Roll stabilisation", plot_roll(extra["roll"], out / "roll.png") if "roll" in extra else None),
         ("Minimum-speed seeking", plot_min_speed(extra["min_speed"], out / "min_speed.png") if "min_speed" in extra else None),
+        ("Steady-state manoeuvres under current",
+         plot_steady_state(extra["steady_state"], out / "steady_state.png") if "steady_state" in extra else None),
     ]
     run_rows = [{"axis": r["axis"], "thrust": r["thrust"], "attempt": r["attempt"], "speed": r["speed"], "r2": r["r2"],
                  "accepted": "yes" if r["accepted"] else "no", "converged_s": r["converged_s"],

@@ -135,6 +135,11 @@ def run_behavior(
     first_time = last_time = math.nan
     nan_run = 0
     reason: str | None = None
+    skip_to_now = getattr(link, "skip_to_now", None)
+    if skip_to_now is not None:
+        # snapshots queued during earlier blocking calls (a restore, a mode change) predate this
+        # procedure: it must start from the vehicle as it is now (within a run, none is skipped)
+        skip_to_now()
     try:
         while not behavior.done:
             telemetry = link.next_telemetry(timeout_s=telemetry_timeout_s)

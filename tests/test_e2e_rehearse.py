@@ -60,3 +60,24 @@ def test_report_and_store_are_written(rehearsal):
         assert store.gains(campaigns[0]["id"])  # written, with the originals kept as "before"
         kinds = {b["kind"] for b in store.behavior_results()}
         assert {"roll", "min_speed", "gain_design"} <= kinds
+
+
+def test_hugin_rehearsal_recovers_the_current_from_squares_and_turns(tmp_path):
+    """Issue 5: the steady-state manoeuvres inside the rehearsal on the HUGIN-like preset, scored
+    against the known current the simulator was started with (14 mm/s towards 300°)."""
+    command = [sys.executable, "-m", "companion", "rehearse", "--preset", "hugin", "--out", str(tmp_path),
+               "--thrusts", "0.8", "--axes", "yaw", "--no-steps", "--seed", "2", "--json"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    steady = json.loads(done.stdout)["steady_state"]
+    assert steady["status"] == "completed"
+    squares = steady["squares"]
+    assert squares["current_error_mm_s"] < 3.0
+    assert squares["condition_number"] < 1.5
+    assert abs(squares["sway_water"]) < 0.03 and 1.3 < squares["surge_water"] < 2.0
+    assert len(steady["turns"]) == 2
+    for turn in steady["turns"]:
+        assert turn["current_error_mm_s"] < 3.0
+        assert 14.0 < turn["radius_m"] < 18.0 and 4.0 < abs(turn["turn_rate_deg_s"]) < 6.0
+        assert turn["residual_std_m"] < 0.15
+    assert "steady_state.png" in (tmp_path / "report.html").read_text()

@@ -22,9 +22,13 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--thrusts", type=thrust_list, default=None, help="thrust settings, e.g. 0.6,0.7,0.8 (default: 60..100%%)")
     parser.add_argument("--axes", default="yaw,pitch", help="axes to identify (default: %(default)s)")
     parser.add_argument("--no-steps", action="store_true", help="skip the heading-step checks")
-    parser.add_argument("--behaviors", default="roll,min_speed",
-                        help="behaviours to run after the campaign, comma-separated, or 'none' (default: %(default)s)")
-    parser.add_argument("--current", default="0,0", metavar="VN,VE", help="water current north,east in m/s")
+    parser.add_argument("--behaviors", default=None,
+                        help="behaviours to run after the campaign: roll,min-speed or 'none' "
+                             "(default: both on STARFISH presets, none on hugin)")
+    parser.add_argument("--steady-state", action=argparse.BooleanOptionalAction, default=None,
+                        help="run the steady-state squares and turns (default: on for hugin)")
+    parser.add_argument("--current", default=None, metavar="VN,VE",
+                        help="water current north,east in m/s (default: still water; hugin: 0.007,-0.012)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.set_defaults(func=run)
 
@@ -32,14 +36,15 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from companion.app import AbortFlag, install_signal_handlers
     from companion.campaign import CampaignConfig
-    from companion.rehearsal import RehearsalConfig, SimulatorError, rehearse
+    from companion.rehearsal import RehearsalConfig, SimulatorError, preset_defaults, rehearse
 
     axes = tuple(a.strip() for a in args.axes.split(",") if a.strip())
     if not axes or any(a not in ("yaw", "pitch") for a in axes):
         print("--axes takes yaw and/or pitch", file=sys.stderr)
         return 2
+    defaults = preset_defaults(args.preset)
     try:
-        current = tuple(float(v) for v in args.current.split(","))
+        current = defaults["current"] if args.current is None else tuple(float(v) for v in args.current.split(","))
         assert len(current) == 2
     except (ValueError, AssertionError):
         print("--current takes VN,VE in m/s", file=sys.stderr)
@@ -49,9 +54,20 @@ def run(args: argparse.Namespace) -> int:
         campaign = replace(campaign, thrusts=args.thrusts)
     if args.no_steps:
         campaign = replace(campaign, step_labels=())
-    behaviors = () if args.behaviors == "none" else tuple(b.strip().replace("-", "_") for b in args.behaviors.split(",") if b.strip())
+    if args.behaviors is None:
+        behaviors = defaults["behaviors"]
+    elif args.behaviors == "none":
+        behaviors = ()
+    else:
+        behaviors = tuple(b.strip().replace("-", "_") for b in args.behaviors.split(",") if b.strip())
+    unknown = set(behaviors) - {"roll", "min_speed"}
+    if unknown:
+        print(f"unknown behaviour(s) {', '.join(sorted(unknown))}: use roll, min-speed or none", file=sys.stderr)
+        return 2
+    steady = defaults["steady_state"] if args.steady_state is None else args.steady_state
     config = RehearsalConfig(preset=args.preset, speedup=args.speedup, seed=args.seed, out_dir=args.out,
-                             campaign=campaign, behaviors=behaviors, current=current, progress=not args.json)
+                             campaign=campaign, behaviors=behaviors, current=current, steady_state=steady,
+                             progress=not args.json)
     abort = AbortFlag()
     undo = install_signal_handlers(abort)
     try:
@@ -82,7 +98,7 @@ def print_summary(summary: dict) -> None:
     for step in summary.get("heading_steps") or []:
         if step["label"] == "scheduled":
             print(f"heading step at thrust {step['thrust']:.2f} with scheduled gains: overshoot {step['max_overshoot_pct']}")
-    for key in ("roll", "min_speed"):
+    for key in ("roll", "min_speed", "steady_state"):
         if summary.get(key):
             print(f"{key}: {summary[key]}")
     print(f"report: {summary.get('report')}\nstore:  {summary.get('store')}  (companion results --store {summary.get('store')})")

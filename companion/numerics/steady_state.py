@@ -316,6 +316,10 @@ class TurnFit:
             "current_speed": self.current_speed,
             "current_dir_deg": self.current_dir_deg,
             "residual_std_m": self.residual_std,
+            "center_north": float(self.center[0]),  # r0 at t0: with rate, phase and t0 these
+            "center_east": float(self.center[1]),  # give the fitted path back (eq. 9), for plots
+            "phase_rad": float(self.phase),
+            "t0": float(self.t0),
             "sigma": {
                 "radius_m": float(sig[6]),
                 "turn_rate_deg_s": math.degrees(sig[4]),

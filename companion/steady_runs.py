@@ -1,0 +1,84 @@
+"""Steady-state manoeuvring characteristics under unknown current, as a procedure (SPEC C8, issue 5).
+
+A square pattern at fixed thrust (straight legs: eq. 7–8) and steady turns with the rudder held at
+±12.5° (eq. 9–10), run over the link with restore points like every procedure; the recorded paths
+(decimated to 1 Hz) are kept with the fitted figures so the report can draw the measured path, the
+fitted path, the circle without current and the current vector.
+
+Current direction convention: the direction the current flows **towards**, 0–360° from north,
+clockwise (Hegrenæs et al., eq. 11).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from behaviors.steady_state import SquareConfig, SquarePattern, SteadyTurns, TurnConfig
+from companion.app import finite_or_none
+from companion.numerics.steady_state import current_direction_deg
+from companion.runner import RestorePoint, SafetyLimits, run_behavior
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SteadyStateConfig:
+    # HUGIN-like preset: TR 0.6 ≈ 1.56 m/s on the legs; turns at TR 0.5 (≈ 1.3 m/s, ≈ 5°/s at 12.5°)
+    squares: SquareConfig = field(default_factory=lambda: SquareConfig(thrust_ratio=0.6, leg_s=120.0))
+    turns: TurnConfig = field(default_factory=lambda: TurnConfig(thrust_ratio=0.5, rudder_angles=(0.218, -0.218),
+                                                                  turn_s=150.0, recover_s=30.0))
+    path_rate_hz: float = 1.0
+
+
+def _decimate(data: dict[str, np.ndarray], rate_hz: float) -> dict[str, list[float]]:
+    t = data["t"]
+    if t.size == 0:
+        return {"t": [], "north": [], "east": []}
+    keep = np.concatenate([[True], np.diff(np.floor(t * rate_hz)) > 0])
+    return {name: [float(v) for v in data[name][keep]] for name in ("t", "north", "east")}
+
+
+def steady_state_procedure(link, abort, config: SteadyStateConfig = SteadyStateConfig(), *,
+                           limits: SafetyLimits = SafetyLimits()) -> dict:
+    """Squares, then turns. Returns {"status", "squares": {...}, "turns": {...}}."""
+    result: dict = {"behavior": "steady_state", "status": "completed"}
+    for name, behavior in (("squares", SquarePattern(config.squares)), ("turns", SteadyTurns(config.turns))):
+        outcome = run_behavior(link, behavior, limits=limits, abort_requested=abort,
+                               restore=RestorePoint.capture(link))
+        part = behavior.result()
+        if name == "squares":
+            part["path"] = _decimate(behavior.data(), config.path_rate_hz)
+        else:
+            part["paths"] = [_decimate(data, config.path_rate_hz) for data in behavior.data()]
+        result[name] = part
+        if outcome.status != "completed":
+            result.update(status="aborted", abort_reason=outcome.reason)
+            break
+    return result
+
+
+def steady_summary(result: dict, true_current: tuple[float, float] | None = None) -> dict:
+    """The JSON figures of issue 5 (and the errors against a known current, on the simulator)."""
+    squares, turns = result.get("squares") or {}, result.get("turns") or {}
+    summary: dict = {"status": result.get("status")}
+    if "current_speed" in squares:
+        summary["squares"] = {key: finite_or_none(squares.get(key)) for key in
+                              ("surge_water", "sway_water", "heave_water", "current_speed", "current_dir_deg",
+                               "condition_number")}
+    summary["turns"] = [{key: finite_or_none(turn.get(key)) for key in
+                         ("rudder_deg", "radius_m", "turn_rate_deg_s", "current_speed", "current_dir_deg",
+                          "residual_std_m")} for turn in turns.get("turns", []) if "radius_m" in turn]
+    if true_current is not None:
+        north, east = true_current
+        summary["true_current_speed"] = math.hypot(north, east)
+        summary["true_current_dir_deg"] = current_direction_deg(north, east)
+        if "current_north" in squares:
+            summary["squares"]["current_error_mm_s"] = 1000 * math.hypot(squares["current_north"] - north,
+                                                                        squares["current_east"] - east)
+        for turn_summary, turn in zip(summary["turns"], (t for t in turns.get("turns", []) if "radius_m" in t)):
+            turn_summary["current_error_mm_s"] = 1000 * math.hypot(turn["current_north"] - north,
+                                                                   turn["current_east"] - east)
+    return summary
