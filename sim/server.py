@@ -45,6 +45,8 @@ DEFAULT_PRESET = "starfish"
 GRAVITY = 9.80665
 PRESSURE_RHO = 1000.0  # kg/m³, fixed so a client can invert SCALED_PRESSURE (PROTOCOL.md)
 SEA_LEVEL_HPA = 1013.25
+ORIGIN_LAT_DEG, ORIGIN_LON_DEG = 63.4400, 10.3900  # fixed local origin (Trondheimsfjord)
+EARTH_RADIUS_M = 6378137.0
 UDP_CLIENT_TIMEOUT_S = 30.0  # wall seconds: a silent UDP client is dropped if others remain
 MAX_TICKS_PER_POLL = 10  # physics steps between two polls of the socket
 TCP_KERNEL_BUFFER = 32 * 1024  # SO_SNDBUF of an accepted TCP client
@@ -56,6 +58,7 @@ REPORT_EVERY_S = 10.0  # wall seconds between achieved-ratio log lines
 ATT_STREAMS = (mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, mavlink.MAVLINK_MSG_ID_ATTITUDE)
 POS_STREAMS = (
     mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
     mavlink.MAVLINK_MSG_ID_VFR_HUD,
     mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE,
 )
@@ -418,6 +421,17 @@ class SimServer:
             return mavlink.MAVLink_local_position_ned_message(
                 ms, m.north, m.east, m.depth, m.vel_north, m.vel_east, m.vel_down
             )
+        if msg_id == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            m = self._measurements()
+            lat = ORIGIN_LAT_DEG + math.degrees(m.north / EARTH_RADIUS_M)
+            lon = ORIGIN_LON_DEG + math.degrees(
+                m.east / (EARTH_RADIUS_M * math.cos(math.radians(ORIGIN_LAT_DEG))))
+            heading = int(round(math.degrees(m.yaw) * 100.0)) % 36000
+            return mavlink.MAVLink_global_position_int_message(
+                ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(-m.depth * 1000)),
+                int(round(-m.depth * 1000)), _cm(m.vel_north), _cm(m.vel_east), _cm(m.vel_down),
+                heading,
+            )
         if msg_id == mavlink.MAVLINK_MSG_ID_VFR_HUD:
             m = self._measurements()
             heading = int(round(math.degrees(m.yaw))) % 360
@@ -756,3 +770,7 @@ def _param_name(raw) -> str:
         raw = raw.decode("ascii", "replace")
     return str(raw).split("\x00", 1)[0].strip()
 
+
+def _cm(speed: float) -> int:
+    """m/s → cm/s clamped to int16 (GLOBAL_POSITION_INT velocity fields)."""
+    return max(-32768, min(32767, int(round(speed * 100.0))))

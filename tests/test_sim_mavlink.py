@@ -129,7 +129,7 @@ def test_heartbeat_identity_and_modes(client):
 
 def test_attitude_rate_and_servo_pairing_in_vehicle_time(client):
     msgs = collect(client, 30.0, types={"ATTITUDE", "SERVO_OUTPUT_RAW", "LOCAL_POSITION_NED",
-                                        "SYSTEM_TIME"})
+                                        "SYSTEM_TIME", "GLOBAL_POSITION_INT"})
     att = [m for m in msgs if m.get_type() == "ATTITUDE"]
     stamps = [m.time_boot_ms for m in att]
     span_s = (stamps[-1] - stamps[0]) / 1000
@@ -142,6 +142,11 @@ def test_attitude_rate_and_servo_pairing_in_vehicle_time(client):
                for a, b in pairs)
     pos = [m for m in msgs if m.get_type() == "LOCAL_POSITION_NED"]
     assert 9.5 <= (len(pos) - 1) / ((pos[-1].time_boot_ms - pos[0].time_boot_ms) / 1000) <= 10.5
+    glob = {m.time_boot_ms: m for m in msgs if m.get_type() == "GLOBAL_POSITION_INT"}
+    for local in pos[-5:]:  # the same sample, in the other frame
+        g = glob[local.time_boot_ms]
+        assert g.relative_alt == round(-local.z * 1000)
+        assert (g.lat - 634400000) * 1e-7 * math.pi / 180 * 6378137 == pytest.approx(local.x, abs=0.02)
 
 
 def test_message_interval_and_stream_parameter(client):
