@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Sequence
 
 from behaviors.heading_steps import HeadingStepTest, StepTestConfig
-from behaviors.identification import IdentificationManoeuvre, ManoeuvreConfig
+from behaviors.identification import IdentificationManoeuvre, ManoeuvreConfig, thesis_estimator
 from behaviors.sequence import Instant, SequenceBehavior
 from companion.interface import (
     Behavior,
@@ -61,6 +61,10 @@ class CampaignConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    def with_thesis_estimator(self) -> "CampaignConfig":
+        """The seeds' exact estimator on both axes (P0 = 100·I, zero-order holds)."""
+        return replace(self, yaw=thesis_estimator(self.yaw), pitch=thesis_estimator(self.pitch))
 
 
 def gains_to_params(gains: HeadingGains) -> dict[str, float]:

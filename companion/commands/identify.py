@@ -20,6 +20,8 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--depth", type=float, default=None, help="campaign depth in m (default: 2)")
     parser.add_argument("--axes", default="yaw,pitch", help="axes to identify (default: %(default)s)")
     parser.add_argument("--no-steps", action="store_true", help="skip the heading-step checks")
+    parser.add_argument("--thesis-estimator", action="store_true",
+                        help="the seeds' exact estimator (P0 = 100·I, zero-order holds) instead of the defaults")
     parser.add_argument("--no-write", action="store_true", help="design the gains but do not write them")
     parser.add_argument("--r2-threshold", type=float, default=None, help="validation acceptance threshold (default: 0.61)")
     parser.add_argument("--report", metavar="DIR", default=None, help="also write the HTML report into DIR")
@@ -37,6 +39,8 @@ def campaign_config(args: argparse.Namespace):
         config = replace(config, depth=args.depth)
     if args.no_steps:
         config = replace(config, step_labels=())
+    if args.thesis_estimator:
+        config = config.with_thesis_estimator()
     if args.no_write:
         config = replace(config, write_gains=False)
     if args.r2_threshold is not None:

@@ -22,6 +22,8 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--thrusts", type=thrust_list, default=None, help="thrust settings, e.g. 0.6,0.7,0.8 (default: 60..100%%)")
     parser.add_argument("--axes", default="yaw,pitch", help="axes to identify (default: %(default)s)")
     parser.add_argument("--no-steps", action="store_true", help="skip the heading-step checks")
+    parser.add_argument("--thesis-estimator", action="store_true",
+                        help="the seeds' exact estimator (P0 = 100·I, zero-order holds) instead of the defaults")
     parser.add_argument("--behaviors", default=None,
                         help="behaviours to run after the campaign: roll,min-speed or 'none' "
                              "(default: both on STARFISH presets, none on hugin)")
@@ -54,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
         campaign = replace(campaign, thrusts=args.thrusts)
     if args.no_steps:
         campaign = replace(campaign, step_labels=())
+    if args.thesis_estimator:
+        campaign = campaign.with_thesis_estimator()
     if args.behaviors is None:
         behaviors = defaults["behaviors"]
     elif args.behaviors == "none":
