@@ -176,7 +176,11 @@ def test_autopilot_version_capabilities(client):
 
 
 def test_command_for_another_component_is_not_answered(client):
-    assert command(client, mav.MAV_CMD_USER_1, 1, target_component=191) is None
+    client.mav.command_long_send(1, 191, mav.MAV_CMD_USER_1, 0, 1, 0, 0, 0, 0, 0, 0)
+    client.mav.param_request_read_send(1, 1, b"HDG_P", -1)  # answered after the command was seen
+    seen = []
+    assert recv_until(client, lambda m: seen.append(m) or m.get_type() == "PARAM_VALUE", 3.0)
+    assert not [m for m in seen if m.get_type() == "COMMAND_ACK"]
 
 
 # --------------------------------------------------------------------------- parameters
