@@ -56,6 +56,7 @@ class SimulatorProcess:
     extra_args: list[str] = field(default_factory=list)
     ready_timeout_s: float = 60.0
     transport: str = "tcp"  # or "udp"
+    lockstep: bool = True  # results independent of the speed-up (docs/PROTOCOL.md, "Lockstep")
     process: subprocess.Popen | None = None
     port: int = 0
 
@@ -74,7 +75,8 @@ class SimulatorProcess:
         self.port = free_port(socket.SOCK_STREAM if self.transport == "tcp" else socket.SOCK_DGRAM)
         command = [sys.executable, "-m", "sim", "run", "--preset", self.preset, "--speedup", str(self.speedup),
                    "--listen", self.listen, "--seed", str(self.seed),
-                   "--current", f"{self.current[0]},{self.current[1]}", *self.extra_args]
+                   "--current", f"{self.current[0]},{self.current[1]}",
+                   *(["--lockstep"] if self.lockstep else []), *self.extra_args]
         log.info("starting simulator: %s", " ".join(command))
         self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                         env={**os.environ, "PYTHONUNBUFFERED": "1"})
@@ -177,7 +179,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
     store_path = out / "store.sqlite"
     summary: dict = {"preset": config.preset, "speedup": config.speedup, "seed": config.seed}
     with Store(store_path) as store, SimulatorProcess(config.preset, config.speedup, config.seed, config.current) as sim:
-        link = VehicleLink.connect(sim.endpoint)
+        link = VehicleLink.connect(sim.endpoint, lockstep=sim.lockstep)
         try:
             link.arm(True)
             vehicle_id = vehicle_record(store, link, f"sim:{config.preset}", {"preset": config.preset, "seed": config.seed})

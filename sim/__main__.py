@@ -39,6 +39,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--duration", type=float, default=None,
                      help="stop after this many seconds of VEHICLE time")
     run.add_argument("--depth", type=float, default=5.0, help="initial depth (m)")
+    run.add_argument("--lockstep", action="store_true",
+                     help="never run more than one attitude period ahead of the vehicle time the companion "
+                          "acknowledged (SYSTEM_TIME from component 191): closed-loop results then do not "
+                          "depend on --speedup (docs/PROTOCOL.md)")
     run.set_defaults(func=_run)
 
     lin = sub.add_parser("linearize", help="the preset's linearised yaw parameters (truth)")
@@ -67,6 +71,7 @@ def _run(args: argparse.Namespace) -> int:
         current_east=args.current[1],
         duration=args.duration,
         depth=args.depth,
+        lockstep=args.lockstep,
     )
 
     def ready(endpoint: str) -> None:

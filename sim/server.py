@@ -92,6 +92,7 @@ class SimConfig:
     dt: float = 0.01
     depth: float = 5.0
     heading: float = 0.0
+    lockstep: bool = False  # see SimServer._lockstep_limit
 
 
 class _Stream:
@@ -140,6 +141,8 @@ class SimServer:
         self.conn: mavutil.mavfile | None = None
         self._tcp = config.listen.startswith("tcpin:")
         self.stats = {"ticks": 0, "sent": 0, "received": 0, "bad": 0, "dropped": 0, "wall_s": 0.0}
+        self._lockstep_acked_s: float | None = None  # vehicle time the companion acknowledged
+        self._lockstep_wall = 0.0  # wall time of that acknowledgement
         for name in ("SR_ATT_HZ", "SR_POS_HZ"):
             self._apply_stream_param(name)
         for msg_id in ONE_HZ_STREAMS:
@@ -222,6 +225,12 @@ class SimServer:
             batch_end = min(due, self.tick + MAX_TICKS_PER_POLL)
             if end_tick is not None:
                 batch_end = min(batch_end, end_tick)
+            if self.config.lockstep:
+                limit = self._lockstep_limit(now)
+                if limit is not None and limit < batch_end:
+                    batch_end = max(self.tick, limit)
+                    if batch_end == self.tick:
+                        self._wait_readable(0.002)  # the companion has not caught up: wait for its ack
             if self._tcp_backlogged():
                 # The TCP client is behind: vehicle time waits for it (lossless, flow-controlled).
                 self._wait_writable(0.005)
@@ -240,6 +249,34 @@ class SimServer:
                     self._wait_readable(min(wait, 0.05))
         self.stats["ticks"] = self.tick
         self.stats["wall_s"] = time.monotonic() - wall_start
+
+    # ------------------------------------------------------------------ lockstep
+    LOCKSTEP_COMPONENT = 191  # MAV_COMP_ID_ONBOARD_COMPUTER: the companion
+    LOCKSTEP_SILENCE_S = 1.0  # wall seconds without an ack before the simulator free-runs again
+
+    def _lockstep_limit(self, now: float) -> int | None:
+        """Last tick the physics may reach: one attitude period past the vehicle time the companion
+        acknowledged, so its commands act at the same vehicle time whatever the speed-up (at 50x,
+        1 ms of companion latency would otherwise be 50 ms of vehicle time inside its loops).
+        None (free-run) before the first acknowledgement and after LOCKSTEP_SILENCE_S of silence."""
+        acked = self._lockstep_acked_s
+        if acked is None or now - self._lockstep_wall > self.LOCKSTEP_SILENCE_S:
+            return None
+        lead = 1.0 / max(self.params["SR_ATT_HZ"], 1.0)
+        return int(math.floor((acked + lead) / self.dt + 1e-9))
+
+    def _handle_system_time(self, msg) -> None:
+        """SYSTEM_TIME from the companion: its acknowledgement of a processed sample (lockstep)."""
+        if not self.config.lockstep or msg.get_srcComponent() != self.LOCKSTEP_COMPONENT:
+            return
+        acked = msg.time_boot_ms / 1000.0
+        if not math.isfinite(acked):
+            return
+        previous = self._lockstep_acked_s
+        if previous is None:
+            log.info("lockstep engaged at t=%.2f", acked)
+        self._lockstep_acked_s = acked if previous is None else max(previous, acked)
+        self._lockstep_wall = time.monotonic()
 
     def _log_ratio(self, label: str, wall_s: float, sim_s: float) -> None:
         if wall_s <= 0:
@@ -761,6 +798,7 @@ class SimServer:
         "RC_CHANNELS_OVERRIDE": _handle_rc_override,
         "COMMAND_LONG": _handle_command_long,
         "COMMAND_INT": _handle_command_int,
+        "SYSTEM_TIME": _handle_system_time,
     }
 
 

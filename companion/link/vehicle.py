@@ -97,6 +97,11 @@ class VehicleLink:
     def __init__(self, master: Any, *, system_id: int, autopilot_component: int, component: int,
                  timeouts: LinkTimeouts = LinkTimeouts()) -> None:
         self.master = master
+        # lockstep with a simulator started with --lockstep (docs/PROTOCOL.md): acknowledge every
+        # processed sample with SYSTEM_TIME so the simulator never runs ahead of the companion
+        self.lockstep = False
+        self._returned_ms: int | None = None
+        self._acked_ms = -1
         self.system_id = system_id
         self.autopilot_component = autopilot_component
         self.component = component
@@ -153,7 +158,8 @@ class VehicleLink:
     def connect(cls, endpoint: str, *, profile: str | None = None, component: int = 191,
                 signing_key: bytes | None = None, heartbeat_timeout_s: float = 10.0,
                 system_id_hint: int = 1, stream_rates: dict[int, float] | None = None,
-                water_density: float = 1000.0, timeouts: LinkTimeouts = LinkTimeouts()) -> "VehicleLink":
+                water_density: float = 1000.0, timeouts: LinkTimeouts = LinkTimeouts(),
+                lockstep: bool = False) -> "VehicleLink":
         """Connect to the autopilot at ``endpoint`` (any pymavlink connection string).
 
         Waits (wall clock, ``heartbeat_timeout_s``) for an autopilot HEARTBEAT, beaconing our own
@@ -177,6 +183,7 @@ class VehicleLink:
             heartbeat = cls._await_autopilot_heartbeat(master, heartbeat_timeout_s, endpoint, component)
             link = cls(master, system_id=heartbeat.get_srcSystem(), autopilot_component=heartbeat.get_srcComponent(),
                        component=component, timeouts=timeouts)
+            link.lockstep = lockstep
             master.mav.srcSystem = link.system_id
             master.mav.srcComponent = component
             link._on_heartbeat(heartbeat)
@@ -288,7 +295,16 @@ class VehicleLink:
             if remaining <= 0.0:
                 return False
             self._pump(min(remaining, 0.1))
+            if self.lockstep and self._last_attitude_ms is not None:
+                # blocked on an answer: let the simulator run on (a real vehicle would)
+                self._acknowledge(int(self._last_attitude_ms))
         return True
+
+    def _acknowledge(self, time_ms: int) -> None:
+        """SYSTEM_TIME(time_boot_ms) to a --lockstep simulator: samples up to here are processed."""
+        if time_ms > self._acked_ms:
+            self._acked_ms = time_ms
+            self.master.mav.system_time_send(0, time_ms & 0xFFFFFFFF)
 
     def next_telemetry(self, timeout_s: float = 5.0) -> Telemetry:
         """The next telemetry snapshot, in order; blocks until an ATTITUDE completes one.
@@ -300,6 +316,8 @@ class VehicleLink:
         queued user commands are handed to the callback before returning. Raises LinkLost after
         ``timeout_s`` of wall clock without a snapshot, VehicleRebooted when time_boot_ms jumps back.
         """
+        if self.lockstep and self._returned_ms is not None:
+            self._acknowledge(self._returned_ms)  # everything the last snapshot asked for is sent
         deadline = time.monotonic() + timeout_s
         while not self._unread_snapshots:
             remaining = deadline - time.monotonic()
@@ -309,6 +327,7 @@ class VehicleLink:
                                f"(last message of any kind {silent:.1f} s ago)")
             self._pump(min(remaining, 0.5))
         snapshot = self._unread_snapshots.popleft()
+        self._returned_ms = int(round(snapshot.time_s * 1000.0))
         self._deliver_user_commands()
         return snapshot
 
