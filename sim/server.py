@@ -7,8 +7,10 @@ place in the simulator that reads a wall clock. If the machine cannot keep up it
 it can, drops the backlog instead of bursting, and logs the achieved ratio.
 
 Transports are pymavlink's (``udpin:``, ``udpout:``, ``tcpin:``). ``udpin:`` serves every client
-that has sent at least one datagram (pymavlink's multi-client UDP server); ``tcpin:`` serves one
-client at a time and accepts a new one after a disconnect.
+that has sent at least one datagram (pymavlink's multi-client UDP server) and routes messages
+between them like an autopilot; ``tcpin:`` serves one client at a time, accepts a new one after a
+disconnect, and is lossless: vehicle time waits for a client that falls behind. All messages of a
+tick go out in one datagram/write (the hot loop's largest saving). docs/PROTOCOL.md, "Transport".
 """
 from __future__ import annotations
 
