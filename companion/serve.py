@@ -12,8 +12,9 @@ stops procedures with COMMAND_LONG aimed at component 191:
 | MAV_CMD_USER_4 | abort the running procedure (the autopilot is restored) |
 
 A start is answered COMMAND_ACK IN_PROGRESS (with progress for the campaign) and finally ACCEPTED or
-FAILED; a start while a procedure runs, or an abort with nothing running, is answered
-TEMPORARILY_REJECTED. Everything runs on vehicle time; SIGINT/SIGTERM abort what runs and end.
+FAILED; a retransmitted start of the procedure already running is answered IN_PROGRESS again; a
+start while another procedure runs, a start on a disarmed vehicle, or an abort with nothing running
+is answered TEMPORARILY_REJECTED. Everything runs on vehicle time; SIGINT/SIGTERM abort what runs and end.
 """
 from __future__ import annotations
 
@@ -82,6 +83,7 @@ class Companion:
         self.link, self.store, self.vehicle_id, self.config, self.stop = link, store, vehicle_id, config, stop
         self.pending: list[tuple[int, tuple[float, ...]]] = []
         self.procedure_abort: AbortFlag | None = None
+        self.running: int | None = None
         self.scheduler: GainScheduler | None = None
         self.history: list[dict] = []
         link.on_user_command(self._on_user_command)
@@ -98,7 +100,15 @@ class Companion:
         if command not in (MAV_CMD_USER_1, MAV_CMD_USER_2, MAV_CMD_USER_3):
             self.link.send_command_ack(command, MAV_RESULT_FAILED)
             return
+        if command in (self.running, *(c for c, _ in self.pending)):
+            # a retransmission (the GCS did not see our first ACK): the same answer again
+            self.link.send_command_ack(command, MAV_RESULT_IN_PROGRESS, 0)
+            return
         if self.procedure_abort is not None or self.pending:
+            self.link.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
+            return
+        if not getattr(self.link, "armed", True):
+            self.link.status_text("procedure refused: the vehicle is not armed", 4)
             self.link.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
             return
         self.pending.append((command, params))
@@ -138,6 +148,7 @@ class Companion:
 
     def _run_procedure(self, command: int, params: tuple[float, ...]) -> None:
         self.procedure_abort = AbortFlag()
+        self.running = command
         gcs = GcsProgress(self.link, command)
         abort = self._abort_requested()
         try:
@@ -166,5 +177,6 @@ class Companion:
             entry = {"procedure": command, "status": "failed", "reason": str(exc)}
         finally:
             self.procedure_abort = None
+            self.running = None
         self.history.append(entry)
         log.info("procedure finished: %s", entry)

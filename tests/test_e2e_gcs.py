@@ -1,0 +1,99 @@
+"""End to end: a ground station starts and aborts procedures on the resident companion
+(``companion run``) with COMMAND_LONG aimed at component 191, routed through the simulator like
+through an autopilot (SPEC C1: COMMAND_ACK IN_PROGRESS with progress, then ACCEPTED or FAILED)."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import pytest
+
+pytestmark = pytest.mark.e2e
+
+MAV_CMD_USER_1, MAV_CMD_USER_3, MAV_CMD_USER_4 = 31010, 31012, 31013
+ACCEPTED, FAILED, IN_PROGRESS = 0, 4, 5
+
+
+def acks_for(gcs, command: int, until, timeout_s: float) -> list[tuple[int, int]]:
+    """(result, progress) of the COMMAND_ACKs for ``command`` from component 191 until ``until``."""
+    seen: list[tuple[int, int]] = []
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not until(seen):
+        msg = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=0.5)
+        if msg is not None and msg.command == command and msg.get_srcComponent() == 191:
+            seen.append((msg.result, msg.progress))
+    return seen
+
+
+@pytest.fixture
+def companion(sim_factory, tmp_path):
+    sim = sim_factory(speedup=20, seed=2)
+    process = subprocess.Popen([sys.executable, "-m", "companion", "run", "--connect", sim.endpoint,
+                                "--store", str(tmp_path / "store.sqlite"), "--max-vehicle-time", "600"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    yield sim, process
+    process.terminate()
+    process.wait(timeout=20)
+
+
+def start(gcs, command: int, param1: float = 0.0, timeout_s: float = 30.0) -> list[tuple[int, int]]:
+    """Send a COMMAND_LONG to component 191 as a GCS does: retransmit (confirmation + 1) until the
+    first COMMAND_ACK (the companion may still be connecting when its heartbeat first shows)."""
+    deadline = time.monotonic() + timeout_s
+    confirmation = 0
+    while time.monotonic() < deadline:
+        gcs.mav.command_long_send(1, 191, command, confirmation, param1, 0, 0, 0, 0, 0, 0)
+        acks = acks_for(gcs, command, lambda seen: bool(seen), 2.0)
+        if acks:
+            return acks
+        confirmation = min(confirmation + 1, 255)
+    return []
+
+
+def arm(gcs) -> None:
+    gcs.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # MAV_CMD_COMPONENT_ARM_DISARM
+
+
+def wait_for_companion(gcs, timeout_s: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        msg = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
+        if msg is not None and msg.get_srcComponent() == 191:
+            return
+    raise AssertionError("no HEARTBEAT from the companion (component 191) through the simulator")
+
+
+def test_a_disarmed_vehicle_is_refused(companion, mav_client):
+    sim, process = companion
+    gcs = mav_client(sim.endpoint)
+    wait_for_companion(gcs)
+    acks = start(gcs, MAV_CMD_USER_3, 20.0)
+    assert acks and acks[0][0] == 1, acks  # TEMPORARILY_REJECTED: the simulator boots disarmed
+
+
+def test_user_3_runs_min_speed_seeking_and_reports(companion, mav_client):
+    sim, process = companion
+    gcs = mav_client(sim.endpoint)
+    wait_for_companion(gcs)
+    arm(gcs)
+    first = start(gcs, MAV_CMD_USER_3, 20.0)  # 20 s of seeking
+    assert first and first[0][0] == IN_PROGRESS, first
+    acks = acks_for(gcs, MAV_CMD_USER_3, lambda seen: seen and seen[-1][0] != IN_PROGRESS, 60.0)
+    assert acks and acks[-1] == (ACCEPTED, 100), acks
+
+
+def test_user_4_aborts_the_campaign(companion, mav_client):
+    sim, process = companion
+    gcs = mav_client(sim.endpoint)
+    wait_for_companion(gcs)
+    arm(gcs)
+    started = start(gcs, MAV_CMD_USER_1)
+    assert started and started[0][0] == IN_PROGRESS, started
+    gcs.mav.command_long_send(1, 191, MAV_CMD_USER_4, 0, 0, 0, 0, 0, 0, 0, 0)
+    final = acks_for(gcs, MAV_CMD_USER_1, lambda seen: seen and seen[-1][0] != IN_PROGRESS, 60.0)
+    assert final and final[-1][0] == FAILED, final
+    # the autopilot is back as found: the simulator boots in MANUAL with HDG_P at the preset's value
+    gcs.mav.param_request_read_send(1, 1, b"HDG_P", -1)
+    value = gcs.recv_match(type="PARAM_VALUE", blocking=True, timeout=10)
+    assert value is not None and value.param_value == pytest.approx(0.64, abs=1e-6)
