@@ -13,7 +13,18 @@ from typing import Sequence
 import numpy as np
 from scipy.signal import savgol_filter
 
-from companion.interface import Command, SetHeading, SetParameters, SetThrust, StatusText, Telemetry
+from companion.interface import Command, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
+
+
+def reengage_hold(thrust: float, heading: float) -> list[Command]:
+    """Re-enter the holding mode after writing a new rudder trim, then restore the set-points.
+
+    The autopilot's heading integrator has learned the old rudder offset; a newly written trim
+    (the identified δ0, fed forward) would otherwise count it twice, biasing the heading by
+    ~offset/Kp (≈1° here) for the minutes a small integral gain takes to unwind. Autopilots reset
+    their integrators on mode entry (ArduPilot does), and re-selecting the current mode is a no-op,
+    hence hold → guided → hold. Mode entry also resets the set-points, so they are sent again."""
+    return [SetMode("guided"), SetMode("hold"), SetThrust(thrust), SetHeading(_wrap(heading))]
 
 
 @dataclass(frozen=True)
@@ -96,6 +107,8 @@ class HeadingStepTest:
             self._start, self._phase_start, self._course = now, now, heading
             if self.gains:
                 commands.append(SetParameters(self.gains))
+                if "rudder_trim" in self.gains:
+                    commands += reengage_hold(self.thrust, self._course)
             commands += [SetThrust(self.thrust), SetHeading(_wrap(self._course)),
                          StatusText(f"heading steps {self.label} at thrust {self.thrust:.2f}")]
         target = {"settle": self._course, "up": self._course + self.config.step, "down": self._course}[self._phase]

@@ -21,7 +21,7 @@ import math
 from dataclasses import asdict, dataclass, field, replace
 from typing import Sequence
 
-from behaviors.heading_steps import HeadingStepTest, StepTestConfig
+from behaviors.heading_steps import HeadingStepTest, StepTestConfig, reengage_hold
 from behaviors.identification import IdentificationManoeuvre, ManoeuvreConfig, thesis_estimator
 from behaviors.sequence import Instant, SequenceBehavior
 from companion.interface import (
@@ -273,7 +273,9 @@ class _WriteScheduledGains:
         self.campaign.final_gains = gains
         self.campaign.events.append({"type": "gains", "speed": speed, "before": self.campaign.original_gains,
                                      "after": gains})
-        return [SetParameters(gains), StatusText(f"heading gains written for {speed:.2f} m/s: kp {gains['heading_p']:.3f}"
+        return [SetParameters(gains), *reengage_hold(telemetry.thrust_ratio if telemetry.finite("thrust_ratio")
+                                                      else self.campaign.config.thrusts[-1], telemetry.yaw),
+                StatusText(f"heading gains written for {speed:.2f} m/s: kp {gains['heading_p']:.3f}"
                                                  f" ki {gains['heading_i']:.3f} trim {gains['rudder_trim']:.3f}")]
 
     def abort(self, reason: str) -> Sequence[Command]:

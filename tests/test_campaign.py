@@ -209,3 +209,21 @@ def test_pitch_axis_identifies_a_stable_model():
     model = best["model"]
     assert model["c22"] > 0 and model["c23"] > 0  # damped, statically stable pitch
     assert model["d2"] < 0  # elevator sign of the sim: positive elevator pitches down
+
+
+def test_new_trim_is_not_counted_twice_by_a_charged_integrator():
+    """The autopilot's integrator has learned the rudder offset under its original gains; writing the
+    identified δ0 as trim must re-engage the hold (integrator reset), or the heading is biased ~1°
+    and the +20° and −20° steps come out asymmetric (9 % vs 0 % measured before the fix)."""
+    from behaviors.heading_steps import HeadingStepTest
+    from behaviors.observe import Observe
+    from behaviors.sequence import SequenceBehavior
+
+    link = InProcessLink(seed=1)
+    gains = {"heading_p": 0.547, "heading_i": 0.0, "rudder_trim": 0.01}  # P only: 4.3 % by design
+    steps = HeadingStepTest(0.8, gains, label="P")
+    run_behavior(link, SequenceBehavior([Observe(30.0), steps]))
+    up, down = (step["overshoot_pct"] for step in steps.result()["steps"])
+    assert abs(up - down) < 1.5, (up, down)
+    assert up < 5.5 and down < 5.5
+    assert "guided" in link.mode_changes and link.mode == "hold"
