@@ -9,7 +9,6 @@ MAVLink link would (thrust set-point; rolling mass through DO_SET_SERVO with its
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Callable
 

@@ -13,7 +13,7 @@ import pytest
 from behaviors.identification import IdentificationManoeuvre, ManoeuvreConfig, doublet
 from companion.app import AbortFlag, drain_campaign_events
 from companion.campaign import CampaignConfig, IdentificationCampaign
-from companion.interface import OverrideActuator, ReleaseActuator
+from companion.interface import OverrideActuator
 from companion.runner import RestorePoint, SafetyLimits, run_behavior
 from companion.store import Store
 from sim.linearize import linearized_yaw

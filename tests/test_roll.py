@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from behaviors.roll_stabilisation import RollStabilisation, RollStabilisationConfig
+from behaviors.roll_stabilisation import RollStabilisation
 from companion.interface import SetRollingMass, Telemetry
 from companion.numerics.roll import (
     RollLinearModel,

@@ -2,7 +2,6 @@
 procedures started, reported and aborted by MAV_CMD_USER_1..4 (SPEC C1, C5)."""
 from __future__ import annotations
 
-from dataclasses import replace
 
 import pytest
 

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from contextlib import contextmanager
 import math
 import os
 import sys
@@ -69,3 +70,30 @@ def ensure_parent(path: str) -> Path:
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     return p
+
+
+class ConnectFailed(Exception):
+    """The vehicle did not answer (the message is printed; exit code 1)."""
+
+
+@contextmanager
+def connected_vehicle(args: argparse.Namespace):
+    """Signals → abort flag, connect (``--connect``, ``--profile``, ``--signing-key``), and always
+    close and restore the signal handlers. Yields ``(link, abort)``; raises ConnectFailed."""
+    from companion.app import AbortFlag, install_signal_handlers
+    from companion.link.errors import LinkError
+    from companion.link.vehicle import VehicleLink
+
+    abort = AbortFlag()
+    undo = install_signal_handlers(abort)
+    try:
+        try:
+            link = VehicleLink.connect(args.connect, profile=args.profile, signing_key=signing_key(args))
+        except LinkError as exc:  # no heartbeat, endpoint that cannot be opened, ...
+            raise ConnectFailed(f"error: {exc}") from exc
+        try:
+            yield link, abort
+        finally:
+            link.close()
+    finally:
+        undo()

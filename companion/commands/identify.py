@@ -5,7 +5,8 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.commands._common import add_connect_arguments, add_store_argument, print_json, signing_key, thrust_list
+from companion.commands._common import (ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
+                                       print_json, thrust_list)
 
 
 def add_parser(subparsers) -> None:
@@ -50,31 +51,20 @@ def campaign_config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.app import AbortFlag, ConsoleProgress, install_signal_handlers, run_campaign, vehicle_record
-    from companion.link.errors import LinkError
-    from companion.link.vehicle import VehicleLink
+    from companion.app import ConsoleProgress, run_campaign, vehicle_record
     from companion.report import write_report
     from companion.store import Store
 
     config = campaign_config(args)
-    abort = AbortFlag()
-    undo = install_signal_handlers(abort)
     try:
-        link = VehicleLink.connect(args.connect, profile=args.profile, signing_key=signing_key(args))
-    except LinkError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        undo()
-        return 1
-    try:
-        with Store(args.store) as store:
-            vehicle_id = vehicle_record(store, link)
+        with connected_vehicle(args) as (link, abort), Store(args.store) as store:
             campaign, outcome, campaign_id = run_campaign(
-                link, store, config, vehicle_id=vehicle_id, abort=abort,
+                link, store, config, vehicle_id=vehicle_record(store, link), abort=abort,
                 console=ConsoleProgress("identification", enabled=not args.json))
             report = str(write_report(store, campaign_id, args.report)) if args.report else None
-    finally:
-        link.close()
-        undo()
+    except ConnectFailed as exc:
+        print(exc, file=sys.stderr)
+        return 1
     result = {"campaign_id": campaign_id, "status": outcome.status, "reason": outcome.reason,
               "restore_problems": outcome.restore_problems, "store": args.store, "report": report,
               **{k: v for k, v in campaign.result().items() if k in ("accepted", "design", "steps", "final_gains")}}

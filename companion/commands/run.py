@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from companion.commands._common import add_connect_arguments, add_store_argument, signing_key
+from companion.commands._common import ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle
 
 
 def add_parser(subparsers) -> None:
@@ -25,33 +25,21 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.app import AbortFlag, install_signal_handlers, vehicle_record
+    from companion.app import vehicle_record
     from companion.link.errors import LinkError
-    from companion.link.vehicle import VehicleLink
     from companion.serve import Companion, ServeConfig
     from companion.store import Store
 
-    stop = AbortFlag()
-    undo = install_signal_handlers(stop)
-    try:
-        link = VehicleLink.connect(args.connect, profile=args.profile, signing_key=signing_key(args))
-    except LinkError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        undo()
-        return 1
     config = ServeConfig(schedule_gains=not args.no_scheduling, preset=args.preset, max_vehicle_s=args.max_vehicle_time)
     try:
-        with Store(args.store) as store:
+        with connected_vehicle(args) as (link, stop), Store(args.store) as store:
             companion = Companion(link, store, vehicle_record(store, link), config, stop)
             print(f"companion running on {args.connect} (system {link.system_id}, component 191, profile "
                   f"{link.profile.name}); Ctrl-C to stop", file=sys.stderr)
             history = companion.run()
-    except LinkError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except (ConnectFailed, LinkError) as exc:
+        print(exc if isinstance(exc, ConnectFailed) else f"error: {exc}", file=sys.stderr)
         return 1
-    finally:
-        link.close()
-        undo()
     for entry in history:
         print(entry)
     return 0

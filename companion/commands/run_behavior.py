@@ -5,7 +5,8 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.commands._common import add_connect_arguments, add_store_argument, print_json, signing_key
+from companion.commands._common import (ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
+                                       print_json)
 
 
 def add_parser(subparsers) -> None:
@@ -31,10 +32,8 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.app import AbortFlag, install_signal_handlers, vehicle_record
+    from companion.app import vehicle_record
     from companion.behavior_runs import MinSpeedProcedureConfig, RollProcedureConfig, run_named_behavior
-    from companion.link.errors import LinkError
-    from companion.link.vehicle import VehicleLink
     from companion.store import Store
 
     name = args.behavior.replace("-", "_")
@@ -46,22 +45,14 @@ def run(args: argparse.Namespace) -> int:
             return 2
         roll = replace(roll, closed_s=args.duration)
         min_speed = replace(min_speed, duration_s=args.duration)
-    abort = AbortFlag()
-    undo = install_signal_handlers(abort)
     try:
-        link = VehicleLink.connect(args.connect, profile=args.profile, signing_key=signing_key(args))
-    except LinkError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        undo()
-        return 1
-    try:
-        with Store(args.store) as store:
+        with connected_vehicle(args) as (link, abort), Store(args.store) as store:
             outcome = run_named_behavior(name, link, store, vehicle_id=vehicle_record(store, link), campaign_id=None,
                                          abort=abort, preset=args.preset, simulator=args.simulator_hooks,
                                          roll_config=roll, min_speed_config=min_speed)
-    finally:
-        link.close()
-        undo()
+    except ConnectFailed as exc:
+        print(exc, file=sys.stderr)
+        return 1
     summary = outcome["summary"]
     if args.json:
         print_json(summary)

@@ -60,3 +60,7 @@ class CommandFailed(LinkError):
 
 class ModeChangeFailed(LinkError):
     """The HEARTBEAT did not show the requested mode (or armed state) in time."""
+
+
+class EndpointError(LinkError):
+    """The connection string could not be opened (refused, no such device, bad address)."""

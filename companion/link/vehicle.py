@@ -23,7 +23,7 @@ from typing import Any, Callable, Iterable, Sequence
 from companion.interface import (Command, NamedValue, OverrideActuator, ReleaseActuator, SetDepth, SetHeading,
                                  SetMode, SetParameters, SetRollingMass, SetThrust, StatusText, Telemetry)
 from companion.link import params as paramcodec
-from companion.link.errors import (CommandFailed, HeartbeatTimeout, LinkLost, ModeChangeFailed, ParamRefused,
+from companion.link.errors import (CommandFailed, EndpointError, HeartbeatTimeout, LinkLost, ModeChangeFailed, ParamRefused,
                                    ParamTimeout, ProfileError, VehicleRebooted)
 from companion.link.overrides import OverrideTable, single_shot
 from companion.link.profiles import HEADING_PI_NAMES, AutopilotProfile, detect_profile, get_profile, marker_params
@@ -175,8 +175,11 @@ class VehicleLink:
         # wire version through this process-wide variable, so set it before loading the dialect.
         os.environ.setdefault("MAVLINK20", "1")
         mavutil.set_dialect("ardupilotmega")
-        master = mavutil.mavlink_connection(endpoint, source_system=system_id_hint, source_component=component,
-                                            robust_parsing=True)
+        try:
+            master = mavutil.mavlink_connection(endpoint, source_system=system_id_hint, source_component=component,
+                                                robust_parsing=True)
+        except OSError as exc:  # refused TCP connection, missing serial device (SerialException), bad address
+            raise EndpointError(f"cannot open {endpoint}: {exc}") from exc
         if signing_key is not None:
             master.setup_signing(signing_key, sign_outgoing=True)
         try:

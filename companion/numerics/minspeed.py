@@ -13,10 +13,12 @@ deflection that pitches the nose down). Pure numerics: no I/O, no clock.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any, Mapping
 
 import numpy as np
+
+from .vehicle_data import actuator_limit, section_numbers
 
 #: thruster map of the Tecnadyne 520 (Fig. 5.3, eq. 5.16 with the SPEC §3.5 sign fix)
 THRUST_MAP_A = 120.0
@@ -115,22 +117,10 @@ class DivePlaneVehicle:
         ``dive_plane`` (or ``minspeed``); a preset's ``actuators.elevator_max`` gives δ_max unless
         the section has its own. Missing fields keep the Table 5.1 defaults; unknown keys are ignored.
         """
-        section: Mapping[str, Any] = data
-        lowered = {str(k).lower(): v for k, v in data.items()}
-        for name in _SECTIONS:
-            if isinstance(lowered.get(name), Mapping):
-                section = lowered[name]
-                break
-        known = {f.name for f in fields(cls)}
-        values: dict[str, float] = {}
-        for key, value in section.items():
-            name = str(key).lower()
-            name = name if name in known else _ALIASES.get(name, "")
-            if name in known and isinstance(value, (int, float)) and not isinstance(value, bool):
-                values[name] = float(value)
-        actuators = lowered.get("actuators")
-        if "delta_max" not in values and isinstance(actuators, Mapping) and "elevator_max" in actuators:
-            values["delta_max"] = float(actuators["elevator_max"])
+        values = section_numbers(data, cls, _SECTIONS, _ALIASES)
+        limit = actuator_limit(data, "elevator_max")
+        if "delta_max" not in values and limit is not None:
+            values["delta_max"] = limit
         return cls(**values)
 
     def to_dict(self) -> dict[str, float]:

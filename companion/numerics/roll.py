@@ -32,11 +32,13 @@ Pure numerics: no I/O, no clock.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any, Mapping
 
 import control
 import numpy as np
+
+from .vehicle_data import actuator_limit, section_numbers
 
 #: the seed's printed linear gain and controller (Table 4.1, 4.2)
 SEED_K = -0.61
@@ -99,21 +101,10 @@ class RollVehicle:
         """From a preset dict: field names of this class, the simulator preset's names
         (``sim/presets/*.json`` ``roll`` section; ``actuators.mass_max`` gives the limit) or Table
         4.1 symbols, at top level or nested in ``roll``."""
-        section: Mapping[str, Any] = data
-        for key, value in data.items():
-            if str(key).lower() in _SECTIONS and isinstance(value, Mapping):
-                section = value
-                break
-        known = {f.name for f in fields(cls)}
-        values: dict[str, float] = {}
-        for key, value in section.items():
-            name = str(key).lower()
-            name = name if name in known else _ALIASES.get(name, "")
-            if name in known and isinstance(value, (int, float)) and not isinstance(value, bool):
-                values[name] = float(value)
-        actuators = data.get("actuators")
-        if "mass_limit" not in values and isinstance(actuators, Mapping) and "mass_max" in actuators:
-            values["mass_limit"] = float(actuators["mass_max"])
+        values = section_numbers(data, cls, _SECTIONS, _ALIASES)
+        limit = actuator_limit(data, "mass_max")
+        if "mass_limit" not in values and limit is not None:
+            values["mass_limit"] = limit
         return cls(**values)
 
     def to_dict(self) -> dict[str, float]:
