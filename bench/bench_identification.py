@@ -9,7 +9,8 @@ simulator's linearised truth at the measured speed. Two paths:
   with the simulator at ``--speedup`` (~40 s of wall time per seed).
 
 Prints, per thrust and overall: median / 90th percentile of |a22| and |b2| relative errors, median
-R², median convergence time, and the heading-step overshoot with the scheduled gains against one
+R², median convergence time (eq. 3.39) and the median time after which the estimates stay within 2 %
+of their final values ("2% med"), and the heading-step overshoot with the scheduled gains against one
 constant gain tuned at 60 % thrust. Goals (issue 3): median error ≤ 5 %, R² ≥ 0.9, convergence
 ≤ 10 s (the seed: 12 s), overshoot ≤ 6 % everywhere.
 
@@ -56,7 +57,7 @@ def run_mavlink(seed: int, preset: str, speedup: float) -> dict:
     out = Path(f"/tmp/bench-identification-{seed}")
     out.mkdir(exist_ok=True)
     with Store(out / "store.sqlite") as store, SimulatorProcess(preset, speedup, seed) as sim:
-        link = VehicleLink.connect(sim.endpoint)
+        link = VehicleLink.connect(sim.endpoint, lockstep=sim.lockstep)
         try:
             link.arm(True)
             campaign, outcome, _ = run_campaign(link, store, CONFIG, vehicle_id=vehicle_record(store, link),
@@ -64,6 +65,18 @@ def run_mavlink(seed: int, preset: str, speedup: float) -> dict:
         finally:
             link.close()
     return {"status": outcome.status, "accepted": campaign.accepted, "steps": campaign.step_results}
+
+
+def settled_s(history: dict | None, band: float = 0.02) -> float | None:
+    """Time from the start of training after which a22 and b2 stay within ``band`` of their final values."""
+    if not history or not history.get("time_s"):
+        return None
+    last = None
+    for t, a22, b2 in zip(history["time_s"], history["a22"], history["b2"]):
+        if abs(a22 - history["a22"][-1]) > band * abs(history["a22"][-1]) or \
+                abs(b2 - history["b2"][-1]) > band * abs(history["b2"][-1]):
+            last = t
+    return last
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -105,6 +118,7 @@ def main() -> None:
                          "a22_err": abs(model["a22"] / truth["a22"] - 1), "b2_err": abs(model["b2"] / truth["b2"] - 1),
                          "delta0_err": abs(model["delta0"] - truth["delta0"]), "r2": attempt["r2"],
                          "converged_s": attempt["converged_s"], "training_s": attempt["training_s"],
+                         "settled_s": settled_s((attempt.get("training") or {}).get("history")),
                          "attempt": attempt["attempt"]})
         for s in result["steps"]:
             steps.append({"seed": seed, "thrust": s["thrust"], "label": s["label"], "overshoot": s["max_overshoot_pct"]})
@@ -114,7 +128,7 @@ def main() -> None:
     print(f"\nidentification on '{args.preset}' over {args.seeds} seeds, path {args.path}"
           + (f" at {args.speedup:g}x" if args.path == "mavlink" else "") + f"; {failures} campaigns not completed")
     print(f"{'thrust':>6} {'n':>3} {'a22 med':>8} {'a22 p90':>8} {'b2 med':>7} {'b2 p90':>7} {'R2 med':>7} {'R2 min':>7} "
-          f"{'conv med':>8} {'conv p90':>8} {'unconv':>6}")
+          f"{'conv med':>8} {'conv p90':>8} {'unconv':>6} {'2% med':>7}")
     for thrust in sorted({r["thrust"] for r in rows}) + [None]:
         sel = [r for r in rows if thrust is None or r["thrust"] == thrust]
         conv = [r["converged_s"] for r in sel if r["converged_s"] is not None]
@@ -123,7 +137,8 @@ def main() -> None:
               f"{100 * percentile([r['a22_err'] for r in sel], 0.9):7.2f}% {100 * statistics.median(r['b2_err'] for r in sel):6.2f}% "
               f"{100 * percentile([r['b2_err'] for r in sel], 0.9):6.2f}% {statistics.median(r['r2'] for r in sel):7.3f} "
               f"{min(r['r2'] for r in sel):7.3f} {statistics.median(conv) if conv else float('nan'):8.2f} "
-              f"{percentile(conv, 0.9):8.2f} {len(sel) - len(conv):>6}")
+              f"{percentile(conv, 0.9):8.2f} {len(sel) - len(conv):>6} "
+              f"{statistics.median(r['settled_s'] for r in sel if r['settled_s'] is not None):7.2f}")
     print("\nheading steps ±20°: max overshoot % (median / worst over seeds)")
     print(f"{'thrust':>6} {'scheduled':>16} {'constant@60%':>16}")
     for thrust in sorted({s["thrust"] for s in steps}):
