@@ -22,8 +22,10 @@ from tests.closed_loop import ClosedLoop  # noqa: E402
 SEEDS = (1, 2, 3)
 
 
-def seek(seed: int, seconds: float = 200.0, elev_max: float = 0.26, **seeker) -> dict:
+def seek(seed: int, seconds: float = 200.0, elev_max: float = 0.26, noise_scale: float = 1.0, **seeker) -> dict:
     loop = ClosedLoop(seed=seed, depth=2.0, params={"ELEV_MAX": elev_max})
+    # bench-only: scale the simulated sensor noise (the seed's Simulink run was noise-free, §5.4)
+    loop.vehicle._noise_sigma = loop.vehicle._noise_sigma * noise_scale
     loop.advance(100.0)
     config = MinSpeedConfig(seeker=SeekerConfig(delta_max=elev_max, **seeker), depth_setpoint=2.0,
                             depth_p=loop.param("DPT_P"), depth_i=loop.param("DPT_I"), pitch_max=loop.param("PIT_MAX"))
@@ -52,6 +54,14 @@ def main() -> None:
           "max |depth error| after 5 s / after settling (m), thrust reversals in the last 30 s")
     for period in (0.5, 1.0, 2.0, 2.5, 3.0):
         print(line(f"Ts {period} s", [seek(s, period_s=period) for s in SEEDS], base))
+    for period in (0.5, 1.0, 2.5):  # noise-free, as the seed's simulation: the seeds then coincide
+        print(line(f"Ts {period} s no noise", [seek(1, period_s=period, noise_scale=0.0)], base))
+    print(line("Ts 1 s noise x0.1", [seek(s, period_s=1.0, noise_scale=0.1) for s in SEEDS], base))
+    for budget in (0.02, 0.05, 0.08):
+        print(line(f"Ts 1 δFB {budget}", [seek(s, period_s=1.0, fin_budget=budget) for s in SEEDS], base))
+    for delta_max in (0.26, 0.35, 0.40):
+        analytic = minimum_speed(DivePlaneVehicle(), delta_max)
+        print(line(f"Ts 1 δmax {delta_max}", [seek(s, period_s=1.0, elev_max=delta_max) for s in SEEDS], analytic))
     for budget in (0.02, 0.05, 0.08, 0.12):
         print(line(f"Ts 2.5 δFB {budget}", [seek(s, period_s=2.5, fin_budget=budget) for s in SEEDS], base))
     for delta_max in (0.26, 0.35, 0.40):
