@@ -88,22 +88,50 @@ def run(args: argparse.Namespace) -> int:
     return 0 if summary.get("status") == "completed" else 1
 
 
+def _fmt(value, spec: str) -> str:
+    return format(value, spec) if isinstance(value, (int, float)) else "-"
+
+
 def print_summary(summary: dict) -> None:
     print(f"rehearsal on preset {summary['preset']} at {summary['speedup']:g}x: {summary.get('status')}"
           + (f" ({summary['reason']})" if summary.get("reason") else ""))
     rows = summary.get("runs") or []
     if rows:
-        print(f"{'thrust':>6} {'speed':>6} {'a22':>8} {'true':>8} {'b2':>7} {'true':>7} {'delta0':>7} {'R2':>6} {'conv s':>6} {'Kp':>6} {'Ki':>6}")
+        print("\nyaw models (identified vs the simulator's linearised truth) and designed gains")
+        print(f"{'thrust':>6} {'speed':>6} {'a22':>8} {'true':>8} {'b2':>7} {'true':>7} {'delta0':>7} {'R2':>6} "
+              f"{'conv s':>6} {'Kp':>6} {'Ki':>7}")
         for r in rows:
-            f = lambda v, fmt: format(v, fmt) if isinstance(v, (int, float)) else "-"  # noqa: E731
-            print(f"{f(r['thrust'], '6.2f')} {f(r['speed'], '6.2f')} {f(r['a22'], '8.3f')} {f(r['true_a22'], '8.3f')} "
-                  f"{f(r['b2'], '7.3f')} {f(r['true_b2'], '7.3f')} {f(r['delta0'], '7.4f')} {f(r['r2'], '6.3f')} "
-                  f"{f(r['converged_s'], '6.1f')} {f(r['kp'], '6.3f')} {f(r['ki'], '6.3f')}")
-    for step in summary.get("heading_steps") or []:
-        if step["label"] == "scheduled":
-            print(f"heading step at thrust {step['thrust']:.2f} with scheduled gains: overshoot {step['max_overshoot_pct']}")
-    for key in ("roll", "min_speed", "steady_state"):
-        if summary.get(key):
-            print(f"{key}: {summary[key]}")
-    print(f"report: {summary.get('report')}\nstore:  {summary.get('store')}  (companion results --store {summary.get('store')})")
-    print(f"wall time: {summary.get('wall_time_s')} s")
+            print(f"{_fmt(r['thrust'], '6.2f')} {_fmt(r['speed'], '6.2f')} {_fmt(r['a22'], '8.3f')} "
+                  f"{_fmt(r['true_a22'], '8.3f')} {_fmt(r['b2'], '7.3f')} {_fmt(r['true_b2'], '7.3f')} "
+                  f"{_fmt(r['delta0'], '7.4f')} {_fmt(r['r2'], '6.3f')} {_fmt(r['converged_s'], '6.1f')} "
+                  f"{_fmt(r['kp'], '6.3f')} {_fmt(r['ki'], '7.4f')}")
+    steps = summary.get("heading_steps") or []
+    if steps:
+        labels = sorted({s["label"] for s in steps})
+        print("\n±20° heading steps, max overshoot %")
+        print(f"{'thrust':>6} " + " ".join(f"{label:>10}" for label in labels))
+        for thrust in sorted({s["thrust"] for s in steps}):
+            cells = {s["label"]: s["max_overshoot_pct"] for s in steps if s["thrust"] == thrust}
+            print(f"{thrust:6.2f} " + " ".join(f"{_fmt(cells.get(label), '10.1f')}" for label in labels))
+    roll = summary.get("roll")
+    if roll:
+        print(f"\nroll stabilisation: std {_fmt(roll.get('std_open_deg'), '.2f')} deg open loop -> "
+              f"{_fmt(roll.get('std_closed_deg'), '.2f')} deg closed loop; 25 deg impulse settles in "
+              f"{_fmt(roll.get('kick_settle_closed_s'), '.1f')} s (open loop {_fmt(roll.get('kick_settle_open_s'), '.1f')} s)")
+    seek = summary.get("min_speed")
+    if seek:
+        print(f"minimum-speed seeking: thrust ratio {_fmt(seek.get('thrust_ratio_final'), '.3f')} "
+              f"(analytic TR* {_fmt(seek.get('thrust_ratio_star'), '.3f')}), speed {_fmt(seek.get('speed_final'), '.3f')} m/s "
+              f"(Vmin {_fmt(seek.get('v_min'), '.3f')}), settled after {_fmt(seek.get('settle_time_s'), '.0f')} s, "
+              f"max depth error {_fmt(seek.get('max_depth_error_m'), '.2f')} m")
+    steady = summary.get("steady_state")
+    if steady and steady.get("squares"):
+        sq = steady["squares"]
+        print(f"\nsquares: surge {_fmt(sq.get('surge_water'), '.3f')} m/s, sway {_fmt(sq.get('sway_water'), '.4f')} m/s, "
+              f"current {_fmt(1000 * sq['current_speed'] if sq.get('current_speed') is not None else None, '.1f')} mm/s "
+              f"towards {_fmt(sq.get('current_dir_deg'), '.0f')} deg, cond(H) {_fmt(sq.get('condition_number'), '.2f')}")
+    for turn in (steady or {}).get("turns", []):
+        print(f"turn at rudder {_fmt(turn.get('rudder_deg'), '+.1f')} deg: R {_fmt(turn.get('radius_m'), '.2f')} m, "
+              f"{_fmt(turn.get('turn_rate_deg_s'), '.2f')} deg/s, residual {_fmt(turn.get('residual_std_m'), '.3f')} m")
+    print(f"\nreport: {summary.get('report')}\nstore:  {summary.get('store')}  "
+          f"(companion results --store {summary.get('store')})\nwall time: {summary.get('wall_time_s')} s")
