@@ -2,9 +2,12 @@
 
 The speed is low-pass filtered on vehicle time; the gains the schedule gives at that speed are
 written only when they differ from the last written ones by more than the hysteresis *and* the
-last write is at least ``min_interval_s`` old: real autopilots save every PARAM_SET to flash
-(SPEC §4), so writes must be rare. ``abort`` asks for the original gains back (the runner's
-RestorePoint does the same, verified).
+last attempt is at least ``min_interval_s`` old: real autopilots save every PARAM_SET to flash
+(SPEC §4), so writes must be rare. The caller executes the proposed write and reports back with
+:meth:`GainScheduler.confirm` or :meth:`GainScheduler.reject`, so ``written`` only ever holds gains
+the autopilot echoed. ``abort`` asks for the original gains back (the runner's RestorePoint does the
+same, verified). Only Kp and Ki are scheduled: the trim (δ0, constant over speed) is written once
+by the campaign, with the hold re-engaged so the integrator does not count it twice.
 """
 from __future__ import annotations
 
@@ -48,6 +51,7 @@ class GainScheduler:
         self._start = math.nan
         self._last_write_time = -math.inf
         self.written: dict[str, float] | None = None
+        self.proposed: dict[str, float] | None = None
         self.writes: list[dict] = []
         self._done = False
 
@@ -80,12 +84,22 @@ class GainScheduler:
         gains = self.gains_at(self.speed)
         if not gains_differ(gains, self.written, self.config):
             return []
-        self.written = dict(gains)
-        self._last_write_time = telemetry.time_s
-        self.writes.append({"time_s": telemetry.time_s, "speed": self.speed, **gains})
+        self.proposed = dict(gains)
+        self._last_write_time = telemetry.time_s  # rate-limits retries of a refused write too
         return [SetParameters(dict(gains)), NamedValue("sched_kp", gains.get("heading_p", math.nan)),
                 StatusText(f"gains for {self.speed:.2f} m/s: kp {gains.get('heading_p', math.nan):.3f} "
                            f"ki {gains.get('heading_i', math.nan):.3f}")]
+
+    def confirm(self) -> None:
+        """The proposed gains were written and echoed."""
+        if self.proposed is not None:
+            self.written = self.proposed
+            self.writes.append({"time_s": self._last_write_time, "speed": self.speed, **self.proposed})
+            self.proposed = None
+
+    def reject(self) -> None:
+        """The proposed write failed: the last confirmed gains stand."""
+        self.proposed = None
 
     def abort(self, reason: str) -> Sequence[Command]:
         self._done = True

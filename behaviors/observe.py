@@ -32,15 +32,16 @@ class Observe:
     def step(self, telemetry: Telemetry) -> Sequence[Command]:
         if self._done:
             return []
+        commands: list[Command] = []
         if self._start is None:
             self._start = telemetry.time_s
-            return list(self.commands)
+            commands = list(self.commands)
         self.series["time"].append(telemetry.time_s)
         for name in self.fields:
             self.series[name].append(getattr(telemetry, name))
         if telemetry.time_s - self._start >= self.duration_s:
             self._done = True
-        return []
+        return commands
 
     def abort(self, reason: str) -> Sequence[Command]:
         self._done = True

@@ -58,6 +58,11 @@ class RollStabilisation:
     def done(self) -> bool:
         return self._done
 
+    @property
+    def start_time_s(self) -> float | None:
+        """Vehicle time of the first sample (the series' times are relative to it)."""
+        return self._start
+
     def abort(self, reason: str) -> Sequence[Command]:
         """Stop and centre the mass."""
         self._done = True

@@ -48,12 +48,14 @@ class AbortFlag:
 
 def install_signal_handlers(flag: AbortFlag) -> Callable[[], None]:
     """SIGINT/SIGTERM request an abort (the runner then restores the vehicle) instead of killing us
-    mid-procedure; a second SIGINT falls back to the default behaviour. Returns an undo function."""
+    mid-procedure. A second SIGINT raises KeyboardInterrupt at once (for a procedure stuck in a
+    blocking call); the runner still aborts and restores, and a restore finishes every step even
+    if interrupted again. Returns an undo function."""
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
 
     def handler(signum, _frame):
         if flag.reason is not None and signum == signal.SIGINT:
-            signal.signal(signal.SIGINT, signal.default_int_handler)
+            raise KeyboardInterrupt
         flag.request(f"signal {signal.Signals(signum).name}")
 
     for sig in previous:
@@ -85,7 +87,7 @@ class GcsProgress:
 
     def finish(self, outcome: RunOutcome) -> None:
         result = MAV_RESULT_ACCEPTED if outcome.status == "completed" else MAV_RESULT_FAILED
-        self.link.send_command_ack(self.command, result, 100 if result == MAV_RESULT_ACCEPTED else self._last,
+        self.link.send_command_ack(self.command, result, 100 if result == MAV_RESULT_ACCEPTED else max(self._last, 0),
                                    self.target_system, self.target_component)
 
 
@@ -119,9 +121,10 @@ def vehicle_record(store: Store, link, name: str | None = None, config: dict | N
 
 
 def drain_campaign_events(store: Store, campaign_id: int, campaign: IdentificationCampaign) -> None:
-    """Write what the campaign produced since the last call (one transaction per item)."""
+    """Write what the campaign produced since the last call (one transaction per item); an event
+    leaves the queue only once it is stored, so a failed write is retried at the next call."""
     while campaign.events:
-        event = campaign.events.pop(0)
+        event = campaign.events[0]
         if event["type"] == "run":
             store.add_run(campaign_id, event["attempt"])
         elif event["type"] == "steps":
@@ -130,6 +133,7 @@ def drain_campaign_events(store: Store, campaign_id: int, campaign: Identificati
             store.add_gains(campaign_id, event["speed"], event["before"], event["after"])
         elif event["type"] == "design":
             store.add_behavior_result(campaign_id, "gain_design", "completed", event["design"])
+        campaign.events.pop(0)
 
 
 def run_campaign(
@@ -143,8 +147,9 @@ def run_campaign(
     gcs: GcsProgress | None = None,
     console: ConsoleProgress | None = None,
 ) -> tuple[IdentificationCampaign, RunOutcome, int]:
-    """Run the identification campaign, storing as it goes; restores the vehicle on abort and the
-    mode (not the new gains) on success."""
+    """Run the identification campaign, storing as it goes. On abort the vehicle is restored; on
+    success the mode is restored, and the parameters too unless new gains were written (the step
+    checks write trial gains even with ``write_gains=False``)."""
     restore = RestorePoint.capture(link)
     campaign_id = store.start_campaign(vehicle_id, "identification", config.to_dict())
     campaign = IdentificationCampaign(config, original_gains=restore.parameters)
@@ -155,62 +160,22 @@ def run_campaign(
         fraction = campaign.progress()
         if gcs is not None:
             gcs.update(fraction)
-        if console is not None:
+        if console is not None and console.enabled:
             current = campaign._sequence.current if campaign._sequence is not None else None
             console.update(fraction, f"t={telemetry.time_s:7.1f}s {type(current).__name__ if current else ''}")
 
     outcome = run_behavior(link, campaign, limits=limits, abort_requested=abort, on_step=on_step, restore=restore)
-    drain_campaign_events(store, campaign_id, campaign)
-    if outcome.status == "completed" and restore.mode:
-        outcome.restore_problems += RestorePoint(restore.mode, {}).restore(link)
-    store.finish_campaign(campaign_id, outcome.status, outcome.reason)
-    if gcs is not None:
-        gcs.finish(outcome)
-    if console is not None:
-        console.close()
-    return campaign, outcome, campaign_id
-
-
-def run_procedure(
-    link,
-    store: Store,
-    kind: str,
-    behavior: Behavior,
-    *,
-    vehicle_id: int,
-    abort: AbortFlag,
-    limits: SafetyLimits = SafetyLimits(),
-    gcs: GcsProgress | None = None,
-    progress: Callable[[Behavior], float] | None = None,
-    campaign_id: int | None = None,
-) -> RunOutcome:
-    """Run one behaviour (roll stabilisation, minimum-speed seeking, …) and store its result."""
-    restore = RestorePoint.capture(link)
-    own_campaign = campaign_id is None
-    if own_campaign:
-        campaign_id = store.start_campaign(vehicle_id, kind, {})
-
-    def on_step(_telemetry: Telemetry, current: Behavior) -> None:
-        if gcs is not None and progress is not None:
-            gcs.update(progress(current))
-
-    outcome = run_behavior(link, behavior, limits=limits, abort_requested=abort, on_step=on_step, restore=restore,
-                           restore_on_success=True)
-    store.add_behavior_result(campaign_id, kind, outcome.status, _with_reason(outcome))
-    if own_campaign:
+    try:
+        if outcome.status == "completed":
+            outcome.restore_problems += restore.restore(link, parameters=campaign.final_gains is None)
+        drain_campaign_events(store, campaign_id, campaign)
+    finally:
         store.finish_campaign(campaign_id, outcome.status, outcome.reason)
-    if gcs is not None:
-        gcs.finish(outcome)
-    return outcome
-
-
-def _with_reason(outcome: RunOutcome) -> dict:
-    result = dict(outcome.result)
-    result.setdefault("status", outcome.status)
-    if outcome.reason:
-        result["abort_reason"] = outcome.reason
-    result["vehicle_time_s"] = outcome.vehicle_time_s
-    return result
+        if gcs is not None:
+            gcs.finish(outcome)
+        if console is not None:
+            console.close()
+    return campaign, outcome, campaign_id
 
 
 def finite_or_none(value) -> float | None:

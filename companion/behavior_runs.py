@@ -56,11 +56,20 @@ class ProcedureAborted(Exception):
         self.outcome = outcome
 
 
-def _run(link, behavior, abort: AbortFlag, limits: SafetyLimits):
-    outcome = run_behavior(link, behavior, limits=limits, abort_requested=abort, restore=RestorePoint.capture(link))
+def _run(link, behavior, abort: AbortFlag, limits: SafetyLimits, *, skip_backlog: bool = True):
+    """One stage of a procedure; the procedure's own restore point (taken before its first stage)
+    puts the vehicle back afterwards, so a stage only releases what it holds on abort."""
+    outcome = run_behavior(link, behavior, limits=limits, abort_requested=abort, skip_backlog=skip_backlog)
     if outcome.status != "completed":
         raise ProcedureAborted(outcome)
     return behavior
+
+
+def _finish(link, result: dict, restore: RestorePoint, cleanup) -> None:
+    """Clean-up of the procedure's own changes, then the restore point: mode, gains, overrides."""
+    for action in cleanup:
+        _quietly(*action)
+    result["restore_problems"] = restore.restore(link)
 
 
 def _kick(link, degrees: float) -> None:
@@ -69,8 +78,10 @@ def _kick(link, degrees: float) -> None:
 
 def roll_procedure(link, abort: AbortFlag, config: RollProcedureConfig = RollProcedureConfig(), *,
                    simulator: bool = False, limits: SafetyLimits = SafetyLimits()) -> dict:
-    """Open loop, closed loop (and on the simulator: 25° impulses both ways). Returns the result."""
+    """Open loop, closed loop (and on the simulator: 25° impulses both ways). Returns the result;
+    the vehicle is left as found (mode, gains, mass centred) whatever happens."""
     result: dict = {"behavior": "roll", "thrust": config.thrust, "simulator": simulator}
+    restore = RestorePoint.capture(link)
     try:
         if simulator:
             link.set_param("SIM_ROLL_DIST", config.disturbance_nm)
@@ -96,38 +107,56 @@ def roll_procedure(link, abort: AbortFlag, config: RollProcedureConfig = RollPro
         result["status"] = "completed"
     except ProcedureAborted as exc:
         result.update(status="aborted", abort_reason=exc.outcome.reason)
+    except Exception as exc:  # noqa: BLE001 - a refused hook or lost link: keep what was measured
+        log.exception("roll procedure failed")
+        result.update(status="failed", abort_reason=f"{type(exc).__name__}: {exc}")
     finally:
+        cleanup = [(link.execute, [SetRollingMass(0.0)])]
         if simulator:
-            _quietly(link.set_param, "SIM_ROLL_DIST", 0.0)
-        _quietly(link.execute, [SetRollingMass(0.0)])
+            cleanup.insert(0, (link.set_param, "SIM_ROLL_DIST", 0.0))
+        _finish(link, result, restore, cleanup)
     return result
 
 
 def _kick_settle(link, abort, limits, config: RollProcedureConfig, *, closed_loop: bool) -> float | None:
-    """Settling time (s) of the roll after a SIM_ROLL_KICK, within ±band of the level before it."""
+    """Settling time (s) of the roll after a SIM_ROLL_KICK, within ±band of the level before it,
+    timed from the kick: the vehicle time at which its parameter echo arrived (the simulator applies
+    it on receipt), keeping the samples queued while the link waited for that echo."""
     before = _run(link, Observe(5.0, ("roll",), commands=[SetRollingMass(0.0)], label="before kick"), abort, limits)
     level = float(np.nanmean(before.series["roll"]))
     _kick(link, config.kick_deg)
+    kicked_at = link.vehicle_time_s
     behavior = (RollStabilisation(RollStabilisationConfig(duration_s=config.kick_record_s)) if closed_loop
                 else Observe(config.kick_record_s, ("roll",), label="kick open loop"))
-    _run(link, behavior, abort, limits)
+    _run(link, behavior, abort, limits, skip_backlog=False)
     series = behavior.series
     times = np.asarray(series["time"], dtype=float)
+    if closed_loop:  # the controller's series is timed from its own start
+        times = times + (behavior.start_time_s or 0.0)
     roll = np.asarray(series["roll"], dtype=float) - level
-    if len(times) < 2:
+    after = times >= kicked_at
+    if after.sum() < 2:
         return None
-    value = settle_time(times - times[0], roll, band=math.radians(config.settle_band_deg))
+    value = settle_time(times[after] - kicked_at, roll[after], band=math.radians(config.settle_band_deg))
     return finite_or_none(value)
 
 
 def min_speed_procedure(link, abort: AbortFlag, config: MinSpeedProcedureConfig = MinSpeedProcedureConfig(), *,
                         analytic: dict | None = None, limits: SafetyLimits = SafetyLimits()) -> dict:
-    """Settle at the nominal thrust in the holding mode, then seek for ``duration_s``."""
-    gains = link.get_params(["depth_p", "depth_i", "pitch_max"])
-    seeker_config = MinSpeedConfig(nominal_thrust=config.nominal_thrust, depth_p=gains["depth_p"],
-                                   depth_i=gains["depth_i"], pitch_max=gains["pitch_max"], duration_s=config.duration_s)
+    """Settle at the nominal thrust in the holding mode, then seek for ``duration_s``; the vehicle
+    is left as found (mode, gains; thrust back to nominal on abort) whatever happens."""
+    seeker_config = MinSpeedConfig(nominal_thrust=config.nominal_thrust, duration_s=config.duration_s)
+    gains_source = "autopilot"
+    try:  # the seeker re-computes the autopilot's desired pitch with its depth-loop gains
+        gains = link.get_params(["depth_p", "depth_i", "pitch_max"])
+        seeker_config = replace(seeker_config, depth_p=gains["depth_p"], depth_i=gains["depth_i"],
+                                pitch_max=gains["pitch_max"])
+    except Exception as exc:  # noqa: BLE001 - e.g. a profile without these names: Table 5.1's gains
+        gains_source = "Table 5.1 (autopilot's not readable)"
+        log.warning("depth-loop gains not readable (%s): the seeker assumes Table 5.1's", exc)
     if config.period_s is not None:
         seeker_config = replace(seeker_config, seeker=replace(seeker_config.seeker, period_s=config.period_s))
+    restore = RestorePoint.capture(link)
     try:
         _run(link, SequenceBehavior([Instant(SetMode("hold"), SetThrust(config.nominal_thrust)),
                                      Observe(config.settle_s, label="settle")]), abort, limits)
@@ -136,6 +165,11 @@ def min_speed_procedure(link, abort: AbortFlag, config: MinSpeedProcedureConfig 
         result["status"] = "completed"
     except ProcedureAborted as exc:
         result = {**exc.outcome.result, "status": "aborted", "abort_reason": exc.outcome.reason}
+    except Exception as exc:  # noqa: BLE001 - keep the procedure's outcome, restore below
+        log.exception("minimum-speed procedure failed")
+        result = {"status": "failed", "abort_reason": f"{type(exc).__name__}: {exc}"}
+    _finish(link, result, restore, [])
+    result["depth_gains_source"] = gains_source
     if analytic:
         result.update(thrust_ratio_star=analytic.get("thrust_ratio_star"), v_min=analytic.get("v_min"),
                       theta_star_deg=analytic.get("theta_star_deg"))
@@ -174,20 +208,22 @@ def run_named_behavior(name: str, link, store: Store, *, vehicle_id: int, campai
                        roll_config: RollProcedureConfig = RollProcedureConfig(),
                        min_speed_config: MinSpeedProcedureConfig = MinSpeedProcedureConfig()) -> dict | None:
     """Run ``roll`` or ``min_speed``, store the result, return {"result", "summary"}."""
+    if name not in ("roll", "min_speed"):
+        raise ValueError(f"unknown behaviour {name!r} (roll, min_speed)")
     own = campaign_id is None
     if own:
         campaign_id = store.start_campaign(vehicle_id, name, {"preset": preset})
-    if name == "roll":
-        result = roll_procedure(link, abort, roll_config, simulator=simulator)
-        summary = roll_summary(result)
-    elif name == "min_speed":
-        result = min_speed_procedure(link, abort, min_speed_config, analytic=analytic_minimum_speed(preset))
-        summary = min_speed_summary(result)
-    else:
-        raise ValueError(f"unknown behaviour {name!r} (roll, min_speed)")
-    store.add_behavior_result(campaign_id, name, result["status"], result)
-    if own:
-        store.finish_campaign(campaign_id, result["status"], result.get("abort_reason"))
+    result: dict = {"status": "failed", "abort_reason": "not started"}
+    try:
+        if name == "roll":
+            result = roll_procedure(link, abort, roll_config, simulator=simulator)
+        else:
+            result = min_speed_procedure(link, abort, min_speed_config, analytic=analytic_minimum_speed(preset))
+        store.add_behavior_result(campaign_id, name, result["status"], result)
+    finally:
+        if own:
+            store.finish_campaign(campaign_id, result["status"], result.get("abort_reason"))
+    summary = roll_summary(result) if name == "roll" else min_speed_summary(result)
     return {"result": result, "summary": summary}
 
 

@@ -147,7 +147,8 @@ class IdentificationCampaign:
             for label in cfg.step_labels:
                 items.append(self._step_test_factory(thrust, label))
         items.append(self._final_gains_step)
-        self._total = sum(1 for item in items if not isinstance(item, Instant))
+        # progress counts the manoeuvres and the step checks (the design and the final write are instants)
+        self._total = len(cfg.thrusts) * (len(cfg.axes) + len(cfg.step_labels))
         return SequenceBehavior(items, on_complete=self._on_complete)
 
     def _design_step(self) -> Behavior:
@@ -205,9 +206,11 @@ class IdentificationCampaign:
 
     def progress(self) -> float:
         """Fraction of the campaign's manoeuvres and checks completed (0..1), for COMMAND_ACK."""
+        if self.status == "completed":
+            return 1.0
         if self._sequence is None or not self._total:
             return 0.0
-        done = sum(1 for b in self._sequence.completed if not isinstance(b, Instant))
+        done = sum(1 for b in self._sequence.completed if isinstance(b, (IdentificationManoeuvre, HeadingStepTest)))
         return min(1.0, done / self._total)
 
     def design_summary(self) -> dict | None:

@@ -10,6 +10,7 @@ import json
 import logging
 import math
 import os
+import select
 import socket
 import subprocess
 import sys
@@ -21,7 +22,7 @@ from companion.app import AbortFlag, ConsoleProgress, finite_or_none, run_campai
 from companion.campaign import CampaignConfig
 from companion.report import write_report
 from companion.runner import SafetyLimits
-from companion.store import Store
+from companion.store import Store, json_safe
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +57,7 @@ class SimulatorProcess:
     extra_args: list[str] = field(default_factory=list)
     ready_timeout_s: float = 60.0
     transport: str = "tcp"  # or "udp"
+    log_path: Path | None = None  # the simulator's stderr (None: discarded)
     lockstep: bool = True  # results independent of the speed-up (docs/PROTOCOL.md, "Lockstep")
     process: subprocess.Popen | None = None
     port: int = 0
@@ -78,19 +80,22 @@ class SimulatorProcess:
                    "--current", f"{self.current[0]},{self.current[1]}",
                    *(["--lockstep"] if self.lockstep else []), *self.extra_args]
         log.info("starting simulator: %s", " ".join(command))
-        self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        # stderr goes to a file, never to an undrained pipe (a full pipe would block the simulator)
+        log_file = open(self.log_path, "w") if self.log_path else subprocess.DEVNULL  # noqa: SIM115
+        self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=log_file, text=True,
                                         env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        if self.log_path:
+            log_file.close()
         deadline = time.monotonic() + self.ready_timeout_s
         assert self.process.stdout is not None
-        while time.monotonic() < deadline:
-            line = self.process.stdout.readline()
-            if not line:
-                break
-            if line.startswith("READY"):
+        while time.monotonic() < deadline and self.process.poll() is None:
+            ready, _, _ = select.select([self.process.stdout], [], [], 0.2)
+            if ready and self.process.stdout.readline().startswith("READY"):
                 return self
         self.stop()
-        stderr = self.process.stderr.read() if self.process.stderr else ""
-        raise SimulatorError(f"simulator did not start (preset {self.preset!r}): {stderr.strip()[-500:]}")
+        detail = self.log_path.read_text()[-500:] if self.log_path and self.log_path.exists() else ""
+        raise SimulatorError(f"simulator did not start (preset {self.preset!r}) within {self.ready_timeout_s:.0f} s"
+                             + (f": {detail.strip()}" if detail.strip() else ""))
 
     def stop(self) -> None:
         if self.process is None or self.process.poll() is not None:
@@ -178,7 +183,9 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     store_path = out / "store.sqlite"
     summary: dict = {"preset": config.preset, "speedup": config.speedup, "seed": config.seed}
-    with Store(store_path) as store, SimulatorProcess(config.preset, config.speedup, config.seed, config.current) as sim:
+    simulator = SimulatorProcess(config.preset, config.speedup, config.seed, config.current,
+                                 log_path=out / "simulator.log")
+    with Store(store_path) as store, simulator as sim:
         link = VehicleLink.connect(sim.endpoint, lockstep=sim.lockstep)
         try:
             link.arm(True)
@@ -211,7 +218,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                      summary={k: v for k, v in summary.items() if k != "design"},
                      delta_max=config.campaign.yaw.training_amplitude)
         summary["wall_time_s"] = round(time.monotonic() - started, 2)
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    (out / "summary.json").write_text(json.dumps(json_safe(summary), indent=1, allow_nan=False))
     return summary
 
 

@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Callable, Protocol, Sequence
 
-from companion.interface import Behavior, Command, SetParameters, Telemetry
+from companion.interface import Behavior, Command, SetMode, SetParameters, Telemetry
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +35,8 @@ class SafetyLimits:
     max_depth: float = 50.0  # m
     min_depth: float = -1.0  # m (a surfaced vehicle may read slightly negative)
     max_nan_samples: int = 40  # consecutive snapshots without attitude before aborting
+    require_armed: bool = True  # a disarmed vehicle (or one disarmed during the procedure) aborts it
+    mode_grace_s: float = 3.0  # vehicle seconds in a mode the procedure did not ask for before aborting
 
     def violation(self, telemetry: Telemetry) -> str | None:
         if math.isfinite(telemetry.roll) and abs(telemetry.roll) > self.max_roll:
@@ -64,42 +66,69 @@ class Link(Protocol):
     def status_text(self, text: str, severity: int = 6) -> None: ...
 
 
-#: gains and trims a procedure may change; captured before it starts and restored on abort
+#: neutral names of the gains and trims a procedure may change (the heading PI and its trim); on
+#: cascaded autopilots writing them also touches the rate-loop parameters listed after them
 RESTORED_PARAMETERS = ("heading_p", "heading_i", "rudder_trim")
+_NATIVE_TOUCHED = ("heading_p", "heading_i", "heading_imax", "rudder_trim", "heading_rate_p", "heading_rate_i",
+                   "heading_rate_d", "heading_rate_ff", "heading_rate_imax")
 
 
 @dataclass
 class RestorePoint:
-    """How the autopilot was found: mode and the parameters a procedure may touch."""
+    """How the autopilot was found: its mode and every parameter a procedure may write.
+
+    ``parameters`` holds the neutral heading gains (the "original gains" of reports and step
+    checks); ``native`` holds the autopilot's own parameters, which are what is restored: on a
+    cascaded autopilot (ArduSub/ArduRover) the neutral gains map onto several rate-loop parameters,
+    and writing the neutral values back would not give the found D/FF terms back.
+    """
 
     mode: str | None
     parameters: dict[str, float] = field(default_factory=dict)
+    native: dict[str, float] = field(default_factory=dict)
 
     @classmethod
     def capture(cls, link, parameter_names: Sequence[str] = RESTORED_PARAMETERS) -> "RestorePoint":
-        mode = getattr(link, "mode", None) or None
-        names = [n for n in parameter_names if n in getattr(getattr(link, "profile", None), "params", {n: n})]
-        parameters = link.get_params(names) if names else {}
-        return cls(mode=mode, parameters=dict(parameters))
+        profile = getattr(link, "profile", None)
+        known = profile.params if profile is not None else {}
+        neutral = [name for name in parameter_names if name in known]
+        native: dict[str, float] = {}
+        for name in dict.fromkeys(profile.native_param(n) for n in _NATIVE_TOUCHED if n in known):
+            try:
+                native[name] = link.get_param(name)
+            except Exception as exc:  # noqa: BLE001 - a parameter this firmware lacks is not touched either
+                log.info("restore point: %s not readable (%s)", name, exc)
+        return cls(mode=getattr(link, "mode", None) or None, parameters=dict(link.get_params(neutral)) if neutral else {},
+                   native=native)
 
-    def restore(self, link) -> list[str]:
-        """Release overrides, write the original parameters back, restore the mode.
+    def restore(self, link, *, parameters: bool = True, mode: bool = True) -> list[str]:
+        """Release overrides, write back every parameter that changed, restore the mode.
 
-        Each step is attempted even if an earlier one fails; the failures are returned (and logged)
-        so the caller can report them — a restore must never stop half-way on the first error.
-        """
+        Each step and each parameter is attempted even if another fails (and even on a second
+        Ctrl-C): a restore must never stop half-way. The failures are returned and logged."""
         problems: list[str] = []
-        for what, action in (
-            ("release overrides", lambda: link.release(None)),
-            ("restore parameters", lambda: self.parameters and link.set_params(self.parameters)),
-            ("restore mode", lambda: self.mode and link.set_mode(self.mode)),
-        ):
+
+        def attempt(what: str, action) -> None:
             try:
                 action()
-            except Exception as exc:  # noqa: BLE001 - every restore step must be tried
+            except BaseException as exc:  # noqa: BLE001 - every step must be tried, even after Ctrl-C
                 log.error("%s failed: %s", what, exc)
                 problems.append(f"{what}: {exc}")
+
+        attempt("release overrides", lambda: link.release(None))
+        if parameters:
+            for name, value in self.native.items():
+                attempt(f"restore {name}", lambda name=name, value=value: _write_if_changed(link, name, value))
+        if mode and self.mode:
+            attempt("restore mode", lambda: link.set_mode(self.mode))
         return problems
+
+
+def _write_if_changed(link, name: str, value: float) -> None:
+    """Write ``name`` back unless it already holds ``value`` (every write costs a flash write)."""
+    current = link.get_param(name)
+    if not (math.isfinite(current) and abs(current - value) <= 1e-6 * max(1.0, abs(value))):
+        link.set_param(name, value)
 
 
 @dataclass
@@ -124,6 +153,7 @@ def run_behavior(
     restore: RestorePoint | None = None,
     restore_on_success: bool = False,
     telemetry_timeout_s: float = 5.0,
+    skip_backlog: bool = True,
 ) -> RunOutcome:
     """Step ``behavior`` on every telemetry snapshot until it is done or an abort occurs.
 
@@ -135,8 +165,9 @@ def run_behavior(
     first_time = last_time = math.nan
     nan_run = 0
     reason: str | None = None
+    watchdog = _TakeoverWatchdog(limits)
     skip_to_now = getattr(link, "skip_to_now", None)
-    if skip_to_now is not None:
+    if skip_to_now is not None and skip_backlog:
         # snapshots queued during earlier blocking calls (a restore, a mode change) predate this
         # procedure: it must start from the vehicle as it is now (within a run, none is skipped)
         skip_to_now()
@@ -153,10 +184,12 @@ def run_behavior(
             nan_run = 0 if telemetry.finite("roll", "pitch", "yaw") else nan_run + 1
             if nan_run > limits.max_nan_samples:
                 raise AbortProcedure(f"no valid attitude for {nan_run} samples")
-            violation = limits.violation(telemetry)
+            violation = limits.violation(telemetry) or watchdog.check(telemetry)
             if violation:
                 raise AbortProcedure(f"safety limit: {violation}")
-            link.execute(behavior.step(telemetry))
+            commands = behavior.step(telemetry)
+            link.execute(commands)
+            watchdog.commanded(commands)
             if on_step is not None:
                 on_step(telemetry, behavior)
     except AbortProcedure as exc:
@@ -186,6 +219,44 @@ def run_behavior(
         samples=samples,
         vehicle_time_s=0.0 if math.isnan(first_time) else last_time - first_time,
     )
+
+
+class _TakeoverWatchdog:
+    """Someone else took the vehicle: it was disarmed, or its mode differs from the last one the
+    procedure asked for (the mode it was found in until then) for longer than the grace period.
+    A procedure must then stop at once, not fight the pilot (SPEC §4: record, switch, restore)."""
+
+    def __init__(self, limits: SafetyLimits) -> None:
+        self.limits = limits
+        self.expected_mode: str | None = None
+        self.armed_seen = False
+        self.foreign_since: float | None = None
+
+    def commanded(self, commands) -> None:
+        for command in commands:
+            if isinstance(command, SetMode):
+                self.expected_mode = command.mode
+
+    def check(self, telemetry: Telemetry) -> str | None:
+        if self.limits.require_armed:
+            if telemetry.armed:
+                self.armed_seen = True
+            elif self.armed_seen:
+                return "the vehicle was disarmed"
+            else:
+                return "the vehicle is not armed"
+        if not telemetry.mode:
+            return None
+        if self.expected_mode is None:
+            self.expected_mode = telemetry.mode
+        if telemetry.mode == self.expected_mode:
+            self.foreign_since = None
+            return None
+        if self.foreign_since is None:
+            self.foreign_since = telemetry.time_s
+        if telemetry.time_s - self.foreign_since > self.limits.mode_grace_s:
+            return f"mode changed to {telemetry.mode} by someone else"
+        return None
 
 
 def _tell(link, text: str, severity: int) -> None:

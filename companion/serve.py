@@ -41,6 +41,7 @@ from companion.campaign import CampaignConfig, gains_to_params
 from companion.numerics.gains import GainBounds
 from companion.numerics.identification import YawModel
 from companion.numerics.schedule import YawSchedule, fit_yaw_schedule
+from companion.runner import RestorePoint
 from companion.store import Store
 
 log = logging.getLogger(__name__)
@@ -85,6 +86,7 @@ class Companion:
         self.procedure_abort: AbortFlag | None = None
         self.running: int | None = None
         self.scheduler: GainScheduler | None = None
+        self.unscheduled: RestorePoint | None = None
         self.history: list[dict] = []
         link.on_user_command(self._on_user_command)
 
@@ -93,6 +95,10 @@ class Companion:
         if command == MAV_CMD_USER_4:
             if self.procedure_abort is not None:
                 self.procedure_abort.request("ground station abort (MAV_CMD_USER_4)")
+                self.link.send_command_ack(command, MAV_RESULT_ACCEPTED)
+            elif self.pending:  # a start that has not begun yet is cancelled
+                cancelled, _ = self.pending.pop(0)
+                self.link.send_command_ack(cancelled, MAV_RESULT_FAILED)
                 self.link.send_command_ack(command, MAV_RESULT_ACCEPTED)
             else:
                 self.link.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
@@ -126,25 +132,56 @@ class Companion:
             self.scheduler = None
             return
         bounds = self.config.bounds
-        self.scheduler = GainScheduler(lambda u: gains_to_params(schedule.gains_at(u, bounds)), self.config.scheduling)
+
+        def gains_at(speed: float) -> dict[str, float]:  # Kp and Ki only (see behaviors.gain_scheduling)
+            gains = gains_to_params(schedule.gains_at(speed, bounds))
+            return {"heading_p": gains["heading_p"], "heading_i": gains["heading_i"]}
+
+        # the gains in place before scheduling starts are what stopping the loop gives back
+        self.unscheduled = RestorePoint.capture(self.link)
+        self.scheduler = GainScheduler(gains_at, self.config.scheduling)
         log.info("gain scheduling on: a22 %.3f, b2 = %.3f u^2 + %.3f", schedule.a22, schedule.b2_slope, schedule.b2_intercept)
 
     def run(self) -> list[dict]:
+        """Serve until stopped; then the gains in place before scheduling started are written back."""
         self._rebuild_scheduler()
         self.link.status_text("companion ready: USER_1 identify, USER_2 roll, USER_3 min-speed, USER_4 abort")
         start = math.nan
-        while not self.stop():
-            telemetry = self.link.next_telemetry()
-            if math.isnan(start):
-                start = telemetry.time_s
-            if self.config.max_vehicle_s is not None and telemetry.time_s - start >= self.config.max_vehicle_s:
-                break
-            if self.pending:
-                self._run_procedure(*self.pending.pop(0))
-                continue
-            if self.scheduler is not None:
-                self.link.execute(self.scheduler.step(telemetry))
+        try:
+            while not self.stop():
+                telemetry = self.link.next_telemetry()
+                if math.isnan(start):
+                    start = telemetry.time_s
+                if self.config.max_vehicle_s is not None and telemetry.time_s - start >= self.config.max_vehicle_s:
+                    break
+                if self.pending:
+                    self._run_procedure(*self.pending.pop(0))
+                    continue
+                if self.scheduler is not None:
+                    self._schedule(telemetry)
+        finally:
+            if self.scheduler is not None and self.scheduler.writes and self.unscheduled is not None:
+                self.unscheduled.restore(self.link, mode=False)
         return self.history
+
+    def _schedule(self, telemetry) -> None:
+        """One scheduler step; a refused or lost write leaves the last good gains (rolled back if
+        the failure came half-way through a set), and the loop goes on."""
+        commands = self.scheduler.step(telemetry)
+        if not commands:
+            return
+        try:
+            self.link.execute(commands)
+            self.scheduler.confirm()
+        except Exception as exc:  # noqa: BLE001 - the resident loop must outlive a refused write
+            log.warning("scheduled gain write failed: %s", exc)
+            self.scheduler.reject()
+            good = self.scheduler.written or self.unscheduled.parameters
+            try:
+                self.link.set_params({k: v for k, v in good.items() if k in ("heading_p", "heading_i")})
+            except Exception as rollback_exc:  # noqa: BLE001
+                log.error("could not roll the heading gains back: %s", rollback_exc)
+            self.link.status_text(f"gain scheduling: write failed ({exc})"[:50], 4)
 
     def _run_procedure(self, command: int, params: tuple[float, ...]) -> None:
         self.procedure_abort = AbortFlag()

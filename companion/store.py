@@ -93,18 +93,19 @@ def _now() -> str:
 
 def _json(value: Any) -> str:
     """JSON with NaN/inf written as null (strict JSON readers reject NaN)."""
-    return json.dumps(_clean(value), separators=(",", ":"))
+    return json.dumps(json_safe(value), separators=(",", ":"))
 
 
-def _clean(value: Any) -> Any:
+def json_safe(value: Any) -> Any:
+    """``value`` with NaN/inf as None and numpy values as plain Python (for every JSON we write)."""
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
+        return {str(k): json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
+        return [json_safe(v) for v in value]
     if hasattr(value, "tolist"):  # numpy arrays and scalars
-        return _clean(value.tolist())
+        return json_safe(value.tolist())
     return value
 
 
@@ -184,8 +185,8 @@ class Store:
                 "INSERT INTO runs(campaign_id, axis, thrust, attempt, speed, r2, accepted, converged_s, training_s,"
                 " samples, model_json, series_json) VALUES (?,?,?,?,?,?,?,?,?,?,?,?)",
                 (campaign_id, attempt["axis"], attempt.get("thrust"), attempt.get("attempt", 1),
-                 _clean(attempt.get("speed")), _clean(attempt.get("r2")), int(bool(attempt.get("accepted"))),
-                 _clean(attempt.get("converged_s")), _clean(attempt.get("training_s")), attempt.get("samples"),
+                 json_safe(attempt.get("speed")), json_safe(attempt.get("r2")), int(bool(attempt.get("accepted"))),
+                 json_safe(attempt.get("converged_s")), json_safe(attempt.get("training_s")), attempt.get("samples"),
                  _json(model), _json({"training": attempt.get("training"), "validation": attempt.get("validation")})),
             ).lastrowid)
             if attempt.get("accepted"):
@@ -193,13 +194,13 @@ class Store:
                 self._db.execute(
                     "INSERT INTO models(run_id, campaign_id, axis, thrust, speed, params_json, covariance_json, r2)"
                     " VALUES (?,?,?,?,?,?,?,?)",
-                    (run_id, campaign_id, attempt["axis"], attempt.get("thrust"), _clean(attempt.get("speed")),
-                     _json(params), _json(model.get("covariance")), _clean(attempt.get("r2"))))
+                    (run_id, campaign_id, attempt["axis"], attempt.get("thrust"), json_safe(attempt.get("speed")),
+                     _json(params), _json(model.get("covariance")), json_safe(attempt.get("r2"))))
         return run_id
 
     def add_gains(self, campaign_id: int | None, speed: float | None, before: dict, after: dict) -> int:
         return self._insert("INSERT INTO gains(campaign_id, speed, before_json, after_json, written_utc) VALUES (?,?,?,?,?)",
-                            (campaign_id, _clean(speed), _json(before), _json(after), _now()))
+                            (campaign_id, json_safe(speed), _json(before), _json(after), _now()))
 
     def add_behavior_result(self, campaign_id: int | None, kind: str, status: str, result: dict) -> int:
         return self._insert(

@@ -74,6 +74,10 @@ class InProcessLink:
 
     # ------------------------------------------------------------------ state
     @property
+    def vehicle_time_s(self) -> float:
+        return self.vehicle.time_s
+
+    @property
     def mode(self) -> str:
         return {19: "manual", 2: "hold", 4: "guided"}[self.autopilot.mode]
 
@@ -156,6 +160,11 @@ class InProcessLink:
             self.param_writes.append((name, float(value)))
             echoed[name] = self.autopilot.params[native]
         return echoed
+
+    def get_param(self, native: str) -> float:
+        if native not in self.autopilot.params:
+            raise ParamRefused(f"no parameter {native}")
+        return self.autopilot.params[native]
 
     def set_param(self, native: str, value: float) -> float:
         if native in self.refuse:

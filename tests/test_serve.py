@@ -58,7 +58,22 @@ def test_gains_follow_speed_between_procedures(tmp_path):
     assert writes[0]["speed"] < 1.45 and writes[-1]["speed"] > 1.9  # starts at cruise (~1.39 m/s)
     assert writes[-1]["heading_p"] < writes[0]["heading_p"]  # more rudder authority, less gain
     assert all(b["time_s"] - a["time_s"] >= 10.0 for a, b in zip(writes, writes[1:]))  # rate-limited
-    assert link.param("heading_p") == pytest.approx(writes[-1]["heading_p"])
+    assert ("heading_p", pytest.approx(writes[-1]["heading_p"])) in link.param_writes
+    assert link.param("heading_p") == pytest.approx(0.64)  # stopping gives the unscheduled gains back
+    assert all("rudder_trim" not in w for w in writes)  # the trim is the campaign's, never rescheduled
+
+
+def test_a_refused_scheduled_write_rolls_back_and_the_loop_goes_on(tmp_path):
+    link = InProcessLink(seed=3, refuse={"HDG_I"})
+    with Store(tmp_path / "s.sqlite") as store:
+        stored_models(store)
+        companion = Companion(link, store, store.add_vehicle("v"),
+                              ServeConfig(max_vehicle_s=60.0, scheduling=SchedulingConfig(min_interval_s=10.0)),
+                              AbortFlag())
+        companion.run()  # must not raise
+    assert companion.scheduler.writes == []  # nothing was confirmed
+    assert link.param("heading_p") == pytest.approx(0.64)  # HDG_P went through, then was rolled back
+    assert any("write failed" in text for text in link.status_texts)
 
 
 def test_user_1_runs_the_campaign_and_reports_progress(tmp_path):

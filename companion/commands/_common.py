@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 import json
 from contextlib import contextmanager
-import math
 import os
 import sys
 from pathlib import Path
@@ -51,18 +50,10 @@ def thrust_list(text: str) -> tuple[float, ...]:
     return tuple(values)
 
 
-def _json_safe(value):
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    return value
-
-
 def print_json(value) -> None:
-    json.dump(_json_safe(value), sys.stdout, indent=1)
+    from companion.store import json_safe
+
+    json.dump(json_safe(value), sys.stdout, indent=1, allow_nan=False)
     sys.stdout.write("\n")
 
 

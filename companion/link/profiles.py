@@ -123,6 +123,10 @@ class AutopilotProfile:
             raise ProfileError(f"profile {self.name!r} has no RC channel for actuator {actuator!r}") from None
 
     def mode_number(self, neutral: str) -> int:
+        """custom_mode of a neutral name; ``custom_<n>`` (a mode this profile does not name, as
+        :meth:`mode_name` reports it) gives n back, so a vehicle found in it can be restored."""
+        if neutral.startswith("custom_") and neutral[7:].isdigit():
+            return int(neutral[7:])
         try:
             return self.modes[neutral]
         except KeyError:

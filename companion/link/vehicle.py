@@ -610,8 +610,10 @@ class VehicleLink:
         channel = profile.channel(actuator)
         pwm = profile.actuator_to_pwm(actuator, value)
         if keep_alive:
+            changed = self.overrides.active.get(channel) != pwm
             self.overrides.hold(channel, pwm)
-            self._send_overrides()
+            if changed:  # unchanged values go out with the per-snapshot refresh only
+                self._send_overrides()
         else:
             self.overrides.active.pop(channel, None)
             self._send_rc_override(single_shot(channel, pwm))
