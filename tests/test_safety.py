@@ -1,0 +1,160 @@
+"""Safety paths found in review: the autopilot is left as found, whatever stops a procedure."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+
+from behaviors.identification import ManoeuvreConfig
+from companion.app import AbortFlag, GcsProgress, MAV_RESULT_FAILED, run_campaign
+from companion.behavior_runs import RollProcedureConfig, roll_procedure, run_named_behavior
+from companion.campaign import CampaignConfig
+from companion.link.profiles import ARDUROVER
+from companion.runner import RestorePoint, RunOutcome
+from companion.store import Store
+from tests.inprocess_link import InProcessLink
+
+SHORT = CampaignConfig(thrusts=(0.7, 1.0), axes=("yaw",), step_labels=("scheduled",),
+                       yaw=ManoeuvreConfig(settle_s=12.0, resettle_s=10.0))
+
+
+class CascadedFake:
+    """An ArduRover-like parameter store behind the link API (no vehicle needed for restore points)."""
+
+    profile = ARDUROVER
+    mode = "hold"
+
+    def __init__(self, fail: set[str] = frozenset()) -> None:
+        self.params = {"ATC_STR_ANG_P": 2.0, "ATC_STR_RAT_P": 0.2, "ATC_STR_RAT_I": 0.2, "ATC_STR_RAT_D": 0.01,
+                       "ATC_STR_RAT_FF": 0.2, "ATC_STR_RAT_IMAX": 1.0}
+        self.fail = set(fail)
+        self.writes: list[str] = []
+
+    def get_param(self, name):
+        return self.params[name]
+
+    def set_param(self, name, value):
+        if name in self.fail:
+            raise RuntimeError(f"{name} refused")
+        self.writes.append(name)
+        self.params[name] = value
+        return value
+
+    def get_params(self, names):
+        return {n: 0.0 for n in names}
+
+    def release(self, actuator=None):
+        pass
+
+    def set_mode(self, mode):
+        self.mode = mode
+
+
+def test_restore_gives_back_every_native_parameter_of_a_cascaded_autopilot():
+    link = CascadedFake()
+    found = dict(link.params)
+    restore = RestorePoint.capture(link)
+    link.params.update({"ATC_STR_ANG_P": 3.0, "ATC_STR_RAT_D": 0.0, "ATC_STR_RAT_FF": 0.0})  # what a PI write does
+    assert restore.restore(link) == []
+    assert link.params == found
+    assert sorted(link.writes) == ["ATC_STR_ANG_P", "ATC_STR_RAT_D", "ATC_STR_RAT_FF"]  # only what changed
+
+
+def test_one_failing_parameter_does_not_stop_the_restore():
+    link = CascadedFake(fail={"ATC_STR_ANG_P"})
+    restore = RestorePoint.capture(link)
+    link.params.update({"ATC_STR_ANG_P": 3.0, "ATC_STR_RAT_FF": 0.0})
+    problems = restore.restore(link)
+    assert len(problems) == 1 and "ATC_STR_ANG_P" in problems[0]
+    assert link.params["ATC_STR_RAT_FF"] == 0.2
+
+
+def test_a_mode_the_profile_does_not_name_is_restored_by_number():
+    assert ARDUROVER.mode_number("custom_11") == 11
+
+
+def _run(link, config=SHORT, abort=None):
+    with Store(":memory:") as store:
+        return run_campaign(link, store, config, vehicle_id=store.add_vehicle("v"), abort=abort or AbortFlag())
+
+
+def test_pilot_switching_to_manual_aborts_and_the_companion_does_not_fight_back():
+    link = InProcessLink(seed=2)
+    original_step = link.next_telemetry
+
+    def pilot(timeout_s=5.0):
+        telemetry = original_step(timeout_s)
+        if 25.0 <= telemetry.time_s < 25.06:
+            link.autopilot.set_mode(19)  # the pilot takes MANUAL during the first doublet
+        return telemetry
+
+    link.next_telemetry = pilot
+    _, outcome, _ = _run(link)
+    assert outcome.status == "aborted" and "mode changed to manual" in outcome.reason
+    assert link.mode_changes.count("guided") == 0  # no hold re-engagement against the pilot
+    assert not link.overrides
+
+
+def test_disarming_aborts():
+    link = InProcessLink(seed=2)
+    original_step = link.next_telemetry
+
+    def disarm(timeout_s=5.0):
+        telemetry = original_step(timeout_s)
+        if telemetry.time_s >= 20.0:
+            link.autopilot.arm(False)
+        return telemetry
+
+    link.next_telemetry = disarm
+    _, outcome, _ = _run(link)
+    assert outcome.status == "aborted" and "disarmed" in outcome.reason
+
+
+def test_a_disarmed_vehicle_is_refused_at_once():
+    link = InProcessLink(seed=2)
+    link.autopilot.arm(False)
+    _, outcome, _ = _run(link)
+    assert outcome.status == "aborted" and "not armed" in outcome.reason and outcome.samples == 1
+
+
+def test_designing_without_writing_leaves_the_found_gains():
+    link = InProcessLink(seed=2)
+    found = {n: link.param(n) for n in ("heading_p", "heading_i", "rudder_trim")}
+    campaign, outcome, _ = _run(link, replace(SHORT, write_gains=False))
+    assert outcome.status == "completed" and campaign.final_gains is None
+    assert link.param_writes  # the step checks did write trial gains ...
+    assert {n: link.param(n) for n in found} == found  # ... and they were given back
+
+
+def test_a_refused_simulator_hook_keeps_the_measured_data_and_closes_the_record():
+    link = InProcessLink(seed=2, refuse={"SIM_ROLL_KICK"})
+    config = RollProcedureConfig(settle_s=5.0, open_s=10.0, closed_s=15.0)
+    with Store(":memory:") as store:
+        out = run_named_behavior("roll", link, store, vehicle_id=store.add_vehicle("v"), campaign_id=None,
+                                 abort=AbortFlag(), simulator=True, roll_config=config)
+        assert out["result"]["status"] == "failed" and "SIM_ROLL_KICK" in out["result"]["abort_reason"]
+        assert out["result"]["std_open_deg"] > 0 and out["result"]["std_closed_deg"] > 0  # measured before
+        assert store.campaigns()[0]["status"] == "failed"
+        assert store.behavior_results()[0]["kind"] == "roll"
+    assert link.autopilot.params["SIM_ROLL_DIST"] == 0.0  # the disturbance hook is switched off again
+    assert link.mode == "hold"
+
+
+def test_roll_procedure_leaves_the_mode_it_found():
+    link = InProcessLink(seed=2)
+    link.autopilot.set_mode(4)  # found in GUIDED
+    result = roll_procedure(link, AbortFlag(), RollProcedureConfig(settle_s=5.0, open_s=10.0, closed_s=10.0,
+                                                                     kick_deg=0.0), simulator=True)
+    assert result["status"] == "completed" and link.mode == "guided"
+
+
+def test_a_failure_before_any_progress_is_still_acknowledged():
+    class Recorder:
+        acks: list = []
+
+        def send_command_ack(self, command, result, progress, *_):
+            self.acks.append((command, result, progress))
+
+    link = Recorder()
+    GcsProgress(link, 31010).finish(RunOutcome("aborted", "link lost", {}))
+    assert link.acks == [(31010, MAV_RESULT_FAILED, 0)]
