@@ -45,7 +45,9 @@ class RollProcedureConfig:
 @dataclass(frozen=True)
 class MinSpeedProcedureConfig:
     nominal_thrust: float = 0.70
-    settle_s: float = 20.0
+    # steady running at the nominal thrust before seeking, as in the thesis (Fig. 5.22: seeking
+    # starts at 100 s): the depth and pitch integrators must hold the trim before the first decision
+    settle_s: float = 100.0
     duration_s: float = 200.0
     period_s: float | None = None  # None: the seeker's default Ts
 
