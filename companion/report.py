@@ -53,13 +53,18 @@ def plot_convergence(runs: list[dict], path: Path) -> str | None:
         return None
 
     def draw():
-        names = ("a22", "b2", "delta0")
+        # the RLS estimates Θ = [a22, b2, C0] (thesis Fig. 3.5/3.7); δ0 = C0/b2 is meaningless
+        # while b2 is still ≈ 0 before the doublet, so C0 is what is plotted
+        names = ("a22", "b2", "C0")
         for row, name in enumerate(names):
             ax = plt.subplot(len(names), 1, row + 1)
             for run in accepted:
                 history = run["series"]["training"].get("history") or {}
-                if history.get(name):
-                    ax.plot(history["time_s"], history[name], label=f"T {run['thrust'] * 100:.0f}%")
+                if not history.get("a22"):
+                    continue
+                values = (np.asarray(history["delta0"]) * np.asarray(history["b2"]) if name == "C0"
+                          else history[name])
+                ax.plot(history["time_s"], values, label=f"T {run['thrust'] * 100:.0f}%")
                 if run.get("converged_s"):
                     ax.axvline(run["converged_s"], color="0.8", lw=0.8)
             ax.set_ylabel(name)
