@@ -260,6 +260,7 @@ class IdentificationManoeuvre:
                 "accepted": accepted,
                 "converged": bool(self._identifier.converged),
                 "converged_s": self._converged_s(),
+                "criterion_met_from_s": getattr(self._identifier, "criterion_met_from_s", None),
                 "training_s": self._training_time_s,
                 "samples": len(self._training.time),
                 "training": self._series(self._training, history=True),

@@ -121,7 +121,9 @@ class _SvfRlsIdentifier:
         self.samples = 0
         self.skipped = 0
         self.converged = False
-        self.converged_at_s: float | None = None
+        self.converged_at_s: float | None = None  # when training may stop (the rule held long enough)
+        self.criterion_met_from_s: float | None = None  # when eq. 3.39 started to hold for good
+        self._quiet_start = 0.0
         self._first_time: float | None = None
         self._last_time: float | None = None
         self._last_raw_output: float | None = None
@@ -168,12 +170,16 @@ class _SvfRlsIdentifier:
 
         # eq. 3.39, met on `consecutive` successive samples after min_time_s
         if elapsed >= self.rule.min_time_s and step_norm < self.rule.tolerance:
+            if self._quiet_count == 0:
+                self._quiet_start = elapsed
             self._quiet_count += 1
         else:
             self._quiet_count = 0
         if not self.converged and self._quiet_count >= self.rule.consecutive:
             self.converged = True
             self.converged_at_s = elapsed
+            # the thesis' figure (Fig. 3.11: "met from 12 s onward") is when the quiet run began
+            self.criterion_met_from_s = self._quiet_start
 
     @property
     def theta(self) -> np.ndarray:
