@@ -39,6 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--duration", type=float, default=None,
                      help="stop after this many seconds of VEHICLE time")
     run.add_argument("--depth", type=float, default=5.0, help="initial depth (m)")
+    run.add_argument("--signing-key", metavar="HEX", default=None,
+                     help="MAVLink 2 signing key, 64 hex characters: sign everything, drop unsigned input")
     run.add_argument("--lockstep", action="store_true",
                      help="never run more than one attitude period ahead of the vehicle time the companion "
                           "acknowledged (SYSTEM_TIME from component 191): closed-loop results then do not "
@@ -72,6 +74,7 @@ def _run(args: argparse.Namespace) -> int:
         duration=args.duration,
         depth=args.depth,
         lockstep=args.lockstep,
+        signing_key=_signing_key(args.signing_key),
     )
 
     def ready(endpoint: str) -> None:
@@ -117,6 +120,18 @@ def _presets(args: argparse.Namespace) -> int:
     return 0
 
 
+def _signing_key(text: str | None) -> bytes | None:
+    if text is None:
+        return None
+    try:
+        key = bytes.fromhex(text)
+    except ValueError:
+        raise SystemExit("--signing-key must be hexadecimal") from None
+    if len(key) != 32:
+        raise SystemExit("--signing-key must be 32 bytes (64 hex characters)")
+    return key
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(
@@ -129,3 +144,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+

@@ -95,6 +95,7 @@ class SimConfig:
     depth: float = 5.0
     heading: float = 0.0
     lockstep: bool = False  # see SimServer._lockstep_limit
+    signing_key: bytes | None = None  # MAVLink 2 signing: sign everything, drop unsigned input
 
 
 class _Stream:
@@ -168,6 +169,9 @@ class SimServer:
             udp_timeout=UDP_CLIENT_TIMEOUT_S,
         )
         self.conn.mav.robust_parsing = True
+        if self.config.signing_key is not None:
+            # as an autopilot with signing enabled: outgoing frames signed, unsigned input dropped
+            self.conn.setup_signing(self.config.signing_key, sign_outgoing=True)
 
     def bound_endpoint(self) -> str:
         """The listen endpoint with the port actually bound (``…:0`` asks the OS for a free one)."""

@@ -183,7 +183,13 @@ class VehicleLink:
         if signing_key is not None:
             master.setup_signing(signing_key, sign_outgoing=True)
         try:
-            heartbeat = cls._await_autopilot_heartbeat(master, heartbeat_timeout_s, endpoint, component)
+            try:
+                heartbeat = cls._await_autopilot_heartbeat(master, heartbeat_timeout_s, endpoint, component)
+            except HeartbeatTimeout as exc:
+                if signing_key is not None:  # a signed link drops every unsigned frame
+                    raise HeartbeatTimeout(f"{exc}; with a signing key only frames signed with the same key are "
+                                           "accepted: is the vehicle signing, with this key?") from exc
+                raise
             link = cls(master, system_id=heartbeat.get_srcSystem(), autopilot_component=heartbeat.get_srcComponent(),
                        component=component, timeouts=timeouts)
             link.lockstep = lockstep
