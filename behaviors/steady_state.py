@@ -80,6 +80,15 @@ class _StartState:
     thrust_ratio: float
     mode: str
 
+    @staticmethod
+    def begin(mode: str, thrust_ratio: float, depth: float | None) -> list[Command]:
+        """Holding mode (if not in it), the manoeuvre's thrust and optional depth."""
+        commands: list[Command] = [] if mode == "hold" else [SetMode("hold")]
+        commands.append(SetThrust(thrust_ratio))
+        if depth is not None:
+            commands.append(SetDepth(depth))
+        return commands
+
     def restore(self) -> list[Command]:
         commands: list[Command] = [SetHeading(self.heading)]
         if math.isfinite(self.thrust_ratio):
@@ -137,11 +146,7 @@ class SquarePattern:
                 return []
             self._start = _StartState(telemetry.time_s, telemetry.yaw, telemetry.thrust_ratio, telemetry.mode)
             self._status = "running"
-            if telemetry.mode != "hold":
-                commands.append(SetMode("hold"))
-            commands.append(SetThrust(cfg.thrust_ratio))
-            if cfg.depth is not None:
-                commands.append(SetDepth(cfg.depth))
+            commands += self._start.begin(telemetry.mode, cfg.thrust_ratio, cfg.depth)
             commands.append(StatusText(f"squares: {cfg.legs} legs of {cfg.leg_s:.0f} s at thrust {cfg.thrust_ratio:.2f}"))
         elapsed = telemetry.time_s - self._start.time_s
         if elapsed >= cfg.legs * cfg.leg_s:
@@ -244,11 +249,7 @@ class SteadyTurns:
                 return []
             self._start = _StartState(telemetry.time_s, telemetry.yaw, telemetry.thrust_ratio, telemetry.mode)
             self._status = "running"
-            if telemetry.mode != "hold":
-                commands.append(SetMode("hold"))
-            commands.append(SetThrust(cfg.thrust_ratio))
-            if cfg.depth is not None:
-                commands.append(SetDepth(cfg.depth))
+            commands += self._start.begin(telemetry.mode, cfg.thrust_ratio, cfg.depth)
             commands.extend(self._begin_turn(0, telemetry.time_s))
             return commands
         elapsed = telemetry.time_s - self._phase_start

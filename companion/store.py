@@ -240,7 +240,7 @@ class Store:
         return None if value is None else int(value)
 
     def runs(self, campaign_id: int, with_series: bool = False) -> list[dict]:
-        rows = self._db.execute("SELECT * FROM runs WHERE campaign_id=? ORDER BY id", (campaign_id,)).fetchall()
+        rows = self._select("runs", campaign_id=campaign_id)
         out = []
         for row in rows:
             item = dict(row)
@@ -252,35 +252,24 @@ class Store:
             out.append(item)
         return out
 
+    def _select(self, table: str, **equal) -> list[sqlite3.Row]:
+        """Rows of ``table`` whose columns equal the given non-None values, in insertion order."""
+        filters = {column: value for column, value in equal.items() if value is not None}
+        where = " AND ".join(f"{column}=?" for column in filters) or "1=1"
+        return self._db.execute(f"SELECT * FROM {table} WHERE {where} ORDER BY id", tuple(filters.values())).fetchall()
+
     def models(self, campaign_id: int | None = None, axis: str | None = None) -> list[StoredModel]:
-        sql, args = "SELECT * FROM models WHERE 1=1", []
-        if campaign_id is not None:
-            sql += " AND campaign_id=?"
-            args.append(campaign_id)
-        if axis is not None:
-            sql += " AND axis=?"
-            args.append(axis)
-        rows = self._db.execute(sql + " ORDER BY id", args).fetchall()
+        rows = self._select("models", campaign_id=campaign_id, axis=axis)
         return [StoredModel(row["campaign_id"], row["axis"], row["thrust"], row["speed"],
                             json.loads(row["params_json"]), row["r2"]) for row in rows]
 
     def gains(self, campaign_id: int | None = None) -> list[dict]:
-        sql, args = "SELECT * FROM gains", ()
-        if campaign_id is not None:
-            sql, args = sql + " WHERE campaign_id=?", (campaign_id,)
-        rows = self._db.execute(sql + " ORDER BY id", args).fetchall()
+        rows = self._select("gains", campaign_id=campaign_id)
         return [{"id": r["id"], "campaign_id": r["campaign_id"], "speed": r["speed"], "written_utc": r["written_utc"],
                  "before": json.loads(r["before_json"]), "after": json.loads(r["after_json"])} for r in rows]
 
     def behavior_results(self, campaign_id: int | None = None, kind: str | None = None) -> list[dict]:
-        sql, args = "SELECT * FROM behavior_results WHERE 1=1", []
-        if campaign_id is not None:
-            sql += " AND campaign_id=?"
-            args.append(campaign_id)
-        if kind is not None:
-            sql += " AND kind=?"
-            args.append(kind)
-        rows = self._db.execute(sql + " ORDER BY id", args).fetchall()
+        rows = self._select("behavior_results", campaign_id=campaign_id, kind=kind)
         return [{"id": r["id"], "campaign_id": r["campaign_id"], "kind": r["kind"], "status": r["status"],
                  "recorded_utc": r["recorded_utc"], "result": json.loads(r["result_json"])} for r in rows]
 
