@@ -67,11 +67,12 @@ def _run(link, behavior, abort: AbortFlag, limits: SafetyLimits, *, skip_backlog
     return behavior
 
 
-def _finish(link, result: dict, restore: RestorePoint, cleanup) -> None:
-    """Clean-up of the procedure's own changes, then the restore point: mode, gains, overrides."""
+def _finish(link, result: dict, restore: RestorePoint, cleanup, *, pilot_has_it: bool = False) -> None:
+    """Clean-up of the procedure's own changes, then the restore point: mode, gains, overrides
+    (not the mode when the pilot took the vehicle: the companion never switches away from them)."""
     for action in cleanup:
         _quietly(*action)
-    result["restore_problems"] = restore.restore(link)
+    result["restore_problems"] = restore.restore(link, mode=not pilot_has_it)
 
 
 def _kick(link, degrees: float) -> None:
@@ -108,7 +109,7 @@ def roll_procedure(link, abort: AbortFlag, config: RollProcedureConfig = RollPro
             result["kick_settle_closed_s"] = _kick_settle(link, abort, limits, config, closed_loop=True)
         result["status"] = "completed"
     except ProcedureAborted as exc:
-        result.update(status="aborted", abort_reason=exc.outcome.reason)
+        result.update(status="aborted", abort_reason=exc.outcome.reason, pilot_has_it=exc.outcome.pilot_has_it)
     except Exception as exc:  # noqa: BLE001 - a refused hook or lost link: keep what was measured
         log.exception("roll procedure failed")
         result.update(status="failed", abort_reason=f"{type(exc).__name__}: {exc}")
@@ -116,7 +117,7 @@ def roll_procedure(link, abort: AbortFlag, config: RollProcedureConfig = RollPro
         cleanup = [(link.execute, [SetRollingMass(0.0)])]
         if simulator:
             cleanup.insert(0, (link.set_param, "SIM_ROLL_DIST", 0.0))
-        _finish(link, result, restore, cleanup)
+        _finish(link, result, restore, cleanup, pilot_has_it=result.get("pilot_has_it", False))
     return result
 
 
@@ -166,11 +167,12 @@ def min_speed_procedure(link, abort: AbortFlag, config: MinSpeedProcedureConfig 
         result = seeker.result()
         result["status"] = "completed"
     except ProcedureAborted as exc:
-        result = {**exc.outcome.result, "status": "aborted", "abort_reason": exc.outcome.reason}
+        result = {**exc.outcome.result, "status": "aborted", "abort_reason": exc.outcome.reason,
+                  "pilot_has_it": exc.outcome.pilot_has_it}
     except Exception as exc:  # noqa: BLE001 - keep the procedure's outcome, restore below
         log.exception("minimum-speed procedure failed")
         result = {"status": "failed", "abort_reason": f"{type(exc).__name__}: {exc}"}
-    _finish(link, result, restore, [])
+    _finish(link, result, restore, [], pilot_has_it=result.get("pilot_has_it", False))
     result["depth_gains_source"] = gains_source
     if analytic:
         result.update(thrust_ratio_star=analytic.get("thrust_ratio_star"), v_min=analytic.get("v_min"),

@@ -23,7 +23,14 @@ log = logging.getLogger(__name__)
 
 
 class AbortProcedure(Exception):
-    """Raised inside the run loop to stop the behaviour and restore the vehicle."""
+    """Raised inside the run loop to stop the behaviour and restore the vehicle.
+
+    ``pilot_has_it``: someone else changed the mode or disarmed; the restore then leaves the mode
+    alone (overrides and gains still go back) so the companion never switches away from the pilot."""
+
+    def __init__(self, reason: str, pilot_has_it: bool = False) -> None:
+        super().__init__(reason)
+        self.pilot_has_it = pilot_has_it
 
 
 @dataclass(frozen=True)
@@ -141,6 +148,7 @@ class RunOutcome:
     restore_problems: list[str] = field(default_factory=list)
     samples: int = 0
     vehicle_time_s: float = 0.0
+    pilot_has_it: bool = False  # aborted because someone else took the vehicle (leave its mode alone)
 
 
 def run_behavior(
@@ -165,6 +173,7 @@ def run_behavior(
     first_time = last_time = math.nan
     nan_run = 0
     reason: str | None = None
+    pilot_has_it = False
     watchdog = _TakeoverWatchdog(limits)
     skip_to_now = getattr(link, "skip_to_now", None)
     if skip_to_now is not None and skip_backlog:
@@ -184,9 +193,12 @@ def run_behavior(
             nan_run = 0 if telemetry.finite("roll", "pitch", "yaw") else nan_run + 1
             if nan_run > limits.max_nan_samples:
                 raise AbortProcedure(f"no valid attitude for {nan_run} samples")
-            violation = limits.violation(telemetry) or watchdog.check(telemetry)
+            violation = limits.violation(telemetry)
             if violation:
                 raise AbortProcedure(f"safety limit: {violation}")
+            takeover = watchdog.check(telemetry)
+            if takeover:
+                raise AbortProcedure(takeover, pilot_has_it=True)
             commands = behavior.step(telemetry)
             link.execute(commands)
             watchdog.commanded(commands)
@@ -194,6 +206,7 @@ def run_behavior(
                 on_step(telemetry, behavior)
     except AbortProcedure as exc:
         reason = str(exc)
+        pilot_has_it = exc.pilot_has_it
     except KeyboardInterrupt:
         reason = "interrupted"
     except Exception as exc:  # noqa: BLE001 - link loss, refused parameter, bug: abort safely, then report
@@ -202,12 +215,13 @@ def run_behavior(
     problems: list[str] = []
     if reason is not None:
         log.warning("aborting: %s", reason)
+        unwanted = (SetParameters, SetMode) if pilot_has_it else (SetParameters,)
         try:
-            link.execute([c for c in behavior.abort(reason) if not isinstance(c, SetParameters)])
+            link.execute([c for c in behavior.abort(reason) if not isinstance(c, unwanted)])
         except Exception as exc:  # noqa: BLE001 - the restore below still runs
             problems.append(f"behaviour abort: {exc}")
         if restore is not None:
-            problems += restore.restore(link)
+            problems += restore.restore(link, mode=not pilot_has_it)
         _tell(link, f"aborted: {reason}", 4)
     elif restore is not None and restore_on_success:
         problems += restore.restore(link)
@@ -218,6 +232,7 @@ def run_behavior(
         restore_problems=problems,
         samples=samples,
         vehicle_time_s=0.0 if math.isnan(first_time) else last_time - first_time,
+        pilot_has_it=pilot_has_it,
     )
 
 

@@ -92,6 +92,7 @@ def test_pilot_switching_to_manual_aborts_and_the_companion_does_not_fight_back(
     _, outcome, _ = _run(link)
     assert outcome.status == "aborted" and "mode changed to manual" in outcome.reason
     assert link.mode_changes.count("guided") == 0  # no hold re-engagement against the pilot
+    assert link.mode == "manual"  # the pilot's mode stands: the restore does not switch back
     assert not link.overrides
 
 
@@ -158,3 +159,20 @@ def test_a_failure_before_any_progress_is_still_acknowledged():
     link = Recorder()
     GcsProgress(link, 31010).finish(RunOutcome("aborted", "link lost", {}))
     assert link.acks == [(31010, MAV_RESULT_FAILED, 0)]
+
+
+def test_pilot_takeover_during_roll_stabilisation_keeps_the_pilots_mode():
+    link = InProcessLink(seed=2)
+    original_step = link.next_telemetry
+
+    def pilot(timeout_s=5.0):
+        telemetry = original_step(timeout_s)
+        if 20.0 <= telemetry.time_s < 20.06:
+            link.autopilot.set_mode(19)
+        return telemetry
+
+    link.next_telemetry = pilot
+    result = roll_procedure(link, AbortFlag(), RollProcedureConfig(settle_s=5.0, open_s=10.0, closed_s=30.0,
+                                                                     kick_deg=0.0), simulator=True)
+    assert result["status"] == "aborted" and result["pilot_has_it"]
+    assert link.mode == "manual" and link.autopilot.mass_angle_demand == 0.0
