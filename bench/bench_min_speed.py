@@ -1,28 +1,43 @@
 """Minimum-speed seeking figures (SPEC C7; thesis Fig. 5.22, 5.25, 5.26, Table 5.2) on the in-process
 simulator (physics + autopilot, no MAVLink). Prints final TR/speed vs the analytic TR*/Vmin, settle
 time, depth errors and thrust reversals (limit-cycle indicator) for: the seeking period Ts study,
-a fin-budget δFB sweep, and δmax 0.26 / 0.35 / 0.40 (ELEV_MAX and the seeker's δmax together).
-No asserts.
+a fin-budget δFB sweep, and δmax 0.26 / 0.35 / 0.40 (ELEV_MAX and the seeker's δmax together);
+these rows are the thesis law (``hold_after_change_s = 0``).
+
+``--hold``: the thesis law against the hold after every change (SeekerConfig.hold_after_change_s,
+the default) at Ts = 1 s and 0.5 s, seeds 1-6, on two harnesses: the closed loop of
+tests/closed_loop.py and the product procedure (companion.behavior_runs.min_speed_procedure over
+tests/inprocess_link.InProcessLink, 100 s settling at 0.70 first). Per seed: final TR after 200 s,
+settle time, max |depth error| after 5 s, reversals in the last 30 s; and in a separate 300 s run
+whose thrust set-point is kicked to 0.60 at 150 s, the re-convergence time (from the kick to the
+last change before 15 s without one) and the TR at 300 s. No asserts.
 
     /tmp/venv/bin/python bench/bench_min_speed.py
+    /tmp/venv/bin/python bench/bench_min_speed.py --hold
 """
 from __future__ import annotations
 
 import os
 import sys
 import time
+from dataclasses import replace
+from unittest import mock
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking  # noqa: E402
+from companion import behavior_runs  # noqa: E402
+from companion.interface import SetThrust  # noqa: E402
 from companion.numerics.fuzzy_seeker import SeekerConfig  # noqa: E402
 from companion.numerics.minspeed import DivePlaneVehicle, minimum_speed  # noqa: E402
 from tests.closed_loop import ClosedLoop  # noqa: E402
+from tests.inprocess_link import InProcessLink  # noqa: E402
 
 SEEDS = (1, 2, 3)
 
 
 def seek(seed: int, seconds: float = 200.0, elev_max: float = 0.26, noise_scale: float = 1.0, **seeker) -> dict:
+    seeker.setdefault("hold_after_change_s", 0.0)  # the thesis law unless asked
     loop = ClosedLoop(seed=seed, depth=2.0, params={"ELEV_MAX": elev_max})
     # bench-only: scale the simulated sensor noise (the seed's Simulink run was noise-free, §5.4)
     loop.vehicle._noise_sigma = loop.vehicle._noise_sigma * noise_scale
@@ -47,7 +62,100 @@ def line(label: str, results: list[dict], analytic) -> str:
     return f"{label:<18} (TR* {analytic.thrust_ratio_star:.3f}, Vmin {analytic.v_min:.3f}): " + " | ".join(cells)
 
 
+# ------------------------------------------------------------------ --hold: thesis law vs hold after change
+HOLD_SEEDS = (1, 2, 3, 4, 5, 6)
+KICK_AT_S, KICK_TO, KICK_RUN_S = 150.0, 0.60, 300.0
+
+
+class KickedSeeker(MinSpeedSeeking):
+    """Bench-only: the seeker whose set-point is kicked to ``KICK_TO`` at ``kick_at_s`` (a disturbance)."""
+
+    kick_at_s: float | None = None
+
+    def step(self, telemetry):
+        commands = list(super().step(telemetry))
+        if (self.kick_at_s is not None and self._start is not None and not getattr(self, "kicked_at", None)
+                and telemetry.time_s - self._start >= self.kick_at_s):
+            self.kicked_at = telemetry.time_s - self._start
+            self.thrust_ratio = KICK_TO
+            commands.append(SetThrust(KICK_TO))
+        return commands
+
+
+def reconvergence(behaviour: KickedSeeker, end_s: float, window_s: float = 15.0) -> float | None:
+    """From the kick to the last set-point change before the first ``window_s`` without one."""
+    changes = [behaviour.kicked_at]
+    previous = KICK_TO
+    for time_s, _decision, thrust in behaviour.decisions:
+        if time_s >= behaviour.kicked_at and thrust != previous:
+            changes.append(time_s)
+            previous = thrust
+    for i, change in enumerate(changes):
+        following = changes[i + 1] if i + 1 < len(changes) else end_s
+        if following - change >= window_s - 1e-9:
+            return change - behaviour.kicked_at
+    return None
+
+
+def hold_run(harness: str, seed: int, period: float, hold: float, seconds: float, kick: bool) -> KickedSeeker:
+    seeker = SeekerConfig(period_s=period, hold_after_change_s=hold)
+
+    def make(config: MinSpeedConfig) -> KickedSeeker:
+        behaviour = KickedSeeker(config)
+        behaviour.kick_at_s = KICK_AT_S if kick else None
+        made.append(behaviour)
+        return behaviour
+
+    made: list[KickedSeeker] = []
+    if harness == "loop":
+        loop = ClosedLoop(seed=seed, depth=2.0)
+        loop.advance(100.0)
+        loop.run(make(MinSpeedConfig(seeker=seeker, depth_setpoint=2.0, depth_p=loop.param("DPT_P"),
+                                     depth_i=loop.param("DPT_I"), pitch_max=loop.param("PIT_MAX"))), seconds)
+    else:  # the product procedure; only the seeker's configuration and the kick are the bench's
+        def product(config: MinSpeedConfig) -> KickedSeeker:
+            return make(replace(config, seeker=replace(config.seeker, hold_after_change_s=hold)))
+
+        with mock.patch.object(behavior_runs, "MinSpeedSeeking", product):
+            result = behavior_runs.min_speed_procedure(
+                InProcessLink(seed=seed), lambda: None,
+                behavior_runs.MinSpeedProcedureConfig(duration_s=seconds, period_s=period))
+        assert result["status"] == "completed", result.get("abort_reason")
+    return made[0]
+
+
+def hold_table() -> None:
+    tr_star = minimum_speed(DivePlaneVehicle()).thrust_ratio_star
+    print(f"TR* {tr_star:.3f} analytic (≈ 0.437 in the simulator); per seed {HOLD_SEEDS}: final TR at 200 s | "
+          f"settle s | max |dz| m | reversals last 30 s || kick to {KICK_TO} at {KICK_AT_S:.0f} s: "
+          f"re-convergence s | TR at {KICK_RUN_S:.0f} s")
+    for period in (1.0, 0.5):
+        for harness in ("loop", "procedure"):
+            for hold in (0.0, 4.0):
+                plain = [hold_run(harness, s, period, hold, 200.0, False) for s in HOLD_SEEDS]
+                kicked = [hold_run(harness, s, period, hold, KICK_RUN_S, True) for s in HOLD_SEEDS]
+                results = [b.result() for b in plain]
+                label = "thesis law" if hold == 0.0 else f"hold {hold:.0f} s"
+                finals = " ".join(f"{r['thrust_ratio_final']:.2f}" for r in results)
+                settles = " ".join(_seconds(r["settle_time_s"]) for r in results)
+                depths = " ".join(f"{r['max_depth_error_m']:.2f}" for r in results)
+                reversals = " ".join(str(r["reversals_last_30s"]) for r in results)
+                reconverged = " ".join(_seconds(reconvergence(b, KICK_RUN_S)) for b in kicked)
+                after_kick = " ".join(f"{b.thrust_ratio:.2f}" for b in kicked)
+                print(f"Ts {period} {harness:<9} {label:<10}: TR {finals} | settle {settles} | dz {depths} | "
+                      f"rev {reversals} || reconv {reconverged} | TR {after_kick}")
+
+
+def _seconds(value: float | None) -> str:
+    return "—" if value is None else f"{value:.0f}"
+
+
 def main() -> None:
+    if "--hold" in sys.argv[1:]:
+        start = time.time()
+        hold_table()
+        print(f"wall time {time.time() - start:.1f} s")
+        return
     start = time.time()
     base = minimum_speed(DivePlaneVehicle())
     print("columns per seed: final TR [range over the last 60 s], mean speed of the last 10 s, settle time, "

@@ -19,6 +19,22 @@ Inference: min for "and"/implication (clipping), max aggregation, output sets ar
 on −1, 0, +1 (half-width 0.5) on the universe [−1, 1]; the crisp output is the largest x at which
 the aggregate reaches its maximum (LOM), rounded to the nearest output level (eq. 5.63). Ties
 between rules therefore go to the larger (more cautious) output.
+
+Departure from SPEC C7 (default on; ``hold_after_change_s = 0`` gives the thesis law): after every
+change of the set-point, further moves are held ("kept") for ``hold_after_change_s`` = 4 s of
+vehicle time, so the previous step has reached the filtered elevator before the next decision (on
+STARFISH the filtered elevator lags the thrust by ≈ 4 s: surge time constant ≈ 2.7 s at Vmin plus
+the 1 s input filter). The three rules and LOM are untouched; only the move is gated
+(:func:`hold_decision`). Measured with sensor noise, seeds 1-6, Ts = 1 s, on the closed-loop harness
+and on the product procedure (bench/bench_min_speed.py --hold): final TR 0.44 on 10/12 runs, 0.45 on
+two (thesis law 0.42-0.49, within 2 % of TR* on 8/12), max depth error 0.24-0.26 m (thesis 0.53-0.65
+m), ≤ 1 reversal in the last 30 s on 11/12 (thesis 7/12), after a kick to TR 0.60 quiet again within
+61-100 s and at 0.44 by 300 s on 11/12 (thesis: never quiet again within 150 s); the same at
+Ts = 0.5 s (where the thesis law limit-cycles). Cost: the descent from 0.70 takes one step per 4 s,
+so settling takes 100-175 s (goal ≤ 60 s, met by neither law). A 3 s hold leaves 0.30-0.35 m of
+depth error, a 6 s hold 0.20-0.22 m but settles in 150-185 s. Tried and worse: holding only after a reversal (3/4/6 s: slow large limit cycles, depth
+errors 0.6-1.8 m — the hold keeps the thrust below TR* while the depth error grows), a decision that
+must repeat on two periods, Schmitt bands on the crossovers, fast until the first reversal then slow.
 Pure numerics: no I/O, no clock.
 """
 from __future__ import annotations
@@ -51,6 +67,7 @@ class SeekerConfig:
     period_s: float = 1.0  # Ts, seeking period (vehicle time)
     filter_r: float = 0.95  # r of eq. 5.64 at the reference sample interval
     filter_reference_dt: float = 0.05  # s, the sample interval r was chosen for (20 Hz)
+    hold_after_change_s: float = 4.0  # s, keep for this long after every change (0: thesis law; see module doc)
 
     @property
     def delta_crossover(self) -> float:
@@ -109,6 +126,15 @@ def decide(theta_e: float, delta_s: float, config: SeekerConfig) -> int:
     """The FIS decision −1 / 0 / +1 for filtered inputs (eq. 5.63)."""
     crisp = defuzzify_lom(rule_strengths(theta_e, delta_s, config))
     return int(min(_OUTPUT_LEVELS, key=lambda level: abs(level - crisp)))
+
+
+def hold_decision(decision: int, time_s: float, last_change_s: float, config: SeekerConfig) -> int:
+    """The FIS decision, turned into KEEP while less than ``hold_after_change_s`` has passed since
+    the set-point last changed at ``last_change_s`` (vehicle time; −inf: never). Not in the thesis
+    (see module doc); with ``hold_after_change_s = 0`` the decision passes unchanged."""
+    if decision != KEEP and time_s - last_change_s < config.hold_after_change_s - 1e-9:
+        return KEEP
+    return decision
 
 
 def filter_coefficient(dt: float, config: SeekerConfig) -> float:
