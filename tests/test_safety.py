@@ -3,7 +3,6 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import pytest
 
 from behaviors.identification import ManoeuvreConfig
 from companion.app import AbortFlag, GcsProgress, MAV_RESULT_FAILED, run_campaign
