@@ -14,11 +14,16 @@ Item = Union[Behavior, Callable[[], "Behavior | None"]]
 
 
 class Instant:
-    """A behaviour that sends some commands once and is done (mode, set-points, parameters)."""
+    """A behaviour that sends some commands once and is done (mode, set-points, parameters).
 
-    def __init__(self, *commands: Command, name: str = "instant") -> None:
+    ``make``, if given, builds further commands from the snapshot it is stepped with (e.g. gains
+    for the speed measured at that moment)."""
+
+    def __init__(self, *commands: Command, name: str = "instant",
+                 make: Callable[[Telemetry], Sequence[Command]] | None = None) -> None:
         self.commands = list(commands)
         self.name = name
+        self.make = make
         self._done = False
 
     @property
@@ -27,7 +32,7 @@ class Instant:
 
     def step(self, telemetry: Telemetry) -> Sequence[Command]:
         self._done = True
-        return self.commands
+        return self.commands + (list(self.make(telemetry)) if self.make is not None else [])
 
     def abort(self, reason: str) -> Sequence[Command]:
         self._done = True

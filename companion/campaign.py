@@ -186,9 +186,21 @@ class IdentificationCampaign:
         return build
 
     def _final_gains_step(self) -> Behavior | None:
+        """Write the scheduled gains for the speed measured now (the scheduler keeps them matched later)."""
         if not self.config.write_gains or self.design is None or self.design.schedule is None:
             return None
-        return _WriteScheduledGains(self)
+        return Instant(name="write gains", make=self._write_scheduled_gains)
+
+    def _write_scheduled_gains(self, telemetry: Telemetry) -> list[Command]:
+        schedule = self.design.schedule
+        speed = telemetry.speed_water if telemetry.finite("speed_water") else schedule.speed_range[0]
+        gains = gains_to_params(schedule.gains_at(speed, self.config.bounds))
+        self.final_gains = gains
+        self.events.append({"type": "gains", "speed": speed, "before": self.original_gains, "after": gains})
+        thrust = telemetry.thrust_ratio if telemetry.finite("thrust_ratio") else self.config.thrusts[-1]
+        return [SetParameters(gains), *reengage_hold(thrust, telemetry.yaw),
+                StatusText(f"heading gains written for {speed:.2f} m/s: kp {gains['heading_p']:.3f}"
+                           f" ki {gains['heading_i']:.3f} trim {gains['rudder_trim']:.3f}")]
 
     # ------------------------------------------------------------------ events
     def _on_complete(self, behavior: Behavior) -> None:
@@ -255,35 +267,3 @@ class IdentificationCampaign:
             "steps": [{k: v for k, v in r.items() if k != "series"} for r in self.step_results],
             "final_gains": self.final_gains,
         }
-
-
-class _WriteScheduledGains:
-    """Write the scheduled gains for the speed measured now (the scheduler keeps them matched later)."""
-
-    def __init__(self, campaign: IdentificationCampaign) -> None:
-        self.campaign = campaign
-        self._done = False
-
-    @property
-    def done(self) -> bool:
-        return self._done
-
-    def step(self, telemetry: Telemetry) -> Sequence[Command]:
-        self._done = True
-        schedule = self.campaign.design.schedule
-        speed = telemetry.speed_water if telemetry.finite("speed_water") else schedule.speed_range[0]
-        gains = gains_to_params(schedule.gains_at(speed, self.campaign.config.bounds))
-        self.campaign.final_gains = gains
-        self.campaign.events.append({"type": "gains", "speed": speed, "before": self.campaign.original_gains,
-                                     "after": gains})
-        return [SetParameters(gains), *reengage_hold(telemetry.thrust_ratio if telemetry.finite("thrust_ratio")
-                                                      else self.campaign.config.thrusts[-1], telemetry.yaw),
-                StatusText(f"heading gains written for {speed:.2f} m/s: kp {gains['heading_p']:.3f}"
-                                                 f" ki {gains['heading_i']:.3f} trim {gains['rudder_trim']:.3f}")]
-
-    def abort(self, reason: str) -> Sequence[Command]:
-        self._done = True
-        return []
-
-    def result(self) -> dict:
-        return {"gains": self.campaign.final_gains}
