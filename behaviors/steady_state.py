@@ -80,14 +80,16 @@ class _StartState:
     thrust_ratio: float
     mode: str
 
-    @staticmethod
-    def begin(mode: str, thrust_ratio: float, depth: float | None) -> list[Command]:
-        """Holding mode (if not in it), the manoeuvre's thrust and optional depth."""
-        commands: list[Command] = [] if mode == "hold" else [SetMode("hold")]
+    @classmethod
+    def begin(cls, telemetry: Telemetry, thrust_ratio: float, depth: float | None) -> tuple["_StartState", list[Command]]:
+        """Record how the manoeuvre found the vehicle; commands: holding mode (if not in it), the
+        manoeuvre's thrust and optional depth."""
+        start = cls(telemetry.time_s, telemetry.yaw, telemetry.thrust_ratio, telemetry.mode)
+        commands: list[Command] = [] if telemetry.mode == "hold" else [SetMode("hold")]
         commands.append(SetThrust(thrust_ratio))
         if depth is not None:
             commands.append(SetDepth(depth))
-        return commands
+        return start, commands
 
     def restore(self) -> list[Command]:
         commands: list[Command] = [SetHeading(self.heading)]
@@ -144,9 +146,9 @@ class SquarePattern:
         if self._start is None:
             if not telemetry.finite("yaw"):
                 return []
-            self._start = _StartState(telemetry.time_s, telemetry.yaw, telemetry.thrust_ratio, telemetry.mode)
+            self._start, started = _StartState.begin(telemetry, cfg.thrust_ratio, cfg.depth)
             self._status = "running"
-            commands += self._start.begin(telemetry.mode, cfg.thrust_ratio, cfg.depth)
+            commands += started
             commands.append(StatusText(f"squares: {cfg.legs} legs of {cfg.leg_s:.0f} s at thrust {cfg.thrust_ratio:.2f}"))
         elapsed = telemetry.time_s - self._start.time_s
         if elapsed >= cfg.legs * cfg.leg_s:
@@ -247,9 +249,9 @@ class SteadyTurns:
         if self._start is None:
             if not telemetry.finite("yaw"):
                 return []
-            self._start = _StartState(telemetry.time_s, telemetry.yaw, telemetry.thrust_ratio, telemetry.mode)
+            self._start, started = _StartState.begin(telemetry, cfg.thrust_ratio, cfg.depth)
             self._status = "running"
-            commands += self._start.begin(telemetry.mode, cfg.thrust_ratio, cfg.depth)
+            commands += started
             commands.extend(self._begin_turn(0, telemetry.time_s))
             return commands
         elapsed = telemetry.time_s - self._phase_start
