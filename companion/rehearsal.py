@@ -11,7 +11,6 @@ import logging
 import math
 import os
 import select
-import socket
 import subprocess
 import sys
 import time
@@ -29,12 +28,6 @@ log = logging.getLogger(__name__)
 
 class SimulatorError(RuntimeError):
     pass
-
-
-def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 @dataclass
@@ -69,12 +62,12 @@ class SimulatorProcess:
 
     @property
     def listen(self) -> str:
-        return f"{'tcpin' if self.transport == 'tcp' else 'udpin'}:127.0.0.1:{self.port}"
+        """Port 0: the simulator binds a free port itself and reports it on its READY line (no race)."""
+        return f"{'tcpin' if self.transport == 'tcp' else 'udpin'}:127.0.0.1:0"
 
     def start(self) -> "SimulatorProcess":
         if self.transport not in ("tcp", "udp"):
             raise SimulatorError(f"transport must be tcp or udp, not {self.transport!r}")
-        self.port = free_port(socket.SOCK_STREAM if self.transport == "tcp" else socket.SOCK_DGRAM)
         command = [sys.executable, "-m", "sim", "run", "--preset", self.preset, "--speedup", str(self.speedup),
                    "--listen", self.listen, "--seed", str(self.seed),
                    "--current", f"{self.current[0]},{self.current[1]}",
@@ -90,7 +83,9 @@ class SimulatorProcess:
         assert self.process.stdout is not None
         while time.monotonic() < deadline and self.process.poll() is None:
             ready, _, _ = select.select([self.process.stdout], [], [], 0.2)
-            if ready and self.process.stdout.readline().startswith("READY"):
+            line = self.process.stdout.readline() if ready else ""
+            if line.startswith("READY "):  # e.g. "READY tcpin:127.0.0.1:40892"
+                self.port = int(line.split()[1].rsplit(":", 1)[1])
                 return self
         self.stop()
         detail = self.log_path.read_text()[-500:] if self.log_path and self.log_path.exists() else ""
