@@ -31,8 +31,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from companion.campaign import CampaignConfig, IdentificationCampaign  # noqa: E402
-from companion.runner import RestorePoint, run_behavior  # noqa: E402
+from companion.procedures.campaign import CampaignConfig, IdentificationCampaign  # noqa: E402
+from companion.procedures.runner import RestorePoint, run_behavior  # noqa: E402
 from sim.linearize import linearized_yaw  # noqa: E402
 from sim.preset import load_preset  # noqa: E402
 
@@ -50,10 +50,10 @@ def run_inprocess(seed: int, preset: str) -> dict:
 
 
 def run_mavlink(seed: int, preset: str, speedup: float) -> dict:
-    from companion.app import AbortFlag, run_campaign, vehicle_record
+    from companion.procedures.app import AbortFlag, run_campaign, vehicle_record
     from companion.link.vehicle import VehicleLink
-    from companion.rehearsal import SimulatorProcess
-    from companion.store import Store
+    from companion.cli.rehearsal import SimulatorProcess
+    from companion.records.store import Store
 
     out = Path(f"/tmp/bench-identification-{seed}")
     out.mkdir(exist_ok=True)

@@ -6,10 +6,10 @@ not depend on the speed-up). Prints roll std open/closed and wall time.
 import sys, time
 from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from companion.rehearsal import SimulatorProcess
+from companion.cli.rehearsal import SimulatorProcess
 from companion.link.vehicle import VehicleLink
-from companion.behavior_runs import roll_procedure, RollProcedureConfig
-from companion.app import AbortFlag
+from companion.procedures.behaviour_procedures import roll_procedure, RollProcedureConfig
+from companion.procedures.app import AbortFlag
 cfg = RollProcedureConfig(settle_s=5, open_s=30, closed_s=40, kick_deg=0)
 for lockstep in (False, True):
     for speedup in (10, 100):

@@ -10,8 +10,8 @@ import struct
 import numpy as np
 import pytest
 
-from companion.cli import main
-from companion.logs import LogError, read_csv, read_tlog
+from companion.cli.main import main
+from companion.records.logs import LogError, read_csv, read_tlog
 from tests.test_lumped import _surge_experiment, romeo_points
 from tests.test_steady_state import angle_error_deg, current_vector, synth_square, synth_turn
 

@@ -11,11 +11,11 @@ from dataclasses import replace
 import pytest
 
 from behaviors.identification import IdentificationManoeuvre, ManoeuvreConfig, doublet
-from companion.app import AbortFlag, drain_campaign_events
-from companion.campaign import CampaignConfig, IdentificationCampaign
+from companion.procedures.app import AbortFlag, drain_campaign_events
+from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
 from companion.interface import OverrideActuator
-from companion.runner import RestorePoint, SafetyLimits, run_behavior
-from companion.store import Store
+from companion.procedures.runner import RestorePoint, SafetyLimits, run_behavior
+from companion.records.store import Store
 from sim.linearize import linearized_yaw
 from sim.preset import load_preset
 from tests.inprocess_link import InProcessLink

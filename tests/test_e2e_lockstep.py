@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import pytest
 
-from companion.app import AbortFlag
-from companion.behavior_runs import RollProcedureConfig, roll_procedure
+from companion.procedures.app import AbortFlag
+from companion.procedures.behaviour_procedures import RollProcedureConfig, roll_procedure
 from companion.link.vehicle import VehicleLink
-from companion.rehearsal import SimulatorProcess
+from companion.cli.rehearsal import SimulatorProcess
 
 pytestmark = pytest.mark.e2e
 

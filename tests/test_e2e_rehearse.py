@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from companion.store import Store
+from companion.records.store import Store
 
 pytestmark = pytest.mark.e2e
 

@@ -152,7 +152,7 @@ def status_main(argv: list[str]) -> int:
     """``companion status`` through its own subparser (the full CLI imports every subcommand)."""
     import argparse
 
-    from companion.commands import status
+    from companion.cli.commands import status
 
     parser = argparse.ArgumentParser()
     status.add_parser(parser.add_subparsers())

@@ -8,7 +8,7 @@ import control
 import numpy as np
 import pytest
 
-from companion.cli import main as cli_main
+from companion.cli.main import main as cli_main
 from companion.numerics.gains import DESIGN_DAMPING, GainBounds, design_heading_gains
 from companion.numerics.identification import YawModel
 from companion.numerics.schedule import fit_yaw_schedule

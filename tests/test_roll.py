@@ -116,8 +116,8 @@ def test_roll_procedure_on_the_autopilot_reduces_measured_std_three_times(seed):
     """Issue 4 goal through the product's procedure on the simulator's autopilot (in-process): the
     std of the *measured* (noisy) roll, open loop vs closed loop at 1.4 m/s with SIM_ROLL_DIST, ≥ 3×;
     the closed-loop 25° kick at cruise settles within 4 s."""
-    from companion.app import AbortFlag
-    from companion.behavior_runs import roll_procedure
+    from companion.procedures.app import AbortFlag
+    from companion.procedures.behaviour_procedures import roll_procedure
     from tests.inprocess_link import InProcessLink
 
     result = roll_procedure(InProcessLink(seed=seed), AbortFlag(), simulator=True)

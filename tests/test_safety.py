@@ -5,12 +5,12 @@ from dataclasses import replace
 
 
 from behaviors.identification import ManoeuvreConfig
-from companion.app import AbortFlag, GcsProgress, MAV_RESULT_FAILED, run_campaign
-from companion.behavior_runs import RollProcedureConfig, roll_procedure, run_named_behavior
-from companion.campaign import CampaignConfig
+from companion.procedures.app import AbortFlag, GcsProgress, MAV_RESULT_FAILED, run_campaign
+from companion.procedures.behaviour_procedures import RollProcedureConfig, roll_procedure, run_named_behavior
+from companion.procedures.campaign import CampaignConfig
 from companion.link.profiles import ARDUROVER
-from companion.runner import RestorePoint, RunOutcome
-from companion.store import Store
+from companion.procedures.runner import RestorePoint, RunOutcome
+from companion.records.store import Store
 from tests.inprocess_link import InProcessLink
 
 SHORT = CampaignConfig(thrusts=(0.7, 1.0), axes=("yaw",), step_labels=("scheduled",),

@@ -7,12 +7,12 @@ import pytest
 
 from behaviors.gain_scheduling import SchedulingConfig
 from behaviors.identification import ManoeuvreConfig
-from companion.app import (MAV_CMD_USER_1, MAV_CMD_USER_3, MAV_CMD_USER_4, MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED,
+from companion.procedures.app import (MAV_CMD_USER_1, MAV_CMD_USER_3, MAV_CMD_USER_4, MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED,
                            MAV_RESULT_IN_PROGRESS, AbortFlag)
-from companion.behavior_runs import MinSpeedProcedureConfig
-from companion.campaign import CampaignConfig
-from companion.serve import MAV_RESULT_TEMPORARILY_REJECTED, Companion, ServeConfig, schedule_from_store
-from companion.store import Store
+from companion.procedures.behaviour_procedures import MinSpeedProcedureConfig
+from companion.procedures.campaign import CampaignConfig
+from companion.procedures.resident import MAV_RESULT_TEMPORARILY_REJECTED, Companion, ServeConfig, schedule_from_store
+from companion.records.store import Store
 from tests.inprocess_link import InProcessLink
 
 CAMPAIGN = CampaignConfig(thrusts=(0.7, 1.0), axes=("yaw",), step_labels=(),

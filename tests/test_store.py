@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from companion.store import MIGRATIONS, Store
+from companion.records.store import MIGRATIONS, Store
 
 ATTEMPT = {"axis": "yaw", "thrust": 0.7, "attempt": 1, "speed": 1.39, "r2": 0.98, "accepted": True,
            "converged_s": 12.1, "training_s": 12.1, "samples": 242,
@@ -57,7 +57,7 @@ def test_unknown_campaign_is_a_clear_error(tmp_path):
 
 WRITER = """
 import sys, time
-from companion.store import Store
+from companion.records.store import Store
 store = Store(sys.argv[1])
 vehicle = store.add_vehicle("auv")
 campaign = store.start_campaign(vehicle, "identification")

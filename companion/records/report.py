@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 
 from companion.numerics.identification import YawModel  # noqa: E402
 from companion.numerics.turning import turning_performance  # noqa: E402
-from companion.store import Store  # noqa: E402
+from companion.records.store import Store  # noqa: E402
 
 log = logging.getLogger(__name__)
 

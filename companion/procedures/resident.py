@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 from typing import Callable
 
 from behaviors.gain_scheduling import GainScheduler, SchedulingConfig
-from companion.app import (
+from companion.procedures.app import (
     MAV_CMD_USER_1,
     MAV_CMD_USER_2,
     MAV_CMD_USER_3,
@@ -36,13 +36,13 @@ from companion.app import (
     GcsProgress,
     run_campaign,
 )
-from companion.behavior_runs import MinSpeedProcedureConfig, RollProcedureConfig, run_named_behavior
-from companion.campaign import CampaignConfig, gains_to_params
+from companion.procedures.behaviour_procedures import MinSpeedProcedureConfig, RollProcedureConfig, run_named_behavior
+from companion.procedures.campaign import CampaignConfig, gains_to_params
 from companion.numerics.gains import GainBounds
 from companion.numerics.identification import YawModel
 from companion.numerics.schedule import YawSchedule, fit_yaw_schedule
-from companion.runner import RestorePoint
-from companion.store import Store
+from companion.procedures.runner import RestorePoint
+from companion.records.store import Store
 
 log = logging.getLogger(__name__)
 

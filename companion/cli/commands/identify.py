@@ -5,7 +5,7 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.commands._common import (ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
+from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
                                        print_json, thrust_list)
 
 
@@ -31,7 +31,7 @@ def add_parser(subparsers) -> None:
 
 
 def campaign_config(args: argparse.Namespace):
-    from companion.campaign import CampaignConfig
+    from companion.procedures.campaign import CampaignConfig
 
     config = CampaignConfig(axes=tuple(a.strip() for a in args.axes.split(",") if a.strip()))
     if args.thrusts:
@@ -51,9 +51,9 @@ def campaign_config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.app import ConsoleProgress, run_campaign, vehicle_record
-    from companion.report import write_report
-    from companion.store import Store
+    from companion.procedures.app import ConsoleProgress, run_campaign, vehicle_record
+    from companion.records.report import write_report
+    from companion.records.store import Store
 
     config = campaign_config(args)
     try:

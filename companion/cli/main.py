@@ -1,6 +1,6 @@
 """The ``companion`` command line (SPEC C10).
 
-Each subcommand lives in its own module under :mod:`companion.commands` and exposes
+Each subcommand lives in its own module under :mod:`companion.cli.commands` and exposes
 ``add_parser(subparsers)`` (which registers the subcommand and sets ``func``) and a ``run(args)``
 returning the process exit code. This file only assembles them.
 """
@@ -50,9 +50,9 @@ def build_parser(names: tuple[str, ...] = SUBCOMMANDS) -> argparse.ArgumentParse
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in names:
         try:
-            module = importlib.import_module(f"companion.commands.{name}")
+            module = importlib.import_module(f"companion.cli.commands.{name}")
         except ModuleNotFoundError as exc:  # a subcommand still being built must not break the others
-            if exc.name != f"companion.commands.{name}":
+            if exc.name != f"companion.cli.commands.{name}":
                 raise
             continue
         module.add_parser(subparsers)

@@ -10,7 +10,7 @@ import argparse
 import math
 import sys
 
-from companion.commands._common import add_connect_arguments, print_json, signing_key
+from companion.cli.commands._common import add_connect_arguments, print_json, signing_key
 
 
 def add_parser(subparsers) -> None:

@@ -5,7 +5,7 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.commands._common import print_json, thrust_list
+from companion.cli.commands._common import print_json, thrust_list
 
 
 def add_parser(subparsers) -> None:
@@ -36,9 +36,9 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.app import AbortFlag, install_signal_handlers
-    from companion.campaign import CampaignConfig
-    from companion.rehearsal import RehearsalConfig, SimulatorError, preset_defaults, rehearse
+    from companion.procedures.app import AbortFlag, install_signal_handlers
+    from companion.procedures.campaign import CampaignConfig
+    from companion.cli.rehearsal import RehearsalConfig, SimulatorError, preset_defaults, rehearse
 
     axes = tuple(a.strip() for a in args.axes.split(",") if a.strip())
     if not axes or any(a not in ("yaw", "pitch") for a in axes):

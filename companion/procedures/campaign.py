@@ -10,7 +10,7 @@ One behaviour that runs, in order:
    the lowest thrust, and the speed-scheduled gains (thesis Fig. 3.16);
 5. the scheduled gains for the current speed written to the autopilot.
 
-It is a pure step function of telemetry like every behaviour; the application (``companion.app``)
+It is a pure step function of telemetry like every behaviour; the application (``companion.procedures.app``)
 runs it over the link with a restore point, and drains :attr:`events` after every step into the
 store, so nothing already measured is lost if the process dies.
 """

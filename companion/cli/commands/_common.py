@@ -51,7 +51,7 @@ def thrust_list(text: str) -> tuple[float, ...]:
 
 
 def print_json(value) -> None:
-    from companion.store import json_safe
+    from companion.records.store import json_safe
 
     json.dump(json_safe(value), sys.stdout, indent=1, allow_nan=False)
     sys.stdout.write("\n")
@@ -71,7 +71,7 @@ class ConnectFailed(Exception):
 def connected_vehicle(args: argparse.Namespace):
     """Signals → abort flag, connect (``--connect``, ``--profile``, ``--signing-key``), and always
     close and restore the signal handlers. Yields ``(link, abort)``; raises ConnectFailed."""
-    from companion.app import AbortFlag, install_signal_handlers
+    from companion.procedures.app import AbortFlag, install_signal_handlers
     from companion.link.errors import LinkError
     from companion.link.vehicle import VehicleLink
 

@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from behaviors.steady_state import SquareConfig, SquarePattern, SteadyTurns, TurnConfig
-from companion.app import finite_or_none
+from companion.procedures.app import finite_or_none
 from companion.numerics.steady_state import current_direction_deg
-from companion.runner import RestorePoint, SafetyLimits, run_behavior
+from companion.procedures.runner import RestorePoint, SafetyLimits, run_behavior
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from companion.commands._common import add_store_argument, print_json
+from companion.cli.commands._common import add_store_argument, print_json
 
 
 def add_parser(subparsers) -> None:
@@ -19,7 +19,7 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.store import Store
+    from companion.records.store import Store
 
     if not Path(args.store).exists():
         print(f"error: no store at {args.store} (run `companion rehearse` or `companion identify`, or pass --store)",
@@ -28,7 +28,7 @@ def run(args: argparse.Namespace) -> int:
     with Store(args.store) as store:
         campaign_id = args.campaign
         if args.report:
-            from companion.report import write_report
+            from companion.records.report import write_report
 
             campaign_id = campaign_id or store.latest_campaign_id("identification")
             if campaign_id is None:

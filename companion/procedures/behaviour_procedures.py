@@ -21,11 +21,11 @@ from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking
 from behaviors.observe import Observe
 from behaviors.roll_stabilisation import RollStabilisation, RollStabilisationConfig
 from behaviors.sequence import Instant, SequenceBehavior
-from companion.app import AbortFlag, finite_or_none
+from companion.procedures.app import AbortFlag, finite_or_none
 from companion.interface import SetMode, SetRollingMass, SetThrust
 from companion.numerics.roll import settle_time
-from companion.runner import RestorePoint, RunOutcome, SafetyLimits, run_behavior
-from companion.store import Store
+from companion.procedures.runner import RestorePoint, RunOutcome, SafetyLimits, run_behavior
+from companion.records.store import Store
 
 log = logging.getLogger(__name__)
 
@@ -184,7 +184,7 @@ def analytic_minimum_speed(preset: str | None) -> dict | None:
     """Eq. 5.28–5.54 for a simulator preset's vehicle data (read as data, never imported)."""
     if not preset:
         return None
-    from companion.commands.minspeed import load_vehicle
+    from companion.cli.commands.minspeed import load_vehicle
     from companion.numerics.minspeed import minimum_speed
 
     try:

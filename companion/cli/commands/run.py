@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from companion.commands._common import ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle
+from companion.cli.commands._common import ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle
 
 
 def add_parser(subparsers) -> None:
@@ -25,10 +25,10 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.app import vehicle_record
+    from companion.procedures.app import vehicle_record
     from companion.link.errors import LinkError
-    from companion.serve import Companion, ServeConfig
-    from companion.store import Store
+    from companion.procedures.resident import Companion, ServeConfig
+    from companion.records.store import Store
 
     config = ServeConfig(schedule_gains=not args.no_scheduling, preset=args.preset, max_vehicle_s=args.max_vehicle_time)
     try:

@@ -5,7 +5,7 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.commands._common import (ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
+from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
                                        print_json)
 
 
@@ -32,9 +32,9 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from companion.app import vehicle_record
-    from companion.behavior_runs import MinSpeedProcedureConfig, RollProcedureConfig, run_named_behavior
-    from companion.store import Store
+    from companion.procedures.app import vehicle_record
+    from companion.procedures.behaviour_procedures import MinSpeedProcedureConfig, RollProcedureConfig, run_named_behavior
+    from companion.records.store import Store
 
     name = args.behavior.replace("-", "_")
     roll = RollProcedureConfig(thrust=args.thrust)

@@ -1,6 +1,6 @@
 """``companion analyze squares|turns|eta|inertia --input FILE [--json] [--plot FILE.png]`` (SPEC C8, C9, C10).
 
-Offline analysis of a recorded log (CSV or MAVLink tlog, see :mod:`companion.logs`).
+Offline analysis of a recorded log (CSV or MAVLink tlog, see :mod:`companion.records.logs`).
 
 JSON keys (SI units unless the key says otherwise):
 
@@ -36,7 +36,7 @@ import sys
 
 import numpy as np
 
-from companion.logs import LogError, NavLog, read_log, read_table_csv
+from companion.records.logs import LogError, NavLog, read_log, read_table_csv
 from companion.numerics import lumped
 from companion.numerics.steady_state import (
     fit_steady_turn,

@@ -18,10 +18,10 @@ import sys
 from dataclasses import dataclass
 from typing import Callable
 
-from companion.campaign import CampaignConfig, IdentificationCampaign
+from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
 from companion.interface import Behavior, Telemetry
-from companion.runner import RestorePoint, RunOutcome, SafetyLimits, run_behavior
-from companion.store import Store
+from companion.procedures.runner import RestorePoint, RunOutcome, SafetyLimits, run_behavior
+from companion.records.store import Store
 
 log = logging.getLogger(__name__)
 

@@ -17,11 +17,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from companion.app import AbortFlag, ConsoleProgress, finite_or_none, run_campaign, vehicle_record
-from companion.campaign import CampaignConfig
-from companion.report import write_report
-from companion.runner import SafetyLimits
-from companion.store import Store, json_safe
+from companion.procedures.app import AbortFlag, ConsoleProgress, finite_or_none, run_campaign, vehicle_record
+from companion.procedures.campaign import CampaignConfig
+from companion.records.report import write_report
+from companion.procedures.runner import SafetyLimits
+from companion.records.store import Store, json_safe
 
 log = logging.getLogger(__name__)
 
@@ -219,7 +219,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
 
 def _run_steady_state(link, store, config: RehearsalConfig, campaign_id: int, abort: AbortFlag, summary: dict) -> dict:
     """Squares and turns (issue 5), scored against the current the simulator was started with."""
-    from companion.steady_runs import steady_state_procedure, steady_summary
+    from companion.procedures.steady_state import steady_state_procedure, steady_summary
 
     result = steady_state_procedure(link, abort)
     store.add_behavior_result(campaign_id, "steady_state", result["status"], result)
@@ -233,7 +233,7 @@ def _run_behaviors(link, store, config: RehearsalConfig, vehicle_id: int, campai
     extra: dict = {}
     if not config.behaviors:
         return extra
-    from companion.behavior_runs import run_named_behavior
+    from companion.procedures.behaviour_procedures import run_named_behavior
 
     for name in config.behaviors:
         result = run_named_behavior(name, link, store, vehicle_id=vehicle_id, campaign_id=campaign_id, abort=abort,
