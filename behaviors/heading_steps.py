@@ -14,6 +14,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from companion.interface import Command, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
+from companion.numerics.angles import wrap_pi
 
 
 def reengage_hold(thrust: float, heading: float) -> list[Command]:
@@ -24,7 +25,7 @@ def reengage_hold(thrust: float, heading: float) -> list[Command]:
     ~offset/Kp (≈1° here) for the minutes a small integral gain takes to unwind. Autopilots reset
     their integrators on mode entry (ArduPilot does), and re-selecting the current mode is a no-op,
     hence hold → guided → hold. Mode entry also resets the set-points, so they are sent again."""
-    return [SetMode("guided"), SetMode("hold"), SetThrust(thrust), SetHeading(_wrap(heading))]
+    return [SetMode("guided"), SetMode("hold"), SetThrust(thrust), SetHeading(wrap_pi(heading))]
 
 
 @dataclass(frozen=True)
@@ -109,7 +110,7 @@ class HeadingStepTest:
                 commands.append(SetParameters(self.gains))
                 if "rudder_trim" in self.gains:
                     commands += reengage_hold(self.thrust, self._course)
-            commands += [SetThrust(self.thrust), SetHeading(_wrap(self._course)),
+            commands += [SetThrust(self.thrust), SetHeading(wrap_pi(self._course)),
                          StatusText(f"heading steps {self.label} at thrust {self.thrust:.2f}")]
         target = {"settle": self._course, "up": self._course + self.config.step, "down": self._course}[self._phase]
         self.series["time"].append(now)
@@ -131,7 +132,7 @@ class HeadingStepTest:
     def _begin(self, phase: str, now: float, target: float) -> list[Command]:
         self._phase, self._phase_start = phase, now
         self._segment_start = len(self.series["time"])
-        return [SetHeading(_wrap(target))]
+        return [SetHeading(wrap_pi(target))]
 
     def _score(self, start: float, target: float) -> None:
         first = self._segment_start
@@ -143,7 +144,7 @@ class HeadingStepTest:
     def abort(self, reason: str) -> Sequence[Command]:
         self._done = True
         self.aborted = True
-        return [SetHeading(_wrap(self._course))] if math.isfinite(self._course) else []
+        return [SetHeading(wrap_pi(self._course))] if math.isfinite(self._course) else []
 
     def result(self) -> dict:
         overshoots = [s["overshoot_pct"] for s in self.steps if math.isfinite(s["overshoot_pct"])]
@@ -157,7 +158,3 @@ class HeadingStepTest:
             "series": self.series,
             "aborted": self.aborted,
         }
-
-
-def _wrap(angle: float) -> float:
-    return math.atan2(math.sin(angle), math.cos(angle))

@@ -34,6 +34,7 @@ from companion.interface import (
     StatusText,
     Telemetry,
 )
+from companion.numerics.angles import wrap_pi
 from companion.numerics.steady_state import (
     fit_steady_turn,
     fit_straight_legs,
@@ -47,10 +48,6 @@ log = logging.getLogger(__name__)
 
 _NEUTRAL_MODES = ("manual", "hold", "guided")
 _NAV_FIELDS = ("north", "east", "down", "roll", "pitch", "yaw", "vel_north", "vel_east", "vel_down")
-
-
-def _wrap(angle: float) -> float:
-    return math.atan2(math.sin(angle), math.cos(angle))
 
 
 @dataclass
@@ -136,7 +133,7 @@ class SquarePattern:
         assert self._start is not None
         base = self.config.first_heading if self.config.first_heading is not None else self._start.heading
         step = math.pi / 2 if self.config.clockwise else -math.pi / 2
-        return _wrap(base + leg * step)
+        return wrap_pi(base + leg * step)
 
     def step(self, telemetry: Telemetry) -> Sequence[Command]:
         if self._done:

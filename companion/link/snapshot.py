@@ -19,6 +19,7 @@ from typing import Any, Callable
 
 from companion.interface import Telemetry
 from companion.link.profiles import AutopilotProfile
+from companion.numerics.angles import wrap_pi
 
 log = logging.getLogger(__name__)
 
@@ -37,12 +38,6 @@ class DepthSensor:
 
     def depth(self, press_abs_hpa: float) -> float:
         return (press_abs_hpa - self.surface_pressure_hpa) * 100.0 / (self.water_density * STANDARD_GRAVITY)
-
-
-def wrap_angle(angle: float) -> float:
-    """Angle wrapped to (−π, π]."""
-    wrapped = math.remainder(angle, 2.0 * math.pi)
-    return math.pi if wrapped == -math.pi else wrapped
 
 
 @dataclass
@@ -83,7 +78,7 @@ class TelemetryAssembler:
         yaw = self._number(msg, "yaw")
         self._fields.update(
             roll=self._number(msg, "roll"), pitch=self._number(msg, "pitch"),
-            yaw=wrap_angle(yaw) if math.isfinite(yaw) else math.nan,
+            yaw=wrap_pi(yaw) if math.isfinite(yaw) else math.nan,
             roll_rate=self._number(msg, "rollspeed"), pitch_rate=self._number(msg, "pitchspeed"),
             yaw_rate=self._number(msg, "yawspeed"))
         self.latest = Telemetry(time_s=time_ms / 1000.0, **self._fields)

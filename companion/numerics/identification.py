@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .angles import wrap_pi
 from .rls import RecursiveLeastSquares
 from .svf import DEFAULT_BANDWIDTH, StateVariableFilter
 
@@ -93,10 +94,6 @@ class IdentificationHistory:
     step_norm: list[float] = field(default_factory=list)
 
 
-def _wrap_pi(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
 class _SvfRlsIdentifier:
     """Shared machinery: two SVFs (output, input), an RLS, the convergence test, the history."""
 
@@ -141,7 +138,7 @@ class _SvfRlsIdentifier:
             self.skipped += 1  # duplicate or out-of-order time stamp
             return
         if self.wraps_output and self._last_raw_output is not None:
-            self._output_unwrapped += _wrap_pi(output - self._last_raw_output)
+            self._output_unwrapped += wrap_pi(output - self._last_raw_output)
         else:
             self._output_unwrapped = output
         self._last_raw_output = output
