@@ -9,14 +9,13 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
-import select
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
+from companion.cli.launcher import SimulatorError, SimulatorProcess  # noqa: F401 - re-exported
 from companion.procedures.app import AbortFlag, ConsoleProgress, finite_or_none, run_campaign, vehicle_record
 from companion.procedures.campaign import CampaignConfig
 from companion.records.report import write_report
@@ -24,89 +23,6 @@ from companion.procedures.runner import SafetyLimits
 from companion.records.store import Store, json_safe
 
 log = logging.getLogger(__name__)
-
-
-class SimulatorError(RuntimeError):
-    pass
-
-
-@dataclass
-class SimulatorProcess:
-    """``python -m sim run`` as a child process on a free loopback port.
-
-    The rehearsal uses TCP by default: at 50x the simulator sends ~4,000 messages per wall second,
-    one UDP datagram each, and the kernel charges ~1 KB per datagram against the receive buffer, so
-    a companion descheduled for some tens of milliseconds on a busy 2-core machine loses samples
-    over UDP. TCP on loopback is flow-controlled and lossless; a vehicle at 1x has no such burst.
-
-    Waiting for its READY line is the one wall-clock wait of the companion: it is a process start,
-    not vehicle logic.
-    """
-
-    preset: str = "starfish"
-    speedup: float = 50.0
-    seed: int = 1
-    current: tuple[float, float] = (0.0, 0.0)
-    extra_args: list[str] = field(default_factory=list)
-    ready_timeout_s: float = 60.0
-    transport: str = "tcp"  # or "udp"
-    log_path: Path | None = None  # the simulator's stderr (None: discarded)
-    lockstep: bool = True  # results independent of the speed-up (docs/PROTOCOL.md, "Lockstep")
-    process: subprocess.Popen | None = None
-    port: int = 0
-
-    @property
-    def endpoint(self) -> str:
-        """The connection string a client uses (the simulator listens with ``tcpin``/``udpin``)."""
-        return f"tcp:127.0.0.1:{self.port}" if self.transport == "tcp" else f"udpout:127.0.0.1:{self.port}"
-
-    @property
-    def listen(self) -> str:
-        """Port 0: the simulator binds a free port itself and reports it on its READY line (no race)."""
-        return f"{'tcpin' if self.transport == 'tcp' else 'udpin'}:127.0.0.1:0"
-
-    def start(self) -> "SimulatorProcess":
-        if self.transport not in ("tcp", "udp"):
-            raise SimulatorError(f"transport must be tcp or udp, not {self.transport!r}")
-        command = [sys.executable, "-m", "sim", "run", "--preset", self.preset, "--speedup", str(self.speedup),
-                   "--listen", self.listen, "--seed", str(self.seed),
-                   "--current", f"{self.current[0]},{self.current[1]}",
-                   *(["--lockstep"] if self.lockstep else []), *self.extra_args]
-        log.info("starting simulator: %s", " ".join(command))
-        # stderr goes to a file, never to an undrained pipe (a full pipe would block the simulator)
-        log_file = open(self.log_path, "w") if self.log_path else subprocess.DEVNULL  # noqa: SIM115
-        self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=log_file, text=True,
-                                        env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        if self.log_path:
-            log_file.close()
-        deadline = time.monotonic() + self.ready_timeout_s
-        assert self.process.stdout is not None
-        while time.monotonic() < deadline and self.process.poll() is None:
-            ready, _, _ = select.select([self.process.stdout], [], [], 0.2)
-            line = self.process.stdout.readline() if ready else ""
-            if line.startswith("READY "):  # e.g. "READY tcpin:127.0.0.1:40892"
-                self.port = int(line.split()[1].rsplit(":", 1)[1])
-                return self
-        self.stop()
-        detail = self.log_path.read_text()[-500:] if self.log_path and self.log_path.exists() else ""
-        raise SimulatorError(f"simulator did not start (preset {self.preset!r}) within {self.ready_timeout_s:.0f} s"
-                             + (f": {detail.strip()}" if detail.strip() else ""))
-
-    def stop(self) -> None:
-        if self.process is None or self.process.poll() is not None:
-            return
-        self.process.terminate()
-        try:
-            self.process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            self.process.wait()
-
-    def __enter__(self) -> "SimulatorProcess":
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
 
 
 def simulator_truth(preset: str, speed: float) -> dict | None:
