@@ -20,6 +20,7 @@ from typing import Any, Sequence
 from sim.controllers import DepthPitchCascade, HeadingPI
 from sim.params import FULL_SCALE_RAD, ParamTable, SetResult
 from sim.vehicle import ActuatorDemand, Vehicle
+from sim.vehicle import wrap_angle as wrap_pi  # the simulator's one wrap (sim.server imports it from here)
 
 log = logging.getLogger(__name__)
 
@@ -62,12 +63,6 @@ def pwm_from_fin(angle: float) -> int:
 def pwm_from_thrust(ratio: float) -> int:
     """Inverse of :func:`thrust_from_pwm`."""
     return int(min(2000.0, max(1000.0, round(1000.0 + ratio * 1000.0))))
-
-
-def wrap_pi(angle: float) -> float:
-    """Wrap to (−π, π]."""
-    wrapped = math.remainder(angle, 2.0 * math.pi)
-    return math.pi if wrapped == -math.pi else wrapped
 
 
 @dataclass

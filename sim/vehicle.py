@@ -29,7 +29,7 @@ TWO_PI = 2.0 * math.pi
 
 
 def wrap_angle(angle: float) -> float:
-    """Wrap to (−π, π]."""
+    """Wrap to (−π, π]: the simulator's one angle wrap (it cannot use the companion's, SPEC §5)."""
     wrapped = math.remainder(angle, TWO_PI)
     return math.pi if wrapped == -math.pi else wrapped
 
