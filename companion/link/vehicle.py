@@ -20,6 +20,9 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Sequence
 
+from pymavlink.dialects.v20.common import (MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_IN_PROGRESS,
+                                           MAV_RESULT_UNSUPPORTED)
+
 from companion.interface import (Command, NamedValue, OverrideActuator, ReleaseActuator, SetDepth, SetHeading,
                                  SetMode, SetParameters, SetRollingMass, SetThrust, StatusText, Telemetry)
 from companion.link import params as paramcodec
@@ -47,8 +50,6 @@ MAV_CMD_COMPONENT_ARM_DISARM = 400
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 MAV_CMD_USER_1, MAV_CMD_USER_5 = 31010, 31014
-MAV_RESULT_ACCEPTED, MAV_RESULT_TEMPORARILY_REJECTED, MAV_RESULT_DENIED = 0, 1, 2
-MAV_RESULT_UNSUPPORTED, MAV_RESULT_FAILED, MAV_RESULT_IN_PROGRESS = 3, 4, 5
 MAV_SEVERITY_WARNING = 4
 MSG_ID_AUTOPILOT_VERSION = 148
 
