@@ -12,8 +12,7 @@ import pytest
 
 from companion.cli.main import main
 from companion.records.logs import LogError, read_csv, read_tlog
-from tests.test_lumped import _surge_experiment, romeo_points
-from tests.test_steady_state import angle_error_deg, current_vector, synth_square, synth_turn
+from harness.datasets import angle_error_deg, current_vector, romeo_points, surge_experiment, synth_square, synth_turn
 
 
 def write_csv(path, columns: dict[str, np.ndarray]) -> None:
@@ -172,7 +171,7 @@ def test_eta_raw_record_fits_regime_velocities(tmp_path, capsys):
 
 
 def test_inertia_csv(tmp_path, capsys):
-    t, x, u, force = _surge_experiment()
+    t, x, u, force = surge_experiment()
     path = tmp_path / "inertia.csv"
     write_csv(path, {"t": t, "position": x, "force": force})
     code, out, _ = run_cli(capsys, "inertia", "--input", str(path), "--k", "38", "--kq", "333", "--json")

@@ -18,7 +18,7 @@ from companion.procedures.runner import RestorePoint, SafetyLimits, run_behavior
 from companion.records.store import Store
 from sim.linearize import linearized_yaw
 from sim.preset import load_preset
-from tests.inprocess_link import InProcessLink
+from harness.inprocess import InProcessLink
 
 FAST = CampaignConfig(thrusts=(0.7, 1.0), axes=("yaw",), step_labels=("scheduled",),
                       yaw=ManoeuvreConfig(settle_s=15.0, resettle_s=12.0))

@@ -168,7 +168,7 @@ def test_status_command_prints_json(sim, capsys):
 
 
 def test_status_command_fails_clearly_when_nothing_answers(capsys):
-    from tests.conftest import free_port
+    from harness.mavlink_clients import free_port
 
     assert status_main(["status", "--connect", f"udpout:127.0.0.1:{free_port()}", "--timeout", "0.5"]) == 1
     assert "no autopilot HEARTBEAT" in capsys.readouterr().err

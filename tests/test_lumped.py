@@ -7,27 +7,9 @@ import math
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
 
 from companion.numerics import lumped
-
-# SPEC §3.8, Watson data, experiment B: ηLNB k_r 36.11, η 0.89, J_LS 6.13, ν 12 (14 regime points)
-K_R, ETA, J_LS, DOF = 36.11, 0.89, 6.13, 12
-NOISE = math.sqrt(J_LS / DOF)  # the residual σ (N·m) that gives the seed's J_LS/ν
-
-
-def romeo_points(seed: int, k: float = K_R, kq: float = 0.0, eta: float = ETA, noise: float = NOISE):
-    """14 yaw regime points: 7 positive torques with the reference (unit-efficiency) mapping, 7
-    negative torques with the mapping of efficiency η; steady state k·r + k_q·r|r| = η_i·τ + ε."""
-    rng = np.random.default_rng(seed)
-    force = np.concatenate([np.linspace(1.0, 6.5, 7), -np.linspace(1.0, 6.5, 7)])
-    second = np.r_[np.zeros(7, bool), np.ones(7, bool)]
-    effective = np.where(second, eta, 1.0) * force + rng.normal(0.0, noise, force.size)
-    if kq == 0.0:
-        velocity = effective / k
-    else:  # solve k·r + kq·r|r| = effective for r
-        velocity = np.sign(effective) * (-k + np.sqrt(k * k + 4 * kq * np.abs(effective))) / (2 * kq)
-    return velocity, force, second
+from harness.datasets import ETA, J_LS, K_R, romeo_points, surge_experiment
 
 
 def test_select_model_reproduces_the_seed_choice_from_its_tables():
@@ -119,20 +101,8 @@ def test_d_optimal_frequency_romeo_surge():
         lumped.sine_excitation(np.arange(3.0), 10.0, 12.0, 0.1)
 
 
-def _surge_experiment(mass=675.0, k=38.0, kq=333.0, f0=35.0, df=20.0, periods=4, dt=0.1):
-    u0 = (-k + math.sqrt(k * k + 4 * kq * f0)) / (2 * kq)
-    omega = lumped.d_optimal_frequency(mass, k, kq, u0)
-    t = np.arange(0.0, periods * 2 * math.pi / omega, dt)
-
-    def rhs(time, s):
-        return [s[1], (lumped.sine_excitation(time, f0, df, omega) - k * s[1] - kq * s[1] * abs(s[1])) / mass]
-
-    sol = solve_ivp(rhs, (0.0, t[-1]), [0.0, u0], t_eval=t, rtol=1e-10, atol=1e-12)
-    return t, sol.y[0], sol.y[1], lumped.sine_excitation(t, f0, df, omega)
-
-
 def test_inertia_regression_recovers_mass():
-    t, x, u, force = _surge_experiment()
+    t, x, u, force = surge_experiment()
     exact = lumped.fit_inertia(t, x, force, 38.0, 333.0, velocity=u)
     assert exact.mass == pytest.approx(675.0, rel=1e-3)
     masses, sigmas = [], []
@@ -148,7 +118,7 @@ def test_inertia_regression_recovers_mass():
 
 def test_inertia_regression_with_efficiency():
     """A mapping of efficiency η delivers η·τ: giving η recovers m, ignoring it does not."""
-    t, x, u, force = _surge_experiment()
+    t, x, u, force = surge_experiment()
     nominal = force / 0.8
     assert lumped.fit_inertia(t, x, nominal, 38.0, 333.0, efficiency=0.8, velocity=u).mass == pytest.approx(675.0, rel=1e-3)
     assert abs(lumped.fit_inertia(t, x, nominal, 38.0, 333.0, velocity=u).mass - 675.0) > 20.0

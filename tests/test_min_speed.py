@@ -34,7 +34,7 @@ from companion.numerics.minspeed import (
     theta_max_required,
     thrust_from_ratio,
 )
-from tests.closed_loop import ClosedLoop
+from harness.inprocess import ClosedLoop
 
 ANALYTIC_TR = minimum_speed(DivePlaneVehicle()).thrust_ratio_star
 
@@ -264,7 +264,7 @@ def test_hold_follows_a_disturbance_back_to_the_optimum():
 def test_product_procedure_with_the_default_hold():
     """The product procedure (100 s at 0.70, then 200 s of seeking) at the default Ts = 1 s and hold."""
     from companion.procedures.behaviour_procedures import MinSpeedProcedureConfig, min_speed_procedure
-    from tests.inprocess_link import InProcessLink
+    from harness.inprocess import InProcessLink
 
     result = min_speed_procedure(InProcessLink(seed=2), lambda: None, MinSpeedProcedureConfig())
     assert result["status"] == "completed"

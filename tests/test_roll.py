@@ -16,9 +16,10 @@ from companion.numerics.roll import (
     closed_loop_poles,
     linearise,
     seed_gains,
+    settle_time,
     stability_limit,
 )
-from tests.closed_loop import ClosedLoop, settle_time
+from harness.inprocess import ClosedLoop
 
 
 def test_linearisation_matches_table_4_1_b_and_physical_gain():
@@ -118,7 +119,7 @@ def test_roll_procedure_on_the_autopilot_reduces_measured_std_three_times(seed):
     the closed-loop 25° kick at cruise settles within 4 s."""
     from companion.procedures.app import AbortFlag
     from companion.procedures.behaviour_procedures import roll_procedure
-    from tests.inprocess_link import InProcessLink
+    from harness.inprocess import InProcessLink
 
     result = roll_procedure(InProcessLink(seed=seed), AbortFlag(), simulator=True)
     assert result["status"] == "completed"

@@ -5,13 +5,14 @@ from dataclasses import replace
 
 
 from behaviors.identification import ManoeuvreConfig
-from companion.procedures.app import AbortFlag, GcsProgress, MAV_RESULT_FAILED, run_campaign
+from companion.procedures.app import AbortFlag, GcsProgress, run_campaign
 from companion.procedures.behaviour_procedures import RollProcedureConfig, roll_procedure, run_named_behavior
 from companion.procedures.campaign import CampaignConfig
 from companion.link.profiles import ARDUROVER
 from companion.procedures.runner import RestorePoint, RunOutcome
 from companion.records.store import Store
-from tests.inprocess_link import InProcessLink
+from harness.inprocess import InProcessLink
+from pymavlink.dialects.v20.common import MAV_RESULT_FAILED
 
 SHORT = CampaignConfig(thrusts=(0.7, 1.0), axes=("yaw",), step_labels=("scheduled",),
                        yaw=ManoeuvreConfig(settle_s=12.0, resettle_s=10.0))

@@ -7,13 +7,14 @@ import pytest
 
 from behaviors.gain_scheduling import SchedulingConfig
 from behaviors.identification import ManoeuvreConfig
-from companion.procedures.app import (MAV_CMD_USER_1, MAV_CMD_USER_3, MAV_CMD_USER_4, MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED,
-                           MAV_RESULT_IN_PROGRESS, AbortFlag)
+from companion.procedures.app import MAV_CMD_USER_1, MAV_CMD_USER_3, MAV_CMD_USER_4, AbortFlag
 from companion.procedures.behaviour_procedures import MinSpeedProcedureConfig
 from companion.procedures.campaign import CampaignConfig
-from companion.procedures.resident import MAV_RESULT_TEMPORARILY_REJECTED, Companion, ServeConfig, schedule_from_store
+from companion.procedures.resident import Companion, ServeConfig, schedule_from_store
 from companion.records.store import Store
-from tests.inprocess_link import InProcessLink
+from harness.inprocess import InProcessLink
+from pymavlink.dialects.v20.common import (MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_IN_PROGRESS,
+                                           MAV_RESULT_TEMPORARILY_REJECTED)
 
 CAMPAIGN = CampaignConfig(thrusts=(0.7, 1.0), axes=("yaw",), step_labels=(),
                           yaw=ManoeuvreConfig(settle_s=12.0, resettle_s=10.0))

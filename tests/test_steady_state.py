@@ -24,97 +24,8 @@ from companion.numerics.steady_state import (
     steady_straight_mask,
     steady_turn_mask,
 )
-
-
-def current_vector(speed: float, direction_deg: float) -> np.ndarray:
-    """(north, east) of a current flowing towards ``direction_deg``."""
-    a = math.radians(direction_deg)
-    return np.array([speed * math.cos(a), speed * math.sin(a)])
-
-
-# --------------------------------------------------------------------------- synthetic vehicle
-def synth_square(
-    current: np.ndarray,
-    seed: int,
-    surge: float = 1.8,
-    sway: float = -0.012,
-    heave: float = 0.05,
-    leg_s: float = 150.0,
-    first_heading_deg: float = 20.0,
-    dt: float = 0.5,
-    vel_noise: float = 0.005,
-    pos_noise: float = 0.2,
-    yaw_noise_deg: float = 0.1,
-    max_rate_deg_s: float = 3.0,
-) -> dict[str, np.ndarray]:
-    """Square pattern with turns (rate-limited heading response), a surge dip and sway spikes in
-    the turns, over a constant current. Body velocity over ground (u, v, w) and positions noisy."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(0.0, 4 * leg_s, dt)
-    setpoint = np.radians(first_heading_deg + 90.0 * np.floor(t / leg_s))
-    yaw = np.empty_like(t)
-    psi = setpoint[0]
-    max_step = math.radians(max_rate_deg_s) * dt
-    for i, sp in enumerate(setpoint):
-        psi += float(np.clip(0.1 * (sp - psi), -max_step, max_step))
-        yaw[i] = psi
-    rate = np.gradient(yaw, t)
-    turning = np.abs(rate) / math.radians(max_rate_deg_s)
-    # slow recovery of the surge after each turn (first-order, 10 s)
-    dip = np.zeros_like(t)
-    for i in range(1, t.size):
-        dip[i] = dip[i - 1] + dt / 10.0 * (0.15 * turning[i] - dip[i - 1])
-    v_wb = np.column_stack([surge * (1 - dip), sway + 0.3 * rate, np.full_like(t, heave)])
-    roll = rng.normal(0.0, math.radians(0.2), t.size)
-    pitch = np.full_like(t, math.radians(2.0))
-    r_mb = body_to_ned_matrices(roll, pitch, yaw)
-    vel_ned = np.einsum("nij,nj->ni", r_mb, v_wb) + np.array([current[0], current[1], 0.0])
-    pos = np.cumsum(vel_ned * dt, axis=0)
-    yaw_meas = np.arctan2(np.sin(yaw), np.cos(yaw)) + rng.normal(0, math.radians(yaw_noise_deg), t.size)
-    vel_body = ned_to_body(roll, pitch, yaw_meas, vel_ned) + rng.normal(0, vel_noise, (t.size, 3))
-    return {
-        "t": t, "north": pos[:, 0] + rng.normal(0, pos_noise, t.size), "east": pos[:, 1] + rng.normal(0, pos_noise, t.size),
-        "down": pos[:, 2], "roll": roll, "pitch": pitch, "yaw": yaw_meas, "vel_body": vel_body,
-        "vel_ned": vel_ned, "true_rate": rate,
-    }
-
-
-def synth_turn(
-    current: np.ndarray,
-    seed: int,
-    rate_deg_s: float = 5.0,
-    speed: float = 1.4,
-    duration_s: float = 240.0,
-    dt: float = 1.0,
-    pos_noise: float = 0.1,
-    lag_s: float = 10.0,
-    heading0_deg: float = 35.0,
-) -> dict[str, np.ndarray]:
-    """A turn from a straight course: heading rate → ω with a first-order lag, speed loss 10 %;
-    water-relative path integrated finely (10 ms) then sampled every ``dt`` with position noise."""
-    rng = np.random.default_rng(seed)
-    fine = 0.01
-    tf = np.arange(0.0, duration_s + fine / 2, fine)
-    omega = math.radians(rate_deg_s)
-    rate = omega * (1 - np.exp(-tf / lag_s))
-    yaw = math.radians(heading0_deg) + np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * fine)])
-    u = speed * (1.0 - 0.1 * (1 - np.exp(-tf / lag_s)))  # water-relative speed along the heading
-    vn = u * np.cos(yaw) + current[0]
-    ve = u * np.sin(yaw) + current[1]
-    north = np.concatenate([[0.0], np.cumsum(0.5 * (vn[1:] + vn[:-1]) * fine)])
-    east = np.concatenate([[0.0], np.cumsum(0.5 * (ve[1:] + ve[:-1]) * fine)])
-    step = int(round(dt / fine))
-    sl = slice(0, None, step)
-    n = tf[sl].size
-    return {
-        "t": tf[sl], "north": north[sl] + rng.normal(0, pos_noise, n), "east": east[sl] + rng.normal(0, pos_noise, n),
-        "yaw": np.arctan2(np.sin(yaw[sl]), np.cos(yaw[sl])) + rng.normal(0, math.radians(0.1), n),
-        "radius": 0.9 * speed / abs(omega), "rate": omega,
-    }
-
-
-def angle_error_deg(a: float, b: float) -> float:
-    return abs((a - b + 180.0) % 360.0 - 180.0)
+from harness.datasets import angle_error_deg, current_vector, synth_square, synth_turn
+from harness.inprocess import HuginLoop
 
 
 # --------------------------------------------------------------------------- helpers
@@ -347,58 +258,6 @@ def test_turn_behavior_abort_releases_rudder_and_restores_heading():
 
 
 # --------------------------------------------------------------------------- the simulator's hugin preset
-sim_vehicle = pytest.importorskip("sim.vehicle")
-
-
-class HuginLoop:
-    """The sim's ``hugin`` Vehicle in-process with the sim's heading PI and depth cascade as the
-    holding mode, driven by the behaviour's commands (no MAVLink: a test harness, not the server)."""
-
-    def __init__(self, current: np.ndarray, seed: int) -> None:
-        from sim.controllers import DepthPitchCascade, HeadingPI
-        from sim.preset import load_preset
-
-        preset = load_preset("hugin")
-        ap = preset.autopilot
-        self.vehicle = sim_vehicle.Vehicle(preset, seed=seed, current_north=current[0], current_east=current[1],
-                                           depth=50.0, heading=0.4)
-        self.heading_pi = HeadingPI(kp=ap.heading_p, ki=ap.heading_i, imax=ap.heading_imax, trim=ap.heading_trim,
-                                    output_max=preset.actuators.rudder_max)
-        self.depth = DepthPitchCascade(ap.depth_p, ap.depth_i, ap.pitch_p, ap.pitch_i, ap.pitch_max,
-                                       preset.actuators.elevator_max)
-        self.heading_sp, self.depth_sp, self.thrust = 0.4, 50.0, ap.cruise_thrust
-        self.rudder_override: float | None = None
-
-    def apply(self, commands) -> None:
-        for c in commands:
-            if isinstance(c, SetHeading):
-                self.heading_sp = c.heading
-            elif isinstance(c, SetThrust):
-                self.thrust = c.thrust_ratio
-            elif isinstance(c, OverrideActuator) and c.actuator == "rudder":
-                self.rudder_override = c.value
-            elif isinstance(c, ReleaseActuator) and c.actuator == "rudder":
-                self.rudder_override = None
-                self.heading_pi.reset()
-
-    def run(self, behavior, max_s: float, dt: float = 0.05, telemetry_every: int = 2) -> None:
-        steps = 0
-        while not behavior.done and self.vehicle.time_s < max_s:
-            m = self.vehicle.measure() if steps % telemetry_every == 0 else None
-            if m is not None:
-                tel = Telemetry(time_s=round(m.time_s, 6), roll=m.roll, pitch=m.pitch, yaw=m.yaw, yaw_rate=m.yaw_rate,
-                                north=m.north, east=m.east, down=m.depth, depth=m.depth, vel_north=m.vel_north,
-                                vel_east=m.vel_east, vel_down=m.vel_down, rudder=m.rudder, thrust_ratio=m.thrust_ratio,
-                                mode="hold")
-                self.apply(behavior.step(tel))
-            s = self.vehicle.state
-            rudder = (self.rudder_override if self.rudder_override is not None
-                      else self.heading_pi.update(dt, self.heading_sp, s.yaw))
-            elevator = self.depth.update(dt, self.depth_sp, s.depth, s.pitch)
-            self.vehicle.step(dt, sim_vehicle.ActuatorDemand(rudder, elevator, self.thrust, 0.0))
-            steps += 1
-
-
 def test_hugin_square_recovers_current():
     cur = current_vector(0.012, 150.0)
     loop = HuginLoop(cur, seed=5)
