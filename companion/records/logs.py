@@ -10,8 +10,11 @@ Both readers return a :class:`NavLog` of numpy arrays on one time base (vehicle 
 * **MAVLink tlog** (pymavlink ``mavutil.mavlink_connection``): samples at each LOCAL_POSITION_NED
   (time_boot_ms), attitude interpolated from ATTITUDE (yaw unwrapped, interpolated, re-wrapped),
   NED velocity rotated to body axes with that attitude, rudder/thrust from the latest
-  SERVO_OUTPUT_RAW with the ``sim`` profile conversions of docs/PROTOCOL.md
-  (rudder ``(pwm − 1500)/500·0.5236`` rad, thrust ``(pwm − 1000)/1000``).
+  SERVO_OUTPUT_RAW decoded with the vehicle's autopilot profile
+  (:mod:`companion.link.profiles`: which servo output reports each actuator and its PWM → SI
+  mapping; default ``sim``, docs/PROTOCOL.md). A profile that reads no servo output back for an
+  actuator (``ardusub``: mixed thrusters) leaves that channel ``None``; a PWM meaning "no data"
+  (0, 65535, out of range) decodes to NaN.
 
 Errors (missing file or column, empty or malformed file) raise :class:`LogError` with a message
 that names the file and the problem.
@@ -26,6 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from companion.link.profiles import SIM, AutopilotProfile, get_profile
+from companion.numerics.angles import wrap_pi
 from companion.numerics.steady_state import ned_to_body
 
 log = logging.getLogger(__name__)
@@ -34,9 +39,6 @@ __all__ = ["LogError", "NavLog", "read_csv", "read_table_csv", "read_tlog", "rea
 
 REQUIRED_COLUMNS = ("t", "north", "east", "down", "roll", "pitch", "yaw", "u", "v", "w")
 OPTIONAL_COLUMNS = ("rudder", "thrust", "force")
-
-#: docs/PROTOCOL.md, `sim` profile: full-scale fin deflection for ±500 µs
-FIN_FULL_SCALE_RAD = 0.5236
 
 
 class LogError(ValueError):
@@ -138,10 +140,18 @@ def read_csv(path: str) -> NavLog:
     )
 
 
-def read_tlog(path: str) -> NavLog:
-    """Read a MAVLink telemetry log (see the module docstring) with pymavlink."""
+def _resolve_profile(profile: AutopilotProfile | str) -> AutopilotProfile:
+    return get_profile(profile) if isinstance(profile, str) else profile
+
+
+def read_tlog(path: str, profile: AutopilotProfile | str = SIM) -> NavLog:
+    """Read a MAVLink telemetry log (see the module docstring) with pymavlink; actuator PWM is
+    decoded with ``profile`` (an :class:`AutopilotProfile` or its name; default the simulator's)."""
     from pymavlink import mavutil
 
+    profile = _resolve_profile(profile)
+    rudder_output = profile.servo_outputs.get("rudder")
+    thrust_output = profile.servo_outputs.get("thrust")
     _check_file(path)
     try:
         conn = mavutil.mavlink_connection(path, notimestamps=False)
@@ -150,6 +160,7 @@ def read_tlog(path: str) -> NavLog:
     attitude: list[tuple[float, float, float, float]] = []
     position: list[tuple[float, ...]] = []
     servo: list[tuple[float, float, float]] = []
+    nan = math.nan
     try:
         while True:
             msg = conn.recv_match(type=["ATTITUDE", "LOCAL_POSITION_NED", "SERVO_OUTPUT_RAW"], blocking=False)
@@ -163,8 +174,8 @@ def read_tlog(path: str) -> NavLog:
             else:
                 servo.append((
                     msg.time_usec / 1e6,
-                    (msg.servo1_raw - 1500) / 500.0 * FIN_FULL_SCALE_RAD,
-                    (msg.servo3_raw - 1000) / 1000.0,
+                    profile.pwm_to_angle(_servo_raw(msg, rudder_output)) if rudder_output else nan,
+                    profile.pwm_to_thrust(_servo_raw(msg, thrust_output)) if thrust_output else nan,
                 ))
     except Exception as exc:
         raise LogError(f"{path}: malformed MAVLink log ({exc})") from exc
@@ -185,13 +196,14 @@ def read_tlog(path: str) -> NavLog:
     roll = np.interp(t, att[:, 0], att[:, 1])
     pitch = np.interp(t, att[:, 0], att[:, 2])
     yaw_unwrapped = np.interp(t, att[:, 0], np.unwrap(att[:, 3]))
-    yaw = np.arctan2(np.sin(yaw_unwrapped), np.cos(yaw_unwrapped))
+    yaw = wrap_pi(yaw_unwrapped)
     vel_body = ned_to_body(roll, pitch, yaw, pos[:, 4:7])
     rudder = thrust = None
     if servo:
         srv = np.array(sorted(servo))
         idx = np.clip(np.searchsorted(srv[:, 0], t, side="right") - 1, 0, len(srv) - 1)  # latest sample (hold)
-        rudder, thrust = srv[idx, 1], srv[idx, 2]
+        rudder = srv[idx, 1] if rudder_output else None
+        thrust = srv[idx, 2] if thrust_output else None
     return NavLog(
         t=t, north=pos[:, 1], east=pos[:, 2], down=pos[:, 3], roll=roll, pitch=pitch, yaw=yaw,
         u=vel_body[:, 0], v=vel_body[:, 1], w=vel_body[:, 2], rudder=rudder, thrust=thrust,
@@ -199,13 +211,15 @@ def read_tlog(path: str) -> NavLog:
     )
 
 
-def read_log(path: str) -> NavLog:
-    """Read a CSV (``.csv``) or a MAVLink log (anything else: ``.tlog``, ``.bin``…)."""
+def _servo_raw(msg, output: int) -> float:
+    """PWM of servo output ``output`` (1-based) in a SERVO_OUTPUT_RAW; 0 ("no data") when absent
+    (outputs 9-16 are MAVLink 2 extension fields)."""
+    return getattr(msg, f"servo{output}_raw", 0) or 0
+
+
+def read_log(path: str, profile: AutopilotProfile | str = SIM) -> NavLog:
+    """Read a CSV (``.csv``, already in SI units: ``profile`` unused) or a MAVLink log (anything
+    else: ``.tlog``, ``.bin``…, actuators decoded with ``profile``)."""
     if path.lower().endswith(".csv"):
         return read_csv(path)
-    return read_tlog(path)
-
-
-def wrap_angle(angle: float) -> float:
-    """Wrap to (−π, π]."""
-    return math.atan2(math.sin(angle), math.cos(angle))
+    return read_tlog(path, profile)

@@ -36,6 +36,7 @@ import sys
 
 import numpy as np
 
+from companion.link.profiles import PROFILES
 from companion.records.logs import LogError, NavLog, read_log, read_table_csv
 from companion.numerics import lumped
 from companion.numerics.steady_state import (
@@ -59,6 +60,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     parser.add_argument("kind", choices=KINDS, help="which analysis")
     parser.add_argument("--input", "-i", required=True, help="recorded log: .csv or MAVLink .tlog")
+    parser.add_argument("--profile", choices=sorted(PROFILES), default="sim",
+                        help="squares/turns from a tlog: the vehicle's autopilot profile, which decodes the "
+                             "servo PWM into rudder/thrust (default: %(default)s)")
     parser.add_argument("--json", action="store_true", help="machine-readable JSON on stdout")
     parser.add_argument("--plot", metavar="FILE.png", help="write a figure (matplotlib, Agg)")
     parser.add_argument("--t-start", type=float, default=None, help="ignore samples before this time (s)")
@@ -277,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         plot_data: dict = {}
         if kind in ("squares", "turns"):
-            nav = _window(read_log(args.input), args.t_start, args.t_end)
+            nav = _window(read_log(args.input, args.profile), args.t_start, args.t_end)
             if kind == "squares":
                 rate_tol = math.radians(args.rate_tol_deg if args.rate_tol_deg is not None else 0.5)
                 result, mask = analyze_squares(nav, not args.no_cut, rate_tol, args.speed_tol)
