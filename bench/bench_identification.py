@@ -28,19 +28,16 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from companion.procedures.campaign import CampaignConfig, IdentificationCampaign  # noqa: E402
-from companion.procedures.runner import RestorePoint, run_behavior  # noqa: E402
-from sim.linearize import linearized_yaw  # noqa: E402
-from sim.preset import load_preset  # noqa: E402
+from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
+from companion.procedures.runner import RestorePoint, run_behavior
+from sim.linearize import linearized_yaw
+from sim.preset import load_preset
 
 CONFIG = CampaignConfig(axes=("yaw",), step_labels=("constant", "scheduled"))
 
 
 def run_inprocess(seed: int, preset: str) -> dict:
-    from tests.inprocess_link import InProcessLink
+    from harness.inprocess import InProcessLink
 
     link = InProcessLink(preset=preset, seed=seed)
     restore = RestorePoint.capture(link)
@@ -52,7 +49,7 @@ def run_inprocess(seed: int, preset: str) -> dict:
 def run_mavlink(seed: int, preset: str, speedup: float) -> dict:
     from companion.procedures.app import AbortFlag, run_campaign, vehicle_record
     from companion.link.vehicle import VehicleLink
-    from companion.cli.rehearsal import SimulatorProcess
+    from companion.cli.launcher import SimulatorProcess
     from companion.records.store import Store
 
     out = Path(f"/tmp/bench-identification-{seed}")

@@ -12,12 +12,8 @@ import argparse
 import statistics
 import sys
 import time
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from tests.conftest import start_sim  # noqa: E402  (bench scripts may use both sides)
+from harness.simulator import start_sim
 
 
 def measure(speedup: float, seconds: float, transport: str) -> dict:
@@ -54,6 +50,7 @@ def measure(speedup: float, seconds: float, transport: str) -> dict:
                 "param_write_ms": statistics.median(param_ms), "mode_change_ms": statistics.median(mode_ms)}
     finally:
         sim.stop()
+        sim.log_path.unlink(missing_ok=True)
 
 
 def main() -> int:

@@ -1,5 +1,5 @@
 """η-model ranking and LS σ against the Monte-Carlo spread (SPEC C9, §3.8), plus the inertia
-regression over noise levels. Prints numbers; no pass/fail. Run from the repository root:
+regression over noise levels. Prints numbers; no pass/fail.
 
     /tmp/venv/bin/python bench/bench_lumped.py [--runs N]
 """
@@ -8,16 +8,12 @@ from __future__ import annotations
 import argparse
 import collections
 import math
-import os
-import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from companion.numerics import lumped  # noqa: E402
-from tests.test_lumped import ETA, J_LS, K_R, NOISE, _surge_experiment, romeo_points  # noqa: E402
+from companion.numerics import lumped
+from harness.datasets import ETA, J_LS, K_R, NOISE, romeo_points, surge_experiment
 
 
 def eta_models(runs: int, kq: float, k: float, noise: float, label: str) -> None:
@@ -48,7 +44,7 @@ def eta_models(runs: int, kq: float, k: float, noise: float, label: str) -> None
 
 
 def inertia(runs: int) -> None:
-    t, x, u, force = _surge_experiment()
+    t, x, u, force = surge_experiment()
     print(f"== inertia (ROMEO surge: m 675 kg, k 38, k_q 333, f = 35 + 20 sin(ω_opt t), 10 Hz, {runs} runs)")
     for noise in (0.0005, 0.002, 0.01):
         masses, sigmas = [], []

@@ -6,8 +6,8 @@ these rows are the thesis law (``hold_after_change_s = 0``).
 
 ``--hold``: the thesis law against the hold after every change (SeekerConfig.hold_after_change_s,
 the default) at Ts = 1 s and 0.5 s, seeds 1-6, on two harnesses: the closed loop of
-tests/closed_loop.py and the product procedure (companion.procedures.behaviour_procedures.min_speed_procedure over
-tests/inprocess_link.InProcessLink, 100 s settling at 0.70 first). Per seed: final TR after 200 s,
+harness.inprocess.ClosedLoop and the product procedure (companion.procedures.behaviour_procedures.min_speed_procedure
+over harness.inprocess.InProcessLink, 100 s settling at 0.70 first). Per seed: final TR after 200 s,
 settle time, max |depth error| after 5 s, reversals in the last 30 s; and in a separate 300 s run
 whose thrust set-point is kicked to 0.60 at 150 s, the re-convergence time (from the kick to the
 last change before 15 s without one) and the TR at 300 s. No asserts.
@@ -17,21 +17,17 @@ last change before 15 s without one) and the TR at 300 s. No asserts.
 """
 from __future__ import annotations
 
-import os
-import sys
+import argparse
 import time
 from dataclasses import replace
 from unittest import mock
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking  # noqa: E402
-from companion import behavior_runs  # noqa: E402
-from companion.interface import SetThrust  # noqa: E402
-from companion.numerics.fuzzy_seeker import SeekerConfig  # noqa: E402
-from companion.numerics.minspeed import DivePlaneVehicle, minimum_speed  # noqa: E402
-from tests.closed_loop import ClosedLoop  # noqa: E402
-from tests.inprocess_link import InProcessLink  # noqa: E402
+from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking
+from companion.procedures import behaviour_procedures as procedure
+from companion.interface import SetThrust
+from companion.numerics.fuzzy_seeker import SeekerConfig
+from companion.numerics.minspeed import DivePlaneVehicle, minimum_speed
+from harness.inprocess import ClosedLoop, InProcessLink
 
 SEEDS = (1, 2, 3)
 
@@ -116,10 +112,10 @@ def hold_run(harness: str, seed: int, period: float, hold: float, seconds: float
         def product(config: MinSpeedConfig) -> KickedSeeker:
             return make(replace(config, seeker=replace(config.seeker, hold_after_change_s=hold)))
 
-        with mock.patch.object(behavior_runs, "MinSpeedSeeking", product):
-            result = behavior_runs.min_speed_procedure(
+        with mock.patch.object(procedure, "MinSpeedSeeking", product):
+            result = procedure.min_speed_procedure(
                 InProcessLink(seed=seed), lambda: None,
-                behavior_runs.MinSpeedProcedureConfig(duration_s=seconds, period_s=period))
+                procedure.MinSpeedProcedureConfig(duration_s=seconds, period_s=period))
         assert result["status"] == "completed", result.get("abort_reason")
     return made[0]
 
@@ -151,7 +147,9 @@ def _seconds(value: float | None) -> str:
 
 
 def main() -> None:
-    if "--hold" in sys.argv[1:]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--hold", action="store_true", help="the thesis law against the hold after every change")
+    if parser.parse_args().hold:
         start = time.time()
         hold_table()
         print(f"wall time {time.time() - start:.1f} s")

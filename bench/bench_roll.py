@@ -8,18 +8,15 @@ settling time (|φ| < 2.5°) after a 25° kick at rest. No asserts.
 """
 from __future__ import annotations
 
+import argparse
 import math
-import os
-import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from behaviors.roll_stabilisation import RollStabilisation, RollStabilisationConfig  # noqa: E402
-from companion.numerics.roll import RollVehicle, linearise, rate_feedback_gains, seed_gains  # noqa: E402
-from tests.closed_loop import ClosedLoop, settle_time  # noqa: E402
+from behaviors.roll_stabilisation import RollStabilisation, RollStabilisationConfig
+from companion.numerics.roll import RollVehicle, linearise, rate_feedback_gains, seed_gains, settle_time
+from harness.inprocess import ClosedLoop
 
 LAWS = {"open": None, "rate (default)": rate_feedback_gains(linearise(RollVehicle())),
         "seed": seed_gains(linearise(RollVehicle()))}
@@ -48,6 +45,7 @@ def kick(gains, seed: int = 4) -> float:
 
 
 def main() -> None:
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args()  # no options; --help
     start = time.time()
     for disturbance in (0.02, 0.05, 0.1):
         for seed in (3, 7):

@@ -13,10 +13,8 @@ import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("MAVLINK20", "1")
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-
-from conftest import connect_client, start_sim  # noqa: E402
+from harness.mavlink_clients import connect_client  # sets MAVLINK20 before pymavlink is imported
+from harness.simulator import start_sim
 
 
 def _process_cpu_s(pid: int) -> float:

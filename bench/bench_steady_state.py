@@ -1,9 +1,9 @@
 """Accuracy of the steady-state LS (SPEC C8) over seeds, currents 1–20 mm/s in varied directions.
 
-Two sources: (1) the synthetic kinematic vehicle of ``tests/test_steady_state.py`` (position noise
+Two sources: (1) the synthetic kinematic vehicle of ``harness/datasets.py`` (position noise
 0.2 m, DVL-like velocity noise 5 mm/s, transients in every turn) and (2) the simulator's ``hugin``
 preset in-process, driven by the behaviours (sim sensor noise: position 0.07 m, velocity 0.01 m/s).
-Prints the errors; no pass/fail. Run from the repository root:
+Prints the errors; no pass/fail.
 
     /tmp/venv/bin/python bench/bench_steady_state.py [--seeds N] [--sim-seeds M]
 """
@@ -11,28 +11,19 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
-import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from behaviors.steady_state import SquareConfig, SquarePattern, SteadyTurns, TurnConfig  # noqa: E402
-from companion.numerics.steady_state import (  # noqa: E402
+from behaviors.steady_state import SquareConfig, SquarePattern, SteadyTurns, TurnConfig
+from companion.numerics.steady_state import (
     fit_steady_turn,
     fit_straight_legs,
     steady_straight_mask,
     steady_turn_mask,
 )
-from tests.test_steady_state import (  # noqa: E402
-    HuginLoop,
-    angle_error_deg,
-    current_vector,
-    synth_square,
-    synth_turn,
-)
+from harness.datasets import angle_error_deg, current_vector, synth_square, synth_turn
+from harness.inprocess import HuginLoop
 
 
 def summary(name: str, values) -> str:
