@@ -13,6 +13,7 @@ from typing import Sequence
 import numpy as np
 from scipy.signal import savgol_filter
 
+from behaviors.base import Behaviour, Footprint, Status
 from companion.interface import Command, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.angles import wrap_pi
 
@@ -64,11 +65,13 @@ def step_metrics(times: Sequence[float], heading: Sequence[float], start: float,
     return {"overshoot_pct": overshoot, "rise_time_s": rise}
 
 
-class HeadingStepTest:
+class HeadingStepTest(Behaviour):
     """Write ``gains`` (neutral names), settle at ``thrust``, then step +step and back."""
 
     def __init__(self, thrust: float, gains: dict[str, float] | None, config: StepTestConfig = StepTestConfig(),
                  label: str = "") -> None:
+        super().__init__(f"heading steps {label}".strip())
+        self.footprint = Footprint.of(parameters=tuple(gains or {}), setpoints=("mode", "thrust", "heading"))
         self.thrust = thrust
         self.gains = dict(gains or {})
         self.config = config
@@ -81,12 +84,10 @@ class HeadingStepTest:
         self._unwrap_offset = 0.0
         self.series: dict[str, list[float]] = {"time": [], "heading": [], "target": [], "rudder": [], "speed": []}
         self.steps: list[dict] = []
-        self._done = False
-        self.aborted = False
 
     @property
-    def done(self) -> bool:
-        return self._done
+    def aborted(self) -> bool:
+        return self.status is Status.ABORTED
 
     def _unwrapped(self, yaw: float) -> float:
         if not math.isnan(self._unwrap_ref):
@@ -98,8 +99,8 @@ class HeadingStepTest:
         self._unwrap_ref = yaw
         return yaw + self._unwrap_offset
 
-    def step(self, telemetry: Telemetry) -> Sequence[Command]:
-        if self._done or not telemetry.finite("yaw"):
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
+        if not telemetry.finite("yaw"):
             return []
         now = telemetry.time_s
         heading = self._unwrapped(telemetry.yaw)
@@ -126,7 +127,7 @@ class HeadingStepTest:
             commands += self._begin("down", now, self._course)
         elif self._phase == "down" and elapsed >= self.config.hold_s:
             self._score(self._course + self.config.step, self._course)
-            self._done = True
+            self.finish(Status.SUCCESS)
         return commands
 
     def _begin(self, phase: str, now: float, target: float) -> list[Command]:
@@ -141,9 +142,9 @@ class HeadingStepTest:
         metrics.update(step_deg=math.degrees(target - start), speed=float(np.mean(speeds)) if speeds else math.nan)
         self.steps.append(metrics)
 
-    def abort(self, reason: str) -> Sequence[Command]:
-        self._done = True
-        self.aborted = True
+    def terminate(self, status: Status) -> Sequence[Command]:
+        if status is not Status.ABORTED:
+            return []
         return [SetHeading(wrap_pi(self._course))] if math.isfinite(self._course) else []
 
     def result(self) -> dict:

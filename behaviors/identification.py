@@ -25,6 +25,7 @@ import math
 from dataclasses import asdict, dataclass, field, replace
 from typing import Callable, Sequence
 
+from behaviors.base import Behaviour, Footprint, Status
 from companion.interface import (
     Command,
     NamedValue,
@@ -33,7 +34,7 @@ from companion.interface import (
     StatusText,
     Telemetry,
 )
-from companion.numerics.identification import ConvergenceRule, PitchIdentifier, YawIdentifier
+from companion.numerics.identification import ConvergenceRule, PitchIdentifier, PitchModel, YawIdentifier, YawModel
 from companion.numerics.validation import validate_pitch, validate_yaw
 
 log = logging.getLogger(__name__)
@@ -94,6 +95,35 @@ def doublet(t_rel: float, start_s: float, period_s: float, amplitude: float) -> 
 
 
 @dataclass
+class IdentificationAttempt:
+    """One training + validation of one axis at one thrust (SPEC C4): stored as a run, and as a
+    model when accepted. ``training`` and ``validation`` hold the recorded series (for the report)."""
+
+    attempt: int
+    axis: str
+    thrust: float | None
+    speed: float  # m/s, mean water speed during training (NaN when not reported)
+    model: YawModel | PitchModel
+    r2: float
+    accepted: bool
+    converged: bool
+    converged_s: float | None
+    criterion_met_from_s: float | None
+    training_s: float
+    samples: int
+    training: dict = field(default_factory=dict, repr=False)
+    validation: dict = field(default_factory=dict, repr=False)
+
+    def summary(self) -> dict:
+        """The figures without the series and the covariance (JSON summaries, progress lines)."""
+        model = {k: v for k, v in vars(self.model).items() if k != "covariance"}
+        return {"attempt": self.attempt, "axis": self.axis, "thrust": self.thrust, "speed": self.speed,
+                "model": model, "r2": self.r2, "accepted": self.accepted, "converged": self.converged,
+                "converged_s": self.converged_s, "criterion_met_from_s": self.criterion_met_from_s,
+                "training_s": self.training_s, "samples": self.samples}
+
+
+@dataclass
 class _Record:
     time: list[float] = field(default_factory=list)
     signal: list[float] = field(default_factory=list)  # heading (rad, as reported) or pitch
@@ -105,13 +135,17 @@ class _Record:
         self.actuator.append(actuator)
 
 
-class IdentificationManoeuvre:
-    """SPEC C4 at one thrust: settle, train (online), resettle, validate, accept or repeat."""
+class IdentificationManoeuvre(Behaviour):
+    """SPEC C4 at one thrust: settle, train (online), resettle, validate, accept or repeat.
+
+    Ends in SUCCESS with an accepted model, FAILURE when no attempt passed validation."""
 
     def __init__(self, config: ManoeuvreConfig = ManoeuvreConfig(), *, thrust: float | None = None,
                  status_prefix: str = "") -> None:
         if config.axis not in ("yaw", "pitch"):
             raise ValueError(f"axis must be 'yaw' or 'pitch', not {config.axis!r}")
+        super().__init__(f"{config.axis} identification")
+        self.footprint = Footprint.of(setpoints=(config.actuator,))
         self.config = config
         self.thrust = thrust
         self._prefix = status_prefix
@@ -120,7 +154,7 @@ class IdentificationManoeuvre:
         self._settle_s = config.settle_s
         self._trim: float = 0.0
         self.attempt = 0
-        self.attempts: list[dict] = []
+        self.attempts: list[IdentificationAttempt] = []
         self._identifier = None
         self._training = _Record()
         self._validation = _Record()
@@ -129,20 +163,20 @@ class IdentificationManoeuvre:
         self._overriding = False
         self._training_time_s = math.nan
         self.outcome: str | None = None  # "accepted", "rejected", "aborted"
-        self.abort_reason: str | None = None
 
-    # ------------------------------------------------------------------ protocol
     @property
-    def done(self) -> bool:
-        return self.stage == DONE
+    def abort_reason(self) -> str | None:
+        return self.reason if self.status is Status.ABORTED else None
 
-    def step(self, telemetry: Telemetry) -> Sequence[Command]:
-        if self.done:
-            return []
+    # ------------------------------------------------------------------ lifecycle
+    def initialise(self, telemetry: Telemetry) -> Sequence[Command]:
+        self._stage_start = telemetry.time_s
+        return [self._status(f"settling {self.config.settle_s:.0f} s")]
+
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
         now = telemetry.time_s
-        if self._stage_start is None:
-            self._stage_start = now
-            return [self._status(f"settling {self.config.settle_s:.0f} s")]
+        if now == self._stage_start and self.stage == SETTLE and not self.attempts:
+            return []  # the first snapshot only starts the settle (initialise)
         t_rel = now - self._stage_start
         if self.stage == SETTLE:
             return self._step_settle(telemetry, t_rel)
@@ -157,8 +191,10 @@ class IdentificationManoeuvre:
             return self._step_validate(telemetry, t_rel)
         return []
 
-    def abort(self, reason: str) -> Sequence[Command]:
-        self.abort_reason = reason
+    def terminate(self, status: Status) -> Sequence[Command]:
+        """An abort releases the actuator (every stage already releases it before it ends)."""
+        if status is not Status.ABORTED:
+            return []
         self.outcome = "aborted"
         self.stage = DONE
         self._overriding = False
@@ -249,33 +285,24 @@ class IdentificationManoeuvre:
         r2 = self._score(model)
         accepted = math.isfinite(r2) and r2 >= self.config.r2_threshold
         speed = sum(self._speeds) / len(self._speeds) if self._speeds else math.nan
-        self.attempts.append(
-            {
-                "attempt": self.attempt,
-                "axis": self.config.axis,
-                "thrust": self.thrust,
-                "speed": speed,
-                "model": _model_dict(model),
-                "r2": r2,
-                "accepted": accepted,
-                "converged": bool(self._identifier.converged),
-                "converged_s": self._converged_s(),
-                "criterion_met_from_s": getattr(self._identifier, "criterion_met_from_s", None),
-                "training_s": self._training_time_s,
-                "samples": len(self._training.time),
-                "training": self._series(self._training, history=True),
-                "validation": self._series(self._validation, model=model),
-            }
-        )
+        self.attempts.append(IdentificationAttempt(
+            attempt=self.attempt, axis=self.config.axis, thrust=self.thrust, speed=speed, model=model, r2=r2,
+            accepted=accepted, converged=bool(self._identifier.converged), converged_s=self._converged_s(),
+            criterion_met_from_s=getattr(self._identifier, "criterion_met_from_s", None),
+            training_s=self._training_time_s, samples=len(self._training.time),
+            training=self._series(self._training, history=True),
+            validation=self._series(self._validation, model=model)))
         self._validation = _Record()
         verdict = "accepted" if accepted else "rejected"
         commands: list[Command] = [self._status(f"validation R2 {r2:.3f}: {verdict}")]
         if accepted:
             self.outcome = "accepted"
             self.stage = DONE
+            self.finish(Status.SUCCESS)
         elif self.attempt >= self.config.max_attempts:
             self.outcome = "rejected"
             self.stage = DONE
+            self.finish(Status.FAILURE, f"no model passed validation after {self.attempt} attempts")
             commands.append(self._status(f"no model passed validation after {self.attempt} attempts", 4))
         else:  # repeat from the training stage after a short resettle (bounded by max_attempts)
             self._settle_s = self.config.resettle_s
@@ -320,17 +347,24 @@ class IdentificationManoeuvre:
     def _status(self, text: str, severity: int = 6) -> StatusText:
         return StatusText(f"{self._prefix}{self.config.axis}: {text}", severity)
 
+    @property
+    def best(self) -> IdentificationAttempt | None:
+        """The accepted attempt, else the one with the highest R² (None before any attempt)."""
+        accepted = [a for a in self.attempts if a.accepted]
+        if accepted:
+            return accepted[-1]
+        return max(self.attempts, key=lambda a: _nan_low(a.r2)) if self.attempts else None
+
     def result(self) -> dict:
-        accepted = [a for a in self.attempts if a["accepted"]]
-        best = accepted[-1] if accepted else (max(self.attempts, key=lambda a: _nan_low(a["r2"])) if self.attempts else None)
+        best = self.best
         return {
             "axis": self.config.axis,
             "thrust": self.thrust,
             "outcome": self.outcome,
             "abort_reason": self.abort_reason,
             "config": asdict(self.config),
-            "attempts": self.attempts,
-            "best": best,
+            "attempts": [a.summary() for a in self.attempts],
+            "best": best.summary() if best is not None else None,
         }
 
 

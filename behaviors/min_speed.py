@@ -77,6 +77,7 @@ from typing import Sequence
 import numpy as np
 
 from companion.interface import Command, NamedValue, SetThrust, StatusText, Telemetry
+from behaviors.base import Behaviour, Footprint, Status
 from companion.numerics.fuzzy_seeker import LowPass, SeekerConfig, decide, hold_decision, next_thrust
 from companion.numerics.minspeed import THRUST_DEAD_ZONE
 
@@ -101,10 +102,13 @@ class MinSpeedConfig:
     duration_s: float | None = None  # None: seek until aborted
 
 
-class MinSpeedSeeking:
-    """The minimum-speed seeker as a :class:`companion.interface.Behavior`."""
+class MinSpeedSeeking(Behaviour):
+    """The minimum-speed seeker."""
+
+    footprint = Footprint.of(setpoints=("thrust",))
 
     def __init__(self, config: MinSpeedConfig = MinSpeedConfig()) -> None:
+        super().__init__("minimum-speed seeking")
         self.config = config
         self._theta_filter = LowPass(config.seeker)
         self._delta_filter = LowPass(config.seeker)
@@ -118,9 +122,6 @@ class MinSpeedSeeking:
         self._next_decision = math.nan
         self._last_change = -math.inf  # vehicle time of the last set-point change by a decision
         self.thrust_ratio = config.nominal_thrust
-        self._done = False
-        self.aborted = False
-        self.abort_reason = ""
         self.series: dict[str, list[float]] = {
             name: []
             for name in ("time", "thrust_ratio", "thrust_setpoint", "speed", "pitch", "pitch_desired",
@@ -130,19 +131,18 @@ class MinSpeedSeeking:
 
     # ------------------------------------------------------------------ Behavior protocol
     @property
-    def done(self) -> bool:
-        return self._done
+    def aborted(self) -> bool:
+        return self.status is Status.ABORTED
 
-    def abort(self, reason: str) -> Sequence[Command]:
-        """Stop seeking and give the vehicle back its nominal thrust."""
-        self._done = True
-        self.aborted = True
-        self.abort_reason = reason
-        log.info("minimum-speed seeking aborted: %s", reason)
-        return [SetThrust(self.config.nominal_thrust), StatusText(f"minspeed aborted: {reason}"[:50], 4)]
+    def terminate(self, status: Status) -> Sequence[Command]:
+        """An abort gives the vehicle back its nominal thrust."""
+        if status is not Status.ABORTED:
+            return []
+        log.info("minimum-speed seeking aborted: %s", self.reason)
+        return [SetThrust(self.config.nominal_thrust), StatusText(f"minspeed aborted: {self.reason}"[:50], 4)]
 
-    def step(self, telemetry: Telemetry) -> Sequence[Command]:
-        if self._done or not telemetry.finite("pitch", "depth"):
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
+        if not telemetry.finite("pitch", "depth"):
             return []
         cfg = self.config
         now = telemetry.time_s
@@ -172,7 +172,8 @@ class MinSpeedSeeking:
             commands.append(NamedValue("MS_TR", self.thrust_ratio))
         self._record(telemetry, elapsed, theta_d, theta_e_f, delta_f, decision if decided else math.nan)
         if cfg.duration_s is not None and elapsed >= cfg.duration_s:
-            self._done = True
+            self.finish(Status.SUCCESS if self.decisions else Status.FAILURE,
+                        None if self.decisions else "no seeking decision was made")
             commands.append(StatusText(f"minspeed: done, TR {self.thrust_ratio:.2f}"))
         return commands
 
@@ -263,7 +264,7 @@ class MinSpeedSeeking:
         return {
             "behavior": "min_speed",
             "aborted": self.aborted,
-            "abort_reason": self.abort_reason,
+            "abort_reason": self.reason or "",
             "thrust_ratio_final": self.thrust_ratio,
             "speed_final": float(np.mean(tail_speed)) if len(tail_speed) else None,
             "settle_time_s": self.settle_time(),

@@ -10,42 +10,35 @@ from typing import Sequence
 
 import numpy as np
 
+from behaviors.base import Behaviour, Status
+from behaviors.sequence import footprint_of_commands
 from companion.interface import Command, Telemetry
 
 
-class Observe:
+class Observe(Behaviour):
     def __init__(self, duration_s: float, fields: Sequence[str] = ("roll",), commands: Sequence[Command] = (),
                  label: str = "observe") -> None:
+        super().__init__(label)
         self.duration_s = duration_s
         self.fields = tuple(fields)
         self.commands = list(commands)
         self.label = label
+        self.footprint = footprint_of_commands(self.commands)
         self.series: dict[str, list[float]] = {"time": [], **{name: [] for name in self.fields}}
-        self._start: float | None = None
-        self._done = False
-        self.aborted = False
 
     @property
-    def done(self) -> bool:
-        return self._done
+    def aborted(self) -> bool:
+        return self.status is Status.ABORTED
 
-    def step(self, telemetry: Telemetry) -> Sequence[Command]:
-        if self._done:
-            return []
-        commands: list[Command] = []
-        if self._start is None:
-            self._start = telemetry.time_s
-            commands = list(self.commands)
+    def initialise(self, telemetry: Telemetry) -> Sequence[Command]:
+        return list(self.commands)
+
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
         self.series["time"].append(telemetry.time_s)
         for name in self.fields:
             self.series[name].append(getattr(telemetry, name))
-        if telemetry.time_s - self._start >= self.duration_s:
-            self._done = True
-        return commands
-
-    def abort(self, reason: str) -> Sequence[Command]:
-        self._done = True
-        self.aborted = True
+        if telemetry.time_s - self.start_time_s >= self.duration_s:
+            self.finish(Status.SUCCESS)
         return []
 
     def std_deg(self, name: str) -> float:

@@ -20,6 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
+from behaviors.base import Behaviour, Footprint, Status
 from companion.interface import Command, SetRollingMass, StatusText, Telemetry
 from companion.numerics.roll import RollPI, RollPIGains, RollVehicle, linearise, rate_feedback_gains
 
@@ -38,42 +39,41 @@ class RollStabilisationConfig:
     stats_after_s: float = 10.0  # roll/mass statistics skip the switch-on transient (steady state, Table 4.3)
 
 
-class RollStabilisation:
-    """Roll PI on the rolling mass as a :class:`companion.interface.Behavior`."""
+class RollStabilisation(Behaviour):
+    """Roll PI on the rolling mass."""
+
+    footprint = Footprint.of(setpoints=("rolling_mass",))
 
     def __init__(self, config: RollStabilisationConfig = RollStabilisationConfig()) -> None:
+        super().__init__("roll stabilisation")
         self.config = config
         self.controller = RollPI(config.gains)
         self._start: float | None = None
         self._last_sent = math.nan
         self._samples = 0
-        self._done = False
-        self.aborted = False
-        self.abort_reason = ""
         self.series: dict[str, list[float]] = {"time": [], "roll": [], "mass_command": [], "mass_angle": []}
         self._roll_all: list[float] = []
         self._command_all: list[float] = []
 
     @property
-    def done(self) -> bool:
-        return self._done
-
-    @property
-    def start_time_s(self) -> float | None:
-        """Vehicle time of the first sample (the series' times are relative to it)."""
+    def first_sample_time_s(self) -> float | None:
+        """Vehicle time of the first sample with a roll angle (the series' times are relative to it)."""
         return self._start
 
-    def abort(self, reason: str) -> Sequence[Command]:
-        """Stop and centre the mass."""
-        self._done = True
-        self.aborted = True
-        self.abort_reason = reason
-        logging.getLogger(__name__).info("roll stabilisation aborted: %s", reason)
-        self._last_sent = 0.0
-        return [SetRollingMass(0.0), StatusText(f"roll stab aborted: {reason}"[:50], 4)]
+    @property
+    def aborted(self) -> bool:
+        return self.status is Status.ABORTED
 
-    def step(self, telemetry: Telemetry) -> Sequence[Command]:
-        if self._done or not telemetry.finite("roll"):
+    def terminate(self, status: Status) -> Sequence[Command]:
+        """An abort centres the mass (a completed run leaves it to the next step)."""
+        if status is not Status.ABORTED:
+            return []
+        logging.getLogger(__name__).info("roll stabilisation aborted: %s", self.reason)
+        self._last_sent = 0.0
+        return [SetRollingMass(0.0), StatusText(f"roll stab aborted: {self.reason}"[:50], 4)]
+
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
+        if not telemetry.finite("roll"):
             return []
         now = telemetry.time_s
         commands: list[Command] = []
@@ -99,7 +99,7 @@ class RollStabilisation:
             s["mass_angle"].append(telemetry.mass_angle)
         self._samples += 1
         if self.config.duration_s is not None and elapsed >= self.config.duration_s:
-            self._done = True
+            self.finish(Status.SUCCESS)
         return commands
 
     def result(self) -> dict:
@@ -117,7 +117,7 @@ class RollStabilisation:
         return {
             "behavior": "roll_stabilisation",
             "aborted": self.aborted,
-            "abort_reason": self.abort_reason,
+            "abort_reason": self.reason or "",
             "samples": int(len(roll)),
             "roll_mean_deg": stat(roll, np.mean),
             "roll_std_deg": stat(roll, np.std),

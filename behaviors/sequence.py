@@ -1,94 +1,140 @@
-"""Run behaviours one after another, as one behaviour (the campaign is built from these).
+"""Behaviours one after another, as one behaviour; and the one-shot :class:`Instant`.
 
-Items are behaviours or zero-argument factories that build the next behaviour when its turn comes
-(so a later step can use what earlier steps found, e.g. gains designed from accepted models).
-A factory may return None to skip its step. ``abort`` aborts the running item only.
+A procedure is a :class:`SequenceBehavior` run by one runner under one restore point
+(``companion.procedures.runner``). Items are behaviours or :class:`Deferred` steps: a factory that
+builds the next behaviour when its turn comes (so a later step can use what earlier steps found,
+e.g. gains designed from accepted models), with the footprint it declares in advance (the restore
+point is taken before the factory runs). A factory may return None to skip its step.
+
+A child that ends in FAILURE does not stop the sequence unless ``stop_on_failure`` is set (a
+campaign goes on to the next thrust when one thrust yields no model); ``stop`` aborts the running
+child only.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable, Iterable, Sequence, Union
 
-from companion.interface import Behavior, Command, Telemetry
+from behaviors.base import Behaviour, Footprint, Status, footprint_of
+from companion.interface import (
+    Command,
+    OverrideActuator,
+    SetDepth,
+    SetHeading,
+    SetMode,
+    SetParameters,
+    SetRollingMass,
+    SetThrust,
+    Telemetry,
+)
 
-Item = Union[Behavior, Callable[[], "Behavior | None"]]
+
+def footprint_of_commands(commands: Iterable[Command]) -> Footprint:
+    """The parameters and set-points a list of commands changes."""
+    parameters: set[str] = set()
+    setpoints: set[str] = set()
+    for command in commands:
+        if isinstance(command, SetParameters):
+            parameters |= set(command.values)
+        elif isinstance(command, SetMode):
+            setpoints.add("mode")
+        elif isinstance(command, SetThrust):
+            setpoints.add("thrust")
+        elif isinstance(command, SetHeading):
+            setpoints.add("heading")
+        elif isinstance(command, SetDepth):
+            setpoints.add("depth")
+        elif isinstance(command, SetRollingMass):
+            setpoints.add("rolling_mass")
+        elif isinstance(command, OverrideActuator):
+            setpoints.add(command.actuator)
+    return Footprint.of(parameters, setpoints)
 
 
-class Instant:
-    """A behaviour that sends some commands once and is done (mode, set-points, parameters).
+class Instant(Behaviour):
+    """Sends some commands once and is done (mode, set-points, parameters).
 
-    ``make``, if given, builds further commands from the snapshot it is stepped with (e.g. gains
-    for the speed measured at that moment)."""
+    ``make``, if given, builds further commands from the snapshot it is ticked with (e.g. gains for
+    the speed measured at that moment); what those may touch is declared with ``touches``."""
 
     def __init__(self, *commands: Command, name: str = "instant",
-                 make: Callable[[Telemetry], Sequence[Command]] | None = None) -> None:
+                 make: Callable[[Telemetry], Sequence[Command]] | None = None,
+                 touches: Footprint = Footprint()) -> None:
+        super().__init__(name)
         self.commands = list(commands)
-        self.name = name
         self.make = make
-        self._done = False
+        self.footprint = footprint_of_commands(self.commands) | touches
 
-    @property
-    def done(self) -> bool:
-        return self._done
-
-    def step(self, telemetry: Telemetry) -> Sequence[Command]:
-        self._done = True
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
+        self.finish(Status.SUCCESS)
         return self.commands + (list(self.make(telemetry)) if self.make is not None else [])
 
-    def abort(self, reason: str) -> Sequence[Command]:
-        self._done = True
-        return []
 
-    def result(self) -> dict:
-        return {"name": self.name}
+@dataclass(frozen=True)
+class Deferred:
+    """A step built when its turn comes; ``footprint`` declares what the built behaviour may touch."""
+
+    factory: Callable[[], "Behaviour | None"]
+    footprint: Footprint = Footprint()
 
 
-class SequenceBehavior:
-    """Behaviours in order; ``on_complete(behavior)`` is called as each one finishes."""
+Item = Union[Behaviour, Deferred]
 
-    def __init__(self, items: Iterable[Item], on_complete: Callable[[Behavior], None] | None = None) -> None:
+
+class SequenceBehavior(Behaviour):
+    """Behaviours in order; ``on_complete(behaviour)`` is called as each one finishes."""
+
+    def __init__(self, items: Iterable[Item], on_complete: Callable[[Behaviour], None] | None = None, *,
+                 name: str = "sequence", stop_on_failure: bool = False) -> None:
+        super().__init__(name)
         self._items = list(items)
+        for item in self._items:
+            if not isinstance(item, (Behaviour, Deferred)):
+                raise TypeError(f"a sequence holds behaviours or Deferred steps, not {type(item).__name__}")
+        self.footprint = Footprint.union(footprint_of(item) for item in self._items)
         self._index = -1
-        self._current: Behavior | None = None
+        self._current: Behaviour | None = None
         self._on_complete = on_complete
-        self.completed: list[Behavior] = []
-        self.aborted = False
+        self.stop_on_failure = stop_on_failure
+        self.completed: list[Behaviour] = []
 
     @property
-    def done(self) -> bool:
-        return self.aborted or (self._current is None and self._index >= len(self._items) - 1)
-
-    @property
-    def current(self) -> Behavior | None:
+    def current(self) -> Behaviour | None:
         return self._current
 
     def _advance(self) -> None:
         while self._current is None and self._index < len(self._items) - 1:
             self._index += 1
             item = self._items[self._index]
-            behavior = item if hasattr(item, "step") else item()
-            self._current = behavior
+            self._current = item.factory() if isinstance(item, Deferred) else item
 
-    def step(self, telemetry: Telemetry) -> Sequence[Command]:
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
         commands: list[Command] = []
         self._advance()
         while self._current is not None:
-            commands += self._current.step(telemetry)
+            commands += self._current.tick(telemetry)
             if not self._current.done:
                 break
             finished, self._current = self._current, None
             self.completed.append(finished)
             if self._on_complete is not None:
                 self._on_complete(finished)
+            if self.stop_on_failure and finished.status is not Status.SUCCESS:
+                self.finish(Status.FAILURE, f"{finished.name}: {finished.reason or finished.status.value}")
+                return commands
             self._advance()
             if self._current is not None and not isinstance(self._current, Instant):
                 break  # a real behaviour starts on the next snapshot
+        if self._current is None and self._index >= len(self._items) - 1:
+            self.finish(Status.SUCCESS)
         return commands
 
-    def abort(self, reason: str) -> Sequence[Command]:
-        self.aborted = True
-        commands = list(self._current.abort(reason)) if self._current is not None else []
-        self._current = None
-        return commands
+    def terminate(self, status: Status) -> Sequence[Command]:
+        if status is Status.ABORTED and self._current is not None:
+            current, self._current = self._current, None
+            return current.stop(self.reason or "aborted")
+        return []
 
     def result(self) -> dict:
-        return {"steps": [b.result() for b in self.completed], "aborted": self.aborted}
+        return {"name": self.name, "status": self.status.value, "reason": self.reason,
+                "steps": [b.result() for b in self.completed]}

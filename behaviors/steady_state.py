@@ -23,6 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
+from behaviors.base import Behaviour, Footprint, Status
 from companion.interface import (
     Command,
     ReleaseActuator,
@@ -46,7 +47,6 @@ from companion.numerics.steady_state import (
 
 log = logging.getLogger(__name__)
 
-_NEUTRAL_MODES = ("manual", "hold", "guided")
 _NAV_FIELDS = ("north", "east", "down", "roll", "pitch", "yaw", "vel_north", "vel_east", "vel_down")
 
 
@@ -88,13 +88,6 @@ class _StartState:
             commands.append(SetDepth(depth))
         return start, commands
 
-    def restore(self) -> list[Command]:
-        commands: list[Command] = [SetHeading(self.heading)]
-        if math.isfinite(self.thrust_ratio):
-            commands.append(SetThrust(self.thrust_ratio))
-        if self.mode in _NEUTRAL_MODES and self.mode != "hold":
-            commands.append(SetMode(self.mode))
-        return commands
 
 
 # --------------------------------------------------------------------------- squares
@@ -113,21 +106,19 @@ class SquareConfig:
     min_leg_s: float = 20.0
 
 
-class SquarePattern:
+class SquarePattern(Behaviour):
     """Square pattern at fixed thrust in the holding mode; fits eq. 7–8 at the end (SPEC C8)."""
 
+    footprint = Footprint.of(setpoints=("mode", "thrust", "heading", "depth"))
+
     def __init__(self, config: SquareConfig | None = None) -> None:
+        super().__init__("squares")
         self.config = config or SquareConfig()
         self._start: _StartState | None = None
         self._leg = -1
-        self._done = False
         self._status = "pending"
         self._recorder = _Recorder([])
         self._result: dict = {}
-
-    @property
-    def done(self) -> bool:
-        return self._done
 
     def leg_heading(self, leg: int) -> float:
         assert self._start is not None
@@ -135,9 +126,7 @@ class SquarePattern:
         step = math.pi / 2 if self.config.clockwise else -math.pi / 2
         return wrap_pi(base + leg * step)
 
-    def step(self, telemetry: Telemetry) -> Sequence[Command]:
-        if self._done:
-            return []
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
         commands: list[Command] = []
         cfg = self.config
         if self._start is None:
@@ -151,7 +140,6 @@ class SquarePattern:
         if elapsed >= cfg.legs * cfg.leg_s:
             self._recorder.add(telemetry)
             self._finish()
-            commands.extend(self._start.restore())
             commands.append(StatusText(f"squares: {self._status}"))
             return commands
         leg = int(elapsed // cfg.leg_s)
@@ -164,24 +152,24 @@ class SquarePattern:
         return commands
 
     def _finish(self) -> None:
-        self._done = True
         try:
             self._result = analyse_square(self._recorder.arrays(), self.config)
             self._status = "completed"
+            self.finish(Status.SUCCESS)
         except ValueError as exc:
             self._status = "failed"
             self._result = {"error": str(exc)}
             log.warning("square pattern fit failed: %s", exc)
+            self.finish(Status.FAILURE, str(exc))
 
-    def abort(self, reason: str) -> Sequence[Command]:
-        was_running = self._start is not None and not self._done
-        self._done = True
+    def terminate(self, status: Status) -> Sequence[Command]:
+        if status is not Status.ABORTED:
+            return []
+        was_running = self._status == "running"
         if self._status in ("pending", "running"):
             self._status = "aborted"
-            self._result = {"error": f"aborted: {reason}"}
-        if not was_running or self._start is None:
-            return []
-        return [*self._start.restore(), StatusText(f"squares aborted: {reason}", severity=4)]
+            self._result = {"error": f"aborted: {self.reason}"}
+        return [StatusText(f"squares aborted: {self.reason}", severity=4)] if was_running else []
 
     def data(self) -> dict[str, np.ndarray]:
         """The navigation samples recorded on the legs (arrays t, north, east, … as analysed)."""
@@ -220,13 +208,15 @@ class TurnConfig:
     min_steady_s: float = 30.0
 
 
-class SteadyTurns:
+class SteadyTurns(Behaviour):
     """Rudder held at fixed angles (RC override, depth still held); fits eq. 9–10 per angle."""
 
+    footprint = Footprint.of(setpoints=("mode", "thrust", "heading", "depth", "rudder"))
+
     def __init__(self, config: TurnConfig | None = None) -> None:
+        super().__init__("turns")
         self.config = config or TurnConfig()
         self._start: _StartState | None = None
-        self._done = False
         self._status = "pending"
         self._index = -1
         self._phase = ""
@@ -234,13 +224,7 @@ class SteadyTurns:
         self._recorders: list[_Recorder] = [_Recorder([]) for _ in self.config.rudder_angles]
         self._turns: list[dict] = []
 
-    @property
-    def done(self) -> bool:
-        return self._done
-
-    def step(self, telemetry: Telemetry) -> Sequence[Command]:
-        if self._done:
-            return []
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
         cfg = self.config
         commands: list[Command] = []
         if self._start is None:
@@ -263,8 +247,7 @@ class SteadyTurns:
                 commands.extend(self._begin_turn(self._index + 1, telemetry.time_s))
             else:
                 self._finish()
-                commands.extend(self._start.restore())
-                commands.append(StatusText(f"turns: {self._status}"))
+                commands += [SetHeading(self._start.heading), StatusText(f"turns: {self._status}")]
         return commands
 
     def _begin_turn(self, index: int, time_s: float) -> list[Command]:
@@ -274,7 +257,6 @@ class SteadyTurns:
                 StatusText(f"turns: {index + 1}/{len(self.config.rudder_angles)} rudder {math.degrees(angle):+.1f} deg")]
 
     def _finish(self) -> None:
-        self._done = True
         ok = 0
         for angle, recorder in zip(self.config.rudder_angles, self._recorders):
             entry: dict = {"rudder_rad": angle, "rudder_deg": math.degrees(angle)}
@@ -286,15 +268,20 @@ class SteadyTurns:
                 log.warning("turn fit (rudder %.3f rad) failed: %s", angle, exc)
             self._turns.append(entry)
         self._status = "completed" if ok == len(self._recorders) else ("partial" if ok else "failed")
+        if ok:
+            self.finish(Status.SUCCESS)
+        else:
+            self.finish(Status.FAILURE, "no turn could be fitted")
 
-    def abort(self, reason: str) -> Sequence[Command]:
-        was_running = self._start is not None and not self._done
-        self._done = True
+    def terminate(self, status: Status) -> Sequence[Command]:
+        if status is not Status.ABORTED:
+            return []
+        was_running = self._status == "running"
         if self._status in ("pending", "running"):
             self._status = "aborted"
-        if not was_running or self._start is None:
+        if not was_running:
             return []
-        return [ReleaseActuator("rudder"), *self._start.restore(), StatusText(f"turns aborted: {reason}", severity=4)]
+        return [ReleaseActuator("rudder"), StatusText(f"turns aborted: {self.reason}", severity=4)]
 
     def data(self) -> list[dict[str, np.ndarray]]:
         """The navigation samples recorded in each turn, in the order of ``rudder_angles``."""
