@@ -12,12 +12,18 @@ import time
 
 import pytest
 
+from dataclasses import replace
+
+from behaviors.identification import IdentificationAttempt
+from companion.numerics.identification import YawModel
+from companion.records.serialise import to_json
 from companion.records.store import MIGRATIONS, Store
 
-ATTEMPT = {"axis": "yaw", "thrust": 0.7, "attempt": 1, "speed": 1.39, "r2": 0.98, "accepted": True,
-           "converged_s": 12.1, "training_s": 12.1, "samples": 242,
-           "model": {"a22": -1.05, "b2": 0.86, "delta0": 0.01, "covariance": [[1e-4, 0.0], [0.0, 1e-4]]},
-           "training": {"time": [0.0, 0.05], "history": {"a22": [0.0, math.nan]}}, "validation": {}}
+ATTEMPT = IdentificationAttempt(
+    attempt=1, axis="yaw", thrust=0.7, speed=1.39, r2=0.98, accepted=True, converged=True, converged_s=12.1,
+    criterion_met_from_s=11.0, training_s=12.1, samples=242,
+    model=YawModel(a22=-1.05, b2=0.86, delta0=0.01, covariance=[[1e-4, 0.0], [0.0, 1e-4]]),
+    training={"time": [0.0, 0.05], "history": {"a22": [0.0, math.nan]}}, validation={})
 
 
 def test_round_trip_of_a_campaign(tmp_path):
@@ -26,7 +32,7 @@ def test_round_trip_of_a_campaign(tmp_path):
         vehicle = store.add_vehicle("auv", "sim", {"preset": "starfish"})
         campaign = store.start_campaign(vehicle, "identification", {"thrusts": [0.7]})
         run = store.add_run(campaign, ATTEMPT)
-        store.add_run(campaign, {**ATTEMPT, "attempt": 2, "accepted": False, "r2": 0.4})
+        store.add_run(campaign, replace(ATTEMPT, attempt=2, accepted=False, r2=0.4))
         store.add_gains(campaign, 1.39, {"heading_p": 0.64}, {"heading_p": 0.67})
         store.add_behavior_result(campaign, "roll", "completed", {"std_open_deg": 1.6, "nan": math.nan})
         store.finish_campaign(campaign, "completed")
@@ -57,15 +63,17 @@ def test_unknown_campaign_is_a_clear_error(tmp_path):
 
 WRITER = """
 import sys, time
+from dataclasses import replace
+from companion.records.serialise import from_json
 from companion.records.store import Store
 store = Store(sys.argv[1])
 vehicle = store.add_vehicle("auv")
 campaign = store.start_campaign(vehicle, "identification")
-attempt = {ATTEMPT!r}
+attempt = from_json({ATTEMPT!r})
 print(campaign, flush=True)
 n = 0
 while True:
-    store.add_run(campaign, dict(attempt, attempt=n))
+    store.add_run(campaign, replace(attempt, attempt=n))
     n += 1
     print(n, flush=True)
 """
@@ -73,7 +81,7 @@ while True:
 
 def test_a_killed_process_loses_nothing_it_committed(tmp_path):
     path = tmp_path / "s.sqlite"
-    code = WRITER.replace("{ATTEMPT!r}", repr({k: v for k, v in ATTEMPT.items() if k != "training"}))
+    code = WRITER.replace("{ATTEMPT!r}", repr(to_json(replace(ATTEMPT, training={}))))
     writer = subprocess.Popen([sys.executable, "-c", code, str(path)], stdout=subprocess.PIPE, text=True)
     assert writer.stdout is not None
     campaign = int(writer.stdout.readline())

@@ -70,6 +70,42 @@ class YawSchedule:
     def gains_at(self, speed: float, bounds: GainBounds = GainBounds()) -> HeadingGains:
         return design_heading_gains(self.model_at(speed), bounds, speed=float(speed))
 
+    def describe(self) -> str:
+        """The laws in words, as the report and the command line print them (trend included)."""
+        if self.a22_per_speed:
+            a22 = (f"a22 = {self.a22:.3f} {self.a22_per_speed:+.3f}·(u − {self.a22_reference_speed:.2f}) s⁻¹"
+                   " (significant trend with speed)")
+        else:
+            a22 = f"a22 = {self.a22:.3f} s⁻¹ (constant)"
+        return f"{a22}, b2 = {self.b2_slope:.3f}·u² + {self.b2_intercept:.3f} s⁻², δ0 = {self.delta0:.4f} rad"
+
+
+def constant_schedule(speed: float, model: YawModel) -> YawSchedule:
+    """One speed cannot fit b2(u): that model's gains at every speed (no extrapolation of an
+    unknown law) -- the honest fallback of :func:`schedule_from_models`."""
+    if not (model.a22 < 0 and model.b2 > 0):
+        raise ValueError("the model needs a22 < 0 and b2 > 0")
+    return YawSchedule(a22=model.a22, b2_slope=0.0, b2_intercept=model.b2, delta0=model.delta0,
+                       speed_range=(speed, speed), b2_min_identified=model.b2, a22_reference_speed=speed,
+                       speeds=[speed])
+
+
+def schedule_from_models(
+    speeds: Sequence[float],
+    models: Sequence[YawModel],
+    weights: Sequence[float] | None = None,
+    margin: float = 0.2,
+) -> YawSchedule:
+    """The one schedule fit of the product: the laws of :func:`fit_yaw_schedule` over models at
+    ≥ 2 distinct speeds, :func:`constant_schedule` of the last model when all share one speed.
+    ValueError when no model is usable."""
+    usable = [(float(u), m) for u, m in zip(speeds, models) if math.isfinite(u)]
+    if not usable:
+        raise ValueError("no model with a measured speed")
+    if len({round(u, 3) for u, _ in usable}) == 1:
+        return constant_schedule(*usable[-1])
+    return fit_yaw_schedule(speeds, models, weights, margin)
+
 
 def fit_yaw_schedule(
     speeds: Sequence[float],

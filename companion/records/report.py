@@ -23,6 +23,7 @@ import numpy as np  # noqa: E402
 
 from companion.numerics.identification import YawModel  # noqa: E402
 from companion.numerics.turning import turning_performance  # noqa: E402
+from companion.records.serialise import to_json
 from companion.records.store import Store  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -102,7 +103,7 @@ def plot_validation(runs: list[dict], path: Path) -> str | None:
     return _figure(path, draw, (9, 2.2 * len(accepted) + 1))
 
 
-def plot_b2_law(runs: list[dict], design: dict | None, truth: dict | None, path: Path) -> str | None:
+def plot_b2_law(runs: list[dict], schedule, truth: dict | None, path: Path) -> str | None:
     accepted = [r for r in _by_thrust(runs, "yaw") if r["accepted"]]
     if not accepted:
         return None
@@ -111,10 +112,10 @@ def plot_b2_law(runs: list[dict], design: dict | None, truth: dict | None, path:
         u2 = np.array([r["speed"] ** 2 for r in accepted])
         b2 = np.array([r["model"]["b2"] for r in accepted])
         plt.plot(u2, b2, "o", label="identified")
-        if design:
+        if schedule is not None:  # the law as written: clamped outside the identified range
             grid = np.linspace(0, max(u2) * 1.15, 50)
-            plt.plot(grid, design["b2_slope"] * grid + design["b2_intercept"], "-",
-                     label=f"fit b2 = {design['b2_slope']:.3f}·u² + {design['b2_intercept']:.3f}")
+            plt.plot(grid, [schedule.b2_at(math.sqrt(g)) for g in grid], "-",
+                     label=f"schedule b2 = {schedule.b2_slope:.3f}·u² + {schedule.b2_intercept:.3f} (clamped)")
         if truth:
             pts = sorted(truth.values(), key=lambda t: t["speed"])
             plt.plot([t["speed"] ** 2 for t in pts], [t["b2"] for t in pts], "x", label="simulator truth")
@@ -127,15 +128,14 @@ def plot_b2_law(runs: list[dict], design: dict | None, truth: dict | None, path:
     return _figure(path, draw, (7, 5))
 
 
-def plot_turning(design: dict | None, delta_max: float, path: Path) -> str | None:
-    if not design:
+def plot_turning(design, delta_max: float, path: Path) -> str | None:
+    if design is None:
         return None
-    speeds = [row["speed"] for row in design["per_thrust"]]
+    speeds = [point.speed for point in design.points]
     grid = np.linspace(max(0.3, min(speeds) * 0.7), max(speeds) * 1.2, 40)
 
-    def draw():
-        perf = [turning_performance(YawModel(design["a22"], design["b2_slope"] * u * u + design["b2_intercept"],
-                                             design["delta0"]), u, delta_max) for u in grid]
+    def draw():  # the schedule's own model at each speed (a22 trend and clamping included)
+        perf = [turning_performance(design.schedule.model_at(u), u, delta_max) for u in grid]
         for i, (attr, label) in enumerate((("turning_radius_m", "turning radius (m)"),
                                            ("yaw_rate_max_deg_s", "max yaw rate (deg/s)"),
                                            ("u_turn_time_s", "U-turn time (s)"))):
@@ -309,7 +309,8 @@ def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: 
     campaign = store.campaign(campaign_id)
     runs = store.runs(campaign_id, with_series=True)
     behaviour_rows = store.behavior_results(campaign_id)
-    design = next((b["result"] for b in reversed(behaviour_rows) if b["kind"] == "gain_design"), None)
+    designs = {d.kind: d for d in store.designs(campaign_id)}  # typed, exactly as the campaign wrote them
+    design = designs.get("heading")
     steps = [b["result"] for b in behaviour_rows if b["kind"] == "heading_steps"]
     extra = dict(extra_results or {})
     for row in behaviour_rows:
@@ -319,7 +320,7 @@ def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: 
     images = [
         ("Parameter convergence", plot_convergence(runs, out / "convergence.png")),
         ("Validation on fresh doublets", plot_validation(runs, out / "validation.png")),
-        ("b2 against u²", plot_b2_law(runs, design, truth, out / "b2_law.png")),
+        ("b2 against u²", plot_b2_law(runs, design.schedule if design else None, truth, out / "b2_law.png")),
         ("Turning performance", plot_turning(design, delta_max, out / "turning.png")),
         ("Heading steps", plot_heading_steps(steps, out / "heading_steps.png")),
         ("Roll stabilisation", plot_roll(extra["roll"], out / "roll.png") if "roll" in extra else None),
@@ -344,12 +345,18 @@ def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: 
         f" started {campaign['started_utc']}, finished {campaign.get('finished_utc') or '–'}.</p>",
         "<h2>Identification runs</h2>", _table(run_rows, columns),
     ]
-    if design:
-        parts += ["<h2>Gain design</h2>",
-                  f"<p>a22 ≈ {design['a22']:.3f} s⁻¹ (constant), b2 = {design['b2_slope']:.3f}·u² + {design['b2_intercept']:.3f},"
-                  f" δ0 ≈ {design['delta0']:.4f} rad.</p>",
-                  _table(design["per_thrust"], [("thrust", "thrust", ".2f"), ("speed", "speed m/s", ".3f"),
-                                                ("kp", "Kp", ".3f"), ("ki", "Ki", ".4f"), ("trim", "trim rad", ".4f")])]
+    for kind, kind_design in designs.items():
+        rows = [{"thrust": point.thrust, "speed": point.speed,
+                 **{f"own {k}": v for k, v in point.own.items()}, **point.scheduled} for point in kind_design.points]
+        gain_names = list(kind_design.points[0].scheduled) if kind_design.points else []
+        own_names = [f"own {k}" for k in (kind_design.points[0].own if kind_design.points else {})]
+        parts += [f"<h2>Gain design: {html.escape(kind)}</h2>",
+                  f"<p class='schedule'>{html.escape(kind_design.schedule.describe())}.</p>",
+                  _table(rows, [("thrust", "thrust", ".2f"), ("speed", "speed m/s", ".3f")]
+                         + [(n, n, ".4f") for n in own_names] + [(n, f"scheduled {n}", ".4f") for n in gain_names]),
+                  # the schedule shown, machine-readable: exactly the record the gains were computed from
+                  f"<script type='application/json' id='schedule-{html.escape(kind)}'>"
+                  f"{json.dumps(to_json(kind_design.schedule), allow_nan=False)}</script>"]
     gains = store.gains(campaign_id)
     if gains:
         parts += ["<h2>Gains written</h2>", "<pre>" + html.escape(json.dumps(gains, indent=1)) + "</pre>"]

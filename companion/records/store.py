@@ -12,12 +12,21 @@ Schema changes go in ``MIGRATIONS`` (one SQL script per version, applied in orde
 from __future__ import annotations
 
 import json
+import logging
 import math
 import sqlite3
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from companion.records.serialise import from_json, to_json
+
+if TYPE_CHECKING:
+    from behaviors.gain_scheduling import GainDesign
+    from behaviors.identification import IdentificationAttempt
+
+log = logging.getLogger(__name__)
 
 MIGRATIONS: tuple[str, ...] = (
     # version 1
@@ -176,27 +185,56 @@ class Store:
             self._db.execute("UPDATE campaigns SET status=?, reason=?, finished_utc=? WHERE id=?",
                              (status, reason, _now(), campaign_id))
 
-    def add_run(self, campaign_id: int, attempt: dict) -> int:
-        """Store one identification attempt (the dict built by IdentificationManoeuvre); an accepted
-        attempt also becomes a model row, in the same transaction."""
-        model = attempt.get("model", {})
+    def add_run(self, campaign_id: int, attempt: IdentificationAttempt) -> int:
+        """Store one identification attempt; an accepted attempt also becomes a model row, in the
+        same transaction. The model is written by the one serialiser (its type tag included)."""
+        model = to_json(attempt.model)
         with self._transaction():
             run_id = int(self._db.execute(
                 "INSERT INTO runs(campaign_id, axis, thrust, attempt, speed, r2, accepted, converged_s, training_s,"
                 " samples, model_json, series_json) VALUES (?,?,?,?,?,?,?,?,?,?,?,?)",
-                (campaign_id, attempt["axis"], attempt.get("thrust"), attempt.get("attempt", 1),
-                 json_safe(attempt.get("speed")), json_safe(attempt.get("r2")), int(bool(attempt.get("accepted"))),
-                 json_safe(attempt.get("converged_s")), json_safe(attempt.get("training_s")), attempt.get("samples"),
-                 _json(model), _json({"training": attempt.get("training"), "validation": attempt.get("validation")})),
+                (campaign_id, attempt.axis, attempt.thrust, attempt.attempt, json_safe(attempt.speed),
+                 json_safe(attempt.r2), int(bool(attempt.accepted)), json_safe(attempt.converged_s),
+                 json_safe(attempt.training_s), attempt.samples,
+                 _json(model), _json({"training": attempt.training, "validation": attempt.validation})),
             ).lastrowid)
-            if attempt.get("accepted"):
-                params = {k: v for k, v in model.items() if k != "covariance"}
+            if attempt.accepted:
+                params = {k: v for k, v in model.items() if k not in ("covariance", "type")}
                 self._db.execute(
                     "INSERT INTO models(run_id, campaign_id, axis, thrust, speed, params_json, covariance_json, r2)"
                     " VALUES (?,?,?,?,?,?,?,?)",
-                    (run_id, campaign_id, attempt["axis"], attempt.get("thrust"), json_safe(attempt.get("speed")),
-                     _json(params), _json(model.get("covariance")), json_safe(attempt.get("r2"))))
+                    (run_id, campaign_id, attempt.axis, attempt.thrust, json_safe(attempt.speed),
+                     _json(params), _json(model.get("covariance")), json_safe(attempt.r2)))
         return run_id
+
+    def add_design(self, campaign_id: int | None, design: GainDesign) -> int:
+        """Store a gain design (its schedule exactly as fitted, trend included) as a ``gain_design``
+        result; :meth:`designs` gives the same typed record back."""
+        return self.add_behavior_result(campaign_id, "gain_design", "completed", to_json(design))
+
+    def designs(self, campaign_id: int | None = None, kind: str | None = None) -> list[GainDesign]:
+        """The stored gain designs (typed), oldest first, optionally of one schedule kind."""
+        out = []
+        for row in self.behavior_results(campaign_id, "gain_design"):
+            try:
+                design = from_json(row["result"])
+            except (ValueError, TypeError) as exc:  # a design stored before typed records
+                log.info("gain design %d not readable as a record: %s", row["id"], exc)
+                continue
+            if kind is None or design.kind == kind:
+                out.append(design)
+        return out
+
+    def latest_design(self, kind: str) -> tuple[int, GainDesign] | None:
+        """(campaign id, design) of the newest stored design of ``kind`` from a campaign that
+        completed, or None."""
+        for campaign in reversed(self.campaigns()):
+            if campaign["kind"] != "identification" or campaign["status"] != "completed":
+                continue
+            designs = self.designs(campaign["id"], kind)
+            if designs:
+                return campaign["id"], designs[-1]
+        return None
 
     def add_gains(self, campaign_id: int | None, speed: float | None, before: dict, after: dict) -> int:
         return self._insert("INSERT INTO gains(campaign_id, speed, before_json, after_json, written_utc) VALUES (?,?,?,?,?)",

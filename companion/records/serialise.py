@@ -1,0 +1,96 @@
+"""The one serialiser at the store boundary: typed records <-> JSON (SPEC C10).
+
+Every record the product stores (models, identification attempts, speed schedules with their
+trend, gain designs) is a dataclass. :func:`to_json` writes it with a ``"type"`` tag so
+:func:`from_json` gives back the same type with the same numbers; NaN and infinities become
+``null`` (strict JSON), and come back as NaN for float fields. Nothing else in the product packs or
+unpacks these records by hand.
+
+A record type is known by being listed in :data:`RECORD_TYPES` (:func:`register` adds one); the
+tag is the class name.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from typing import Any
+
+RECORD_TYPES: dict[str, type] = {}
+
+
+def register(cls: type) -> type:
+    """Make a dataclass storable (usable as a decorator)."""
+    if not dataclasses.is_dataclass(cls):
+        raise TypeError(f"{cls.__name__} is not a dataclass")
+    RECORD_TYPES[cls.__name__] = cls
+    return cls
+
+
+def _plain(value: Any) -> Any:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return to_json(value)
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if hasattr(value, "tolist"):  # numpy arrays and scalars
+        return _plain(value.tolist())
+    return value
+
+
+def to_json(record: Any) -> dict:
+    """A registered dataclass as a JSON-ready dict with its ``"type"`` tag."""
+    cls = type(record)
+    if RECORD_TYPES.get(cls.__name__) is not cls:
+        raise TypeError(f"{cls.__name__} is not a registered record type")
+    out: dict[str, Any] = {"type": cls.__name__}
+    for f in dataclasses.fields(record):
+        out[f.name] = _plain(getattr(record, f.name))
+    return out
+
+
+def _restore(value: Any, hint: Any) -> Any:
+    if isinstance(value, dict) and value.get("type") in RECORD_TYPES:
+        return from_json(value)
+    if value is None and hint in (float, "float"):
+        return math.nan
+    origin = typing.get_origin(hint)
+    if origin is tuple and isinstance(value, list):
+        return tuple(value)
+    if value is None and origin is typing.Union and float in typing.get_args(hint) and type(None) not in typing.get_args(hint):
+        return math.nan
+    if isinstance(value, list):
+        return [_restore(v, None) for v in value]
+    return value
+
+
+def from_json(data: dict) -> Any:
+    """The record :func:`to_json` wrote (ValueError for an unknown or missing tag)."""
+    tag = data.get("type") if isinstance(data, dict) else None
+    cls = RECORD_TYPES.get(tag)
+    if cls is None:
+        raise ValueError(f"not a stored record (type {tag!r}; known: {sorted(RECORD_TYPES)})")
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name in data and f.init:
+            kwargs[f.name] = _restore(data[f.name], hints.get(f.name))
+    return cls(**kwargs)
+
+
+def _register_product_records() -> None:
+    """The product's storable records (imported here, not in the numerics: they stay pure)."""
+    from behaviors.gain_scheduling import DesignPoint, GainDesign
+    from behaviors.identification import IdentificationAttempt
+    from companion.numerics.identification import PitchModel, YawModel
+    from companion.numerics.pitch_gains import PitchSchedule
+    from companion.numerics.schedule import YawSchedule
+
+    for cls in (YawModel, PitchModel, YawSchedule, PitchSchedule, DesignPoint, GainDesign, IdentificationAttempt):
+        register(cls)
+
+
+_register_product_records()
