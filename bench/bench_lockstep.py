@@ -9,7 +9,7 @@ import time
 from companion.cli.launcher import SimulatorProcess
 from companion.link.vehicle import VehicleLink
 from companion.procedures.app import AbortFlag
-from companion.procedures.behaviour_procedures import RollProcedureConfig, roll_procedure
+from companion.procedures.roll import RollProcedureConfig, roll_procedure
 
 
 def main() -> None:

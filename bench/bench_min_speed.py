@@ -6,7 +6,7 @@ these rows are the thesis law (``hold_after_change_s = 0``).
 
 ``--hold``: the thesis law against the hold after every change (SeekerConfig.hold_after_change_s,
 the default) at Ts = 1 s and 0.5 s, seeds 1-6, on two harnesses: the closed loop of
-harness.inprocess.ClosedLoop and the product procedure (companion.procedures.behaviour_procedures.min_speed_procedure
+harness.inprocess.ClosedLoop and the product procedure (companion.procedures.min_speed.min_speed_procedure
 over harness.inprocess.InProcessLink, 100 s settling at 0.70 first). Per seed: final TR after 200 s,
 settle time, max |depth error| after 5 s, reversals in the last 30 s; and in a separate 300 s run
 whose thrust set-point is kicked to 0.60 at 150 s, the re-convergence time (from the kick to the
@@ -23,7 +23,7 @@ from dataclasses import replace
 from unittest import mock
 
 from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking
-from companion.procedures import behaviour_procedures as procedure
+from companion.procedures import min_speed as procedure
 from companion.interface import SetThrust
 from companion.numerics.fuzzy_seeker import SeekerConfig
 from companion.numerics.minspeed import DivePlaneVehicle, minimum_speed

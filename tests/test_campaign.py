@@ -14,7 +14,7 @@ from behaviors.identification import IdentificationManoeuvre, ManoeuvreConfig, d
 from companion.procedures.app import AbortFlag, drain_campaign_events
 from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
 from companion.interface import OverrideActuator
-from companion.procedures.runner import RestorePoint, SafetyLimits, run_behavior
+from companion.procedures.runner import RestorePoint, SafetyLimits, run_behavior, run_procedure
 from companion.records.store import Store
 from sim.linearize import linearized_yaw
 from sim.preset import load_preset
@@ -25,9 +25,10 @@ FAST = CampaignConfig(thrusts=(0.7, 1.0), axes=("yaw",), step_labels=("scheduled
 
 
 def run_campaign(link: InProcessLink, config: CampaignConfig = FAST, **kwargs):
-    restore = RestorePoint.capture(link)
-    campaign = IdentificationCampaign(config, original_gains=restore.parameters)
-    outcome = run_behavior(link, campaign, restore=restore, **kwargs)
+    campaign = IdentificationCampaign(config)
+    restore = RestorePoint.capture(link, campaign.footprint)
+    campaign.original_gains = dict(restore.parameters)
+    outcome = run_procedure(link, campaign, **kwargs)
     return campaign, outcome, restore
 
 
@@ -49,22 +50,22 @@ def test_campaign_identifies_each_thrust_close_to_the_simulator_truth(completed)
     link, campaign, outcome, _ = completed
     assert outcome.status == "completed", outcome.reason
     preset = load_preset("starfish")
-    yaw = [a for a in campaign.accepted if a["axis"] == "yaw"]
-    assert [a["thrust"] for a in yaw] == [0.7, 1.0]
+    yaw = [a for a in campaign.accepted if a.axis == "yaw"]
+    assert [a.thrust for a in yaw] == [0.7, 1.0]
     for attempt in yaw:
-        truth = linearized_yaw(preset, attempt["speed"])
-        model = attempt["model"]
-        assert model["a22"] == pytest.approx(truth["a22"], rel=0.08)
-        assert model["b2"] == pytest.approx(truth["b2"], rel=0.08)
-        assert model["delta0"] == pytest.approx(truth["delta0"], abs=0.004)
-        assert attempt["r2"] >= 0.9
-        assert attempt["converged_s"] is not None and attempt["converged_s"] <= 16.5
+        truth = linearized_yaw(preset, attempt.speed)
+        model = attempt.model
+        assert model.a22 == pytest.approx(truth["a22"], rel=0.08)
+        assert model.b2 == pytest.approx(truth["b2"], rel=0.08)
+        assert model.delta0 == pytest.approx(truth["delta0"], abs=0.004)
+        assert attempt.r2 >= 0.9
+        assert attempt.converged_s is not None and attempt.converged_s <= 16.5
 
 
 def test_campaign_writes_scheduled_gains_and_keeps_them(completed):
     link, campaign, _, restore = completed
-    design = campaign.design_summary()
-    assert design is not None and design["b2_slope"] > 0
+    design = campaign.heading_design
+    assert design is not None and design.schedule.b2_slope > 0
     final = campaign.final_gains
     assert final is not None
     assert link.param("heading_p") == pytest.approx(final["heading_p"], rel=1e-6)
@@ -176,7 +177,7 @@ def test_rejected_validation_is_repeated_then_given_up():
     manoeuvre = IdentificationManoeuvre(config, thrust=0.7)
     outcome = run_behavior(link, manoeuvre)
     result = manoeuvre.result()
-    assert outcome.status == "completed"
+    assert outcome.status == "failed" and "no model passed validation" in outcome.reason
     assert result["outcome"] == "rejected" and len(result["attempts"]) == 2
     assert not any(a["accepted"] for a in result["attempts"])
     assert not link.overrides

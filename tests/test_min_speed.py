@@ -263,7 +263,7 @@ def test_hold_follows_a_disturbance_back_to_the_optimum():
 
 def test_product_procedure_with_the_default_hold():
     """The product procedure (100 s at 0.70, then 200 s of seeking) at the default Ts = 1 s and hold."""
-    from companion.procedures.behaviour_procedures import MinSpeedProcedureConfig, min_speed_procedure
+    from companion.procedures.min_speed import MinSpeedProcedureConfig, min_speed_procedure
     from harness.inprocess import InProcessLink
 
     result = min_speed_procedure(InProcessLink(seed=2), lambda: None, MinSpeedProcedureConfig())

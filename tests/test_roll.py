@@ -118,7 +118,7 @@ def test_roll_procedure_on_the_autopilot_reduces_measured_std_three_times(seed):
     std of the *measured* (noisy) roll, open loop vs closed loop at 1.4 m/s with SIM_ROLL_DIST, ≥ 3×;
     the closed-loop 25° kick at cruise settles within 4 s."""
     from companion.procedures.app import AbortFlag
-    from companion.procedures.behaviour_procedures import roll_procedure
+    from companion.procedures.roll import roll_procedure
     from harness.inprocess import InProcessLink
 
     result = roll_procedure(InProcessLink(seed=seed), AbortFlag(), simulator=True)

@@ -6,9 +6,11 @@ from dataclasses import replace
 
 from behaviors.identification import ManoeuvreConfig
 from companion.procedures.app import AbortFlag, GcsProgress, run_campaign
-from companion.procedures.behaviour_procedures import RollProcedureConfig, roll_procedure, run_named_behavior
+from companion.procedures.app import run_named_behavior
+from companion.procedures.roll import RollProcedureConfig, roll_procedure
 from companion.procedures.campaign import CampaignConfig
 from companion.link.profiles import ARDUROVER
+from behaviors.base import Footprint
 from companion.procedures.runner import RestorePoint, RunOutcome
 from companion.records.store import Store
 from harness.inprocess import InProcessLink
@@ -50,10 +52,14 @@ class CascadedFake:
         self.mode = mode
 
 
+#: what a heading-gain procedure declares it touches (the restore point is derived from it)
+HEADING_GAINS = Footprint.of(parameters=("heading_p", "heading_i", "rudder_trim"))
+
+
 def test_restore_gives_back_every_native_parameter_of_a_cascaded_autopilot():
     link = CascadedFake()
     found = dict(link.params)
-    restore = RestorePoint.capture(link)
+    restore = RestorePoint.capture(link, HEADING_GAINS)
     link.params.update({"ATC_STR_ANG_P": 3.0, "ATC_STR_RAT_D": 0.0, "ATC_STR_RAT_FF": 0.0})  # what a PI write does
     assert restore.restore(link) == []
     assert link.params == found
@@ -62,7 +68,7 @@ def test_restore_gives_back_every_native_parameter_of_a_cascaded_autopilot():
 
 def test_one_failing_parameter_does_not_stop_the_restore():
     link = CascadedFake(fail={"ATC_STR_ANG_P"})
-    restore = RestorePoint.capture(link)
+    restore = RestorePoint.capture(link, HEADING_GAINS)
     link.params.update({"ATC_STR_ANG_P": 3.0, "ATC_STR_RAT_FF": 0.0})
     problems = restore.restore(link)
     assert len(problems) == 1 and "ATC_STR_ANG_P" in problems[0]
@@ -133,9 +139,10 @@ def test_a_refused_simulator_hook_keeps_the_measured_data_and_closes_the_record(
     with Store(":memory:") as store:
         out = run_named_behavior("roll", link, store, vehicle_id=store.add_vehicle("v"), campaign_id=None,
                                  abort=AbortFlag(), simulator=True, roll_config=config)
-        assert out["result"]["status"] == "failed" and "SIM_ROLL_KICK" in out["result"]["abort_reason"]
+        # a refused write aborts the procedure with the reason (never a warning that carries on)
+        assert out["result"]["status"] == "aborted" and "SIM_ROLL_KICK" in out["result"]["abort_reason"]
         assert out["result"]["std_open_deg"] > 0 and out["result"]["std_closed_deg"] > 0  # measured before
-        assert store.campaigns()[0]["status"] == "failed"
+        assert store.campaigns()[0]["status"] == "aborted"
         assert store.behavior_results()[0]["kind"] == "roll"
     assert link.autopilot.params["SIM_ROLL_DIST"] == 0.0  # the disturbance hook is switched off again
     assert link.mode == "hold"

@@ -6,9 +6,12 @@ from __future__ import annotations
 import pytest
 
 from behaviors.gain_scheduling import SchedulingConfig
+from behaviors.heading_schedule import HEADING
+from behaviors.identification import IdentificationAttempt
+from companion.numerics.identification import YawModel
 from behaviors.identification import ManoeuvreConfig
 from companion.procedures.app import MAV_CMD_USER_1, MAV_CMD_USER_3, MAV_CMD_USER_4, AbortFlag
-from companion.procedures.behaviour_procedures import MinSpeedProcedureConfig
+from companion.procedures.min_speed import MinSpeedProcedureConfig
 from companion.procedures.campaign import CampaignConfig
 from companion.procedures.resident import Companion, ServeConfig, schedule_from_store
 from companion.records.store import Store
@@ -21,11 +24,16 @@ CAMPAIGN = CampaignConfig(thrusts=(0.7, 1.0), axes=("yaw",), step_labels=(),
 
 
 def stored_models(store: Store) -> None:
+    """A completed campaign as the campaign stores it: its accepted runs and the design it wrote."""
     vehicle = store.add_vehicle("v")
     campaign = store.start_campaign(vehicle, "identification")
-    for thrust, speed, a22, b2 in ((0.6, 1.13, -1.0, 0.66), (0.8, 1.65, -1.1, 1.11), (1.0, 2.17, -1.2, 1.72)):
-        store.add_run(campaign, {"axis": "yaw", "thrust": thrust, "speed": speed, "r2": 0.98, "accepted": True,
-                                 "model": {"a22": a22, "b2": b2, "delta0": 0.01}})
+    attempts = [IdentificationAttempt(attempt=1, axis="yaw", thrust=thrust, speed=speed, model=YawModel(a22, b2, 0.01),
+                                      r2=0.98, accepted=True, converged=True, converged_s=10.0,
+                                      criterion_met_from_s=9.0, training_s=10.0, samples=200)
+                for thrust, speed, a22, b2 in ((0.6, 1.13, -1.0, 0.66), (0.8, 1.65, -1.1, 1.11), (1.0, 2.17, -1.2, 1.72))]
+    for attempt in attempts:
+        store.add_run(campaign, attempt)
+    store.add_design(campaign, HEADING.design(attempts))
     store.finish_campaign(campaign, "completed")
 
 

@@ -64,22 +64,23 @@ def preset_defaults(preset: str) -> dict:
 
 
 def _run_rows(campaign, truth: dict) -> list[dict]:
-    design_rows = {row["thrust"]: row for row in (campaign.design.per_thrust if campaign.design else [])}
+    design = campaign.heading_design
+    own_gains = {point.thrust: point.own for point in (design.points if design else [])}
     rows = []
     for attempt in campaign.accepted:
-        if attempt["axis"] != "yaw":
+        if attempt.axis != "yaw":
             continue
-        model = attempt["model"]
-        true = truth.get(f"{attempt['thrust']:.2f}") or {}
-        design = design_rows.get(attempt["thrust"], {})
+        model = attempt.model
+        true = truth.get(f"{attempt.thrust:.2f}") or {}
+        own = own_gains.get(attempt.thrust, {})
         rows.append({
-            "thrust": attempt["thrust"],
-            "speed": finite_or_none(attempt["speed"]),
-            "a22": model["a22"], "b2": model["b2"], "delta0": model["delta0"],
-            "r2": finite_or_none(attempt["r2"]),
-            "converged_s": finite_or_none(attempt["converged_s"]) if attempt["converged_s"] is not None else None,
+            "thrust": attempt.thrust,
+            "speed": finite_or_none(attempt.speed),
+            "a22": model.a22, "b2": model.b2, "delta0": model.delta0,
+            "r2": finite_or_none(attempt.r2),
+            "converged_s": finite_or_none(attempt.converged_s) if attempt.converged_s is not None else None,
             "true_a22": true.get("a22"), "true_b2": true.get("b2"), "true_delta0": true.get("delta0"),
-            "kp": design.get("kp"), "ki": design.get("ki"),
+            "kp": own.get("heading_p"), "ki": own.get("heading_i"),
         })
     return rows
 
@@ -115,8 +116,8 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
             link.close()
         truth = {}
         for attempt in campaign.accepted:
-            if attempt["axis"] == "yaw":
-                truth[f"{attempt['thrust']:.2f}"] = simulator_truth(config.preset, attempt["speed"])
+            if attempt.axis == "yaw":
+                truth[f"{attempt.thrust:.2f}"] = simulator_truth(config.preset, attempt.speed)
         summary["runs"] = _run_rows(campaign, truth)
         summary["design"] = campaign.design_summary()
         summary["heading_steps"] = [{"thrust": s["thrust"], "label": s["label"], "max_overshoot_pct": finite_or_none(s["max_overshoot_pct"])}
@@ -135,12 +136,12 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
 
 def _run_steady_state(link, store, config: RehearsalConfig, campaign_id: int, abort: AbortFlag, summary: dict) -> dict:
     """Squares and turns (issue 5), scored against the current the simulator was started with."""
-    from companion.procedures.steady_state import steady_state_procedure, steady_summary
+    from companion.procedures.app import run_named_procedure
+    from companion.procedures.steady_state import steady_summary
 
-    result = steady_state_procedure(link, abort)
-    store.add_behavior_result(campaign_id, "steady_state", result["status"], result)
-    summary["steady_state"] = steady_summary(result, config.current)
-    return result
+    ran = run_named_procedure("steady_state", link, store, vehicle_id=0, campaign_id=campaign_id, abort=abort)
+    summary["steady_state"] = steady_summary(ran["result"], config.current)
+    return ran["result"]
 
 
 def _run_behaviors(link, store, config: RehearsalConfig, vehicle_id: int, campaign_id: int, abort: AbortFlag,
@@ -149,7 +150,7 @@ def _run_behaviors(link, store, config: RehearsalConfig, vehicle_id: int, campai
     extra: dict = {}
     if not config.behaviors:
         return extra
-    from companion.procedures.behaviour_procedures import run_named_behavior
+    from companion.procedures.app import run_named_behavior
 
     for name in config.behaviors:
         result = run_named_behavior(name, link, store, vehicle_id=vehicle_id, campaign_id=campaign_id, abort=abort,

@@ -45,6 +45,9 @@ PWM_VALID_MAX = 2200
 
 #: neutral parameter names that the cascaded profiles translate through the PI mapping
 HEADING_PI_NAMES = ("heading_p", "heading_i", "heading_imax")
+#: neutral names of every parameter the cascaded heading mapping writes
+CASCADED_HEADING_NAMES = ("heading_p", "heading_imax", "heading_rate_p", "heading_rate_i", "heading_rate_d",
+                          "heading_rate_ff", "heading_rate_imax")
 
 
 @dataclass(frozen=True)
@@ -206,6 +209,20 @@ class AutopilotProfile:
                 "heading_i": full_scale * rate_i * angle_p,
                 "heading_imax": full_scale * native[self.native_param("heading_rate_imax")]}
 
+    def natives_touched(self, neutral_names) -> tuple[str, ...]:
+        """Autopilot parameters that writing these neutral names may change: on a cascaded
+        autopilot a heading gain is realised through the whole angle + rate loop, so every rate
+        parameter the mapping writes is included; names the profile lacks are skipped."""
+        names: list[str] = []
+        for neutral in neutral_names:
+            if neutral not in self.params:
+                continue
+            if self.cascaded_heading and neutral in HEADING_PI_NAMES:
+                names += [self.params[n] for n in CASCADED_HEADING_NAMES if n in self.params]
+            else:
+                names.append(self.params[neutral])
+        return tuple(dict.fromkeys(names))
+
     def heading_native_names(self) -> tuple[str, ...]:
         """Autopilot parameters that :meth:`native_to_heading_pi` reads."""
         if not self.cascaded_heading:
@@ -233,6 +250,7 @@ SIM = AutopilotProfile(
         "cruise_thrust": "CRUISE_THR", "override_timeout": "RC_OVR_TIME", "gcs_sysid": "SYSID_MYGCS",
         "system_id": "SYSID_THISMAV", "mass_servo": "MASS_SERVO", "mass_max": "MASS_MAX",
         "attitude_rate": "SR_ATT_HZ", "position_rate": "SR_POS_HZ",
+        "roll_disturbance": "SIM_ROLL_DIST", "roll_kick": "SIM_ROLL_KICK",  # test hooks of the simulator
     },
     marker_param="HDG_P",
     angle_full_scale_rad=0.5236,

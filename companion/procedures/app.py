@@ -20,13 +20,22 @@ from typing import Callable
 
 from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
 from companion.interface import Behavior, Telemetry
-from companion.procedures.runner import RestorePoint, RunOutcome, SafetyLimits, run_behavior
+from companion.procedures.runner import RestorePoint, RunOutcome, SafetyLimits, run_procedure
 from companion.records.store import Store
 
 log = logging.getLogger(__name__)
 
-MAV_CMD_USER_1, MAV_CMD_USER_2, MAV_CMD_USER_3, MAV_CMD_USER_4 = 31010, 31011, 31012, 31013
-MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_IN_PROGRESS = 0, 4, 5
+from pymavlink.dialects.v20.common import (  # noqa: E402 - the protocol's own constants
+    MAV_CMD_USER_1,
+    MAV_CMD_USER_2,
+    MAV_CMD_USER_3,
+    MAV_CMD_USER_4,
+    MAV_CMD_USER_5,
+    MAV_RESULT_ACCEPTED,
+    MAV_RESULT_FAILED,
+    MAV_RESULT_IN_PROGRESS,
+    MAV_RESULT_TEMPORARILY_REJECTED,
+)
 
 
 class AbortFlag:
@@ -122,7 +131,8 @@ def vehicle_record(store: Store, link, name: str | None = None, config: dict | N
 
 def drain_campaign_events(store: Store, campaign_id: int, campaign: IdentificationCampaign) -> None:
     """Write what the campaign produced since the last call (one transaction per item); an event
-    leaves the queue only once it is stored, so a failed write is retried at the next call."""
+    leaves the queue only once it is stored, so a failed write is retried at the next call.
+    Records go in typed: the store serialises them (``companion.records.serialise``)."""
     while campaign.events:
         event = campaign.events[0]
         if event["type"] == "run":
@@ -132,7 +142,7 @@ def drain_campaign_events(store: Store, campaign_id: int, campaign: Identificati
         elif event["type"] == "gains":
             store.add_gains(campaign_id, event["speed"], event["before"], event["after"])
         elif event["type"] == "design":
-            store.add_behavior_result(campaign_id, "gain_design", "completed", event["design"])
+            store.add_design(campaign_id, event["design"])
         campaign.events.pop(0)
 
 
@@ -147,13 +157,14 @@ def run_campaign(
     gcs: GcsProgress | None = None,
     console: ConsoleProgress | None = None,
 ) -> tuple[IdentificationCampaign, RunOutcome, int]:
-    """Run the identification campaign, storing as it goes. On abort the vehicle is restored; on
-    success the mode is restored, and the parameters too unless new gains were written (the step
-    checks write trial gains even with ``write_gains=False``)."""
-    restore = RestorePoint.capture(link)
+    """Run the identification campaign as one procedure (``run_procedure``: one restore point from
+    its declared footprint), storing as it goes. Afterwards the vehicle is as found, except for the
+    final gains of a successful campaign (the step checks' trial gains are always undone)."""
     campaign_id = store.start_campaign(vehicle_id, "identification", config.to_dict())
-    campaign = IdentificationCampaign(config, original_gains=restore.parameters)
-    log.info("campaign %d started; original gains %s, mode %s", campaign_id, restore.parameters, restore.mode)
+    campaign = IdentificationCampaign(config)
+    original = RestorePoint.capture(link, campaign.footprint)  # the original gains, for the step checks
+    campaign.original_gains = dict(original.parameters)
+    log.info("campaign %d started; original gains %s, mode %s", campaign_id, original.parameters, original.mode)
 
     def on_step(telemetry: Telemetry, _behavior: Behavior) -> None:
         drain_campaign_events(store, campaign_id, campaign)
@@ -161,13 +172,11 @@ def run_campaign(
         if gcs is not None:
             gcs.update(fraction)
         if console is not None and console.enabled:
-            current = campaign._sequence.current if campaign._sequence is not None else None
-            console.update(fraction, f"t={telemetry.time_s:7.1f}s {type(current).__name__ if current else ''}")
+            current = campaign.current_step
+            console.update(fraction, f"t={telemetry.time_s:7.1f}s {current.name if current else ''}")
 
-    outcome = run_behavior(link, campaign, limits=limits, abort_requested=abort, on_step=on_step, restore=restore)
+    outcome = run_procedure(link, campaign, limits=limits, abort_requested=abort, on_step=on_step)
     try:
-        if outcome.status == "completed":
-            outcome.restore_problems += restore.restore(link, parameters=campaign.final_gains is None)
         drain_campaign_events(store, campaign_id, campaign)
     finally:
         store.finish_campaign(campaign_id, outcome.status, outcome.reason)
@@ -180,3 +189,46 @@ def run_campaign(
 
 def finite_or_none(value) -> float | None:
     return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
+
+
+def run_named_procedure(name: str, link, store: Store, *, vehicle_id: int, campaign_id: int | None, abort,
+                        context=None, limits: SafetyLimits = SafetyLimits()) -> dict:
+    """Run a registered procedure (``companion.procedures.registry.PROCEDURES``) by name under one
+    restore point, store its result, return {"result", "summary", "outcome"}."""
+    from companion.procedures.registry import PROCEDURES, ProcedureContext
+    from companion.procedures.roll import finish_result
+
+    spec = PROCEDURES.get(name)
+    if spec is None:
+        raise ValueError(f"unknown procedure {name!r} ({', '.join(PROCEDURES)})")
+    own = campaign_id is None
+    if own:
+        campaign_id = store.start_campaign(vehicle_id, name, {"preset": getattr(context, "preset", None)})
+    result: dict = {"status": "failed", "abort_reason": "not started"}
+    outcome = None
+    try:
+        procedure = spec.build(link, context or ProcedureContext())
+        outcome = run_procedure(link, procedure, limits=limits, abort_requested=abort)
+        result = finish_result(procedure.result(), outcome)
+        store.add_behavior_result(campaign_id, name, result["status"], result)
+    finally:
+        if own:
+            store.finish_campaign(campaign_id, result["status"], result.get("abort_reason"))
+    return {"result": result, "summary": spec.summary(result), "outcome": outcome}
+
+
+def run_named_behavior(name: str, link, store: Store, *, vehicle_id: int, campaign_id: int | None, abort,
+                       preset: str | None = None, simulator: bool = True, roll_config=None,
+                       min_speed_config=None) -> dict:
+    """:func:`run_named_procedure` for ``roll`` / ``min_speed`` with their configurations."""
+    from dataclasses import replace as _replace
+
+    from companion.procedures.registry import ProcedureContext
+
+    context = ProcedureContext(preset=preset, simulator=simulator)
+    if roll_config is not None:
+        context = _replace(context, roll=roll_config)
+    if min_speed_config is not None:
+        context = _replace(context, min_speed=min_speed_config)
+    return run_named_procedure(name, link, store, vehicle_id=vehicle_id, campaign_id=campaign_id, abort=abort,
+                               context=context)

@@ -1,43 +1,40 @@
 """The pre-mission self-identification campaign (SPEC C4, C5; thesis §3.3, §3.5).
 
-One behaviour that runs, in order:
+One behaviour (a sequence under one restore point) that runs, in order:
 
 1. the heading-and-depth holding mode at the campaign depth, on the current course;
 2. for each thrust setting: the yaw identification manoeuvre (and the pitch one, if asked);
-3. the heading gain design from the accepted yaw models: the laws a22(u) ≈ const and
-   b2(u) = k·u² + c fitted over them, PI gains per speed (``companion.numerics.gains``);
+3. the gain design of every requested schedule (``CampaignConfig.schedules``; the registered kinds
+   are in ``companion.procedures.registry``) from the accepted models — for the heading schedule
+   the laws a22(u) (constant or with its significant trend) and b2(u) = k·u² + c, PI gains per speed;
 4. optional heading-step checks at every thrust with the original gains, one constant gain tuned at
    the lowest thrust, and the speed-scheduled gains (thesis Fig. 3.16);
 5. the scheduled gains for the current speed written to the autopilot.
 
-It is a pure step function of telemetry like every behaviour; the application (``companion.procedures.app``)
-runs it over the link with a restore point, and drains :attr:`events` after every step into the
-store, so nothing already measured is lost if the process dies.
+The records travel typed: each attempt is an :class:`IdentificationAttempt`, each design a
+:class:`GainDesign` holding the very schedule whose gains are written; :attr:`events` hands them
+to the application after every step (``companion.procedures.app``), which stores them through the
+one serialiser, so nothing already measured is lost if the process dies.
+
+Outcome: SUCCESS when at least one model was accepted and every requested schedule whose axis was
+identified could be designed; FAILURE otherwise, with the reason (the runner then restores every
+parameter, so no gain from a failed campaign stays on the vehicle).
 """
 from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Sequence
 
+from behaviors.base import Behaviour, Footprint, Status
+from behaviors.gain_scheduling import GainDesign, ScheduleKind
 from behaviors.heading_steps import HeadingStepTest, StepTestConfig, reengage_hold
-from behaviors.identification import IdentificationManoeuvre, ManoeuvreConfig, thesis_estimator
-from behaviors.sequence import Instant, SequenceBehavior
-from companion.interface import (
-    Behavior,
-    Command,
-    SetDepth,
-    SetHeading,
-    SetMode,
-    SetParameters,
-    SetThrust,
-    StatusText,
-    Telemetry,
-)
-from companion.numerics.gains import GainBounds, HeadingGains, design_heading_gains
-from companion.numerics.identification import YawModel
-from companion.numerics.schedule import YawSchedule, fit_yaw_schedule
+from behaviors.identification import IdentificationAttempt, IdentificationManoeuvre, ManoeuvreConfig, thesis_estimator
+from behaviors.sequence import Deferred, Instant, SequenceBehavior
+from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
+from companion.numerics.gains import GainBounds
+from companion.procedures.registry import schedule_kind
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +51,10 @@ class CampaignConfig:
     yaw: ManoeuvreConfig = ManoeuvreConfig()
     pitch: ManoeuvreConfig = ManoeuvreConfig(axis="pitch", settle_s=15.0, training_amplitude=0.10,
                                              validation_amplitude=0.06)
-    bounds: GainBounds = GainBounds()
+    bounds: GainBounds = GainBounds()  # heading gain bounds
+    # gain schedules designed and written (registry names); the pitch schedule is opt-in: it
+    # changes the autopilot's depth behaviour, which the seeds' procedure does not touch
+    schedules: tuple[str, ...] = ("heading",)
     write_gains: bool = True
     step_labels: tuple[str, ...] = ("original", "constant", "scheduled")  # () skips the step checks
     step_test: StepTestConfig = StepTestConfig()
@@ -66,68 +66,41 @@ class CampaignConfig:
         """The seeds' exact estimator on both axes (P0 = 100·I, zero-order holds)."""
         return replace(self, yaw=thesis_estimator(self.yaw), pitch=thesis_estimator(self.pitch))
 
-
-def gains_to_params(gains: HeadingGains) -> dict[str, float]:
-    """Neutral parameter names (see ``companion.link.profiles``) of a heading gain set."""
-    return {"heading_p": float(gains.kp), "heading_i": float(gains.ki), "rudder_trim": float(gains.trim)}
-
-
-@dataclass
-class DesignOutcome:
-    schedule: YawSchedule | None
-    per_thrust: list[dict] = field(default_factory=list)
-    error: str | None = None
+    def kinds(self) -> list[ScheduleKind]:
+        """The requested gain schedules (heading with this config's bounds)."""
+        return [schedule_kind(name, self.bounds if name == "heading" else None) for name in self.schedules]
 
 
-def constant_schedule(speed: float, model: YawModel) -> YawSchedule:
-    """A campaign at a single speed cannot fit b2(u): keep that model's gains at every speed
-    (no extrapolation of an unknown law) — the honest fallback, logged by the caller."""
-    if not (model.a22 < 0 and model.b2 > 0):
-        raise ValueError("the model needs a22 < 0 and b2 > 0")
-    return YawSchedule(a22=model.a22, b2_slope=0.0, b2_intercept=model.b2, delta0=model.delta0,
-                       speed_range=(speed, speed), b2_min_identified=model.b2, speeds=[speed])
-
-
-def design_from_attempts(accepted: Sequence[dict], bounds: GainBounds) -> DesignOutcome:
-    """Fit the schedule over the accepted yaw attempts and design gains at each of their speeds."""
-    usable = [a for a in accepted if a["axis"] == "yaw" and math.isfinite(a.get("speed") or math.nan)]
-    if not usable:
-        return DesignOutcome(None, error="no accepted yaw model")
-    models = [YawModel(a["model"]["a22"], a["model"]["b2"], a["model"]["delta0"]) for a in usable]
-    speeds = [a["speed"] for a in usable]
-    try:
-        if len({round(u, 3) for u in speeds}) == 1:
-            schedule = constant_schedule(speeds[-1], models[-1])
-        else:
-            schedule = fit_yaw_schedule(speeds, models)
-    except ValueError as exc:
-        return DesignOutcome(None, error=f"schedule fit failed: {exc}")
-    per_thrust = []
-    for attempt, model in zip(usable, models):
-        own = design_heading_gains(model, bounds, speed=attempt["speed"])
-        scheduled = schedule.gains_at(attempt["speed"], bounds)
-        per_thrust.append({"thrust": attempt["thrust"], "speed": attempt["speed"], "kp": own.kp, "ki": own.ki,
-                           "trim": own.trim, "scheduled": gains_to_params(scheduled)})
-    return DesignOutcome(schedule, per_thrust)
-
-
-class IdentificationCampaign:
+class IdentificationCampaign(Behaviour):
     """The campaign as one behaviour (see module docstring)."""
 
     def __init__(self, config: CampaignConfig = CampaignConfig(), original_gains: dict[str, float] | None = None) -> None:
+        super().__init__("identification campaign")
         self.config = config
+        self.kinds = config.kinds()
         self.original_gains = dict(original_gains or {})
-        self.events: list[dict] = []  # drained by the application: {"type": "run"|"steps"|"gains", ...}
-        self.accepted: list[dict] = []
+        self.events: list[dict] = []  # drained by the application: {"type": "run"|"steps"|"design"|"gains", ...}
+        self.accepted: list[IdentificationAttempt] = []
         self.manoeuvres: list[dict] = []
-        self.design: DesignOutcome | None = None
+        self.designs: dict[str, GainDesign] = {}
+        self.design_errors: dict[str, str] = {}
         self.step_results: list[dict] = []
         self.final_gains: dict[str, float] | None = None
         self._sequence: SequenceBehavior | None = None
-        self._course = math.nan
-        self.status: str = "pending"
-        self.reason: str | None = None
         self._total = 0
+        parameters = {name for kind in self.kinds for name in kind.parameters}
+        if config.step_labels:
+            parameters |= {"heading_p", "heading_i", "rudder_trim"}
+        self.footprint = Footprint.of(parameters, ("mode", "thrust", "heading", "depth", "rudder", "elevator"))
+
+    @property
+    def heading_design(self) -> GainDesign | None:
+        return self.designs.get("heading")
+
+    @property
+    def kept_parameters(self) -> frozenset[str]:
+        """What a successful campaign leaves on the vehicle: the final gains it wrote."""
+        return frozenset(self.final_gains or ())
 
     # ------------------------------------------------------------------ construction
     def _build(self, course: float) -> SequenceBehavior:
@@ -142,74 +115,93 @@ class IdentificationCampaign:
                 manoeuvre_config = cfg.yaw if axis == "yaw" else cfg.pitch
                 items.append(IdentificationManoeuvre(replace(manoeuvre_config, axis=axis), thrust=thrust,
                                                      status_prefix=prefix))
-        items.append(self._design_step)
+        items.append(Deferred(self._design_step))
+        heading_gains = Footprint.of(("heading_p", "heading_i", "rudder_trim"), ("mode", "thrust", "heading"))
         for thrust in cfg.thrusts:
             for label in cfg.step_labels:
-                items.append(self._step_test_factory(thrust, label))
-        items.append(self._final_gains_step)
+                items.append(Deferred(self._step_test_factory(thrust, label), heading_gains))
+        items.append(Deferred(self._final_gains_step, self.footprint))
         # progress counts the manoeuvres and the step checks (the design and the final write are instants)
         self._total = len(cfg.thrusts) * (len(cfg.axes) + len(cfg.step_labels))
-        return SequenceBehavior(items, on_complete=self._on_complete)
+        return SequenceBehavior(items, on_complete=self._on_complete, name="campaign")
 
-    def _design_step(self) -> Behavior:
-        self.design = design_from_attempts(self.accepted, self.config.bounds)
-        if self.design.error:
-            log.warning("gain design: %s", self.design.error)
-            return Instant(StatusText(f"gain design skipped: {self.design.error}", 4), name="design")
-        self.events.append({"type": "design", "design": self.design_summary()})
-        s = self.design.schedule
-        return Instant(StatusText(f"schedule: a22 {s.a22:.3f}, b2 = {s.b2_slope:.3f} u^2 + {s.b2_intercept:.3f}"),
-                       name="design")
+    def _design_step(self) -> Behaviour:
+        texts: list[Command] = []
+        for kind in self.kinds:
+            if kind.axis not in self.config.axes:
+                continue
+            try:
+                design = kind.design(self.accepted)
+            except ValueError as exc:
+                self.design_errors[kind.name] = str(exc)
+                log.warning("%s gain design: %s", kind.name, exc)
+                texts.append(StatusText(f"{kind.name} design skipped: {exc}"[:50], 4))
+                continue
+            self.designs[kind.name] = design
+            self.events.append({"type": "design", "design": design})
+            texts.append(StatusText(f"{kind.name} schedule designed at {len(design.points)} speeds"))
+        return Instant(*texts, name="design")
 
     def _gains_for(self, label: str, thrust: float) -> dict[str, float] | None:
         """Gains of one heading-step check: the originals, one constant set, or the scheduled set."""
-        if self.design is None or self.design.schedule is None:
+        design = self.heading_design
+        if design is None:
             return None
         if label == "original":
-            return self.original_gains or None
-        speeds = {row["thrust"]: row["speed"] for row in self.design.per_thrust}
+            return {k: v for k, v in self.original_gains.items() if k in ("heading_p", "heading_i", "rudder_trim")} or None
         if label == "constant":  # one gain tuned at the lowest identified thrust, used everywhere
-            lowest = min(self.design.per_thrust, key=lambda row: row["thrust"])
-            return dict(lowest["scheduled"])
+            lowest = min(design.points, key=lambda point: point.thrust)
+            return dict(lowest.scheduled)
+        speeds = {point.thrust: point.speed for point in design.points}
         speed = speeds.get(thrust)
         if speed is None:  # this thrust has no accepted model: extrapolate on the nearest speed
-            nearest = min(self.design.per_thrust, key=lambda row: abs(row["thrust"] - thrust))
-            speed = nearest["speed"]
-        return gains_to_params(self.design.schedule.gains_at(speed, self.config.bounds))
+            speed = min(design.points, key=lambda point: abs(point.thrust - thrust)).speed
+        return dict(self._kind("heading").gains(design.schedule, speed))
+
+    def _kind(self, name: str) -> ScheduleKind:
+        return next(kind for kind in self.kinds if kind.name == name)
 
     def _step_test_factory(self, thrust: float, label: str):
-        def build() -> Behavior | None:
+        def build() -> Behaviour | None:
             gains = self._gains_for(label, thrust)
             if gains is None:
                 return None
             return HeadingStepTest(thrust, gains, self.config.step_test, label=label)
         return build
 
-    def _final_gains_step(self) -> Behavior | None:
-        """Write the scheduled gains for the speed measured now (the scheduler keeps them matched later)."""
-        if not self.config.write_gains or self.design is None or self.design.schedule is None:
+    def _final_gains_step(self) -> Behaviour | None:
+        """Write every designed schedule's gains for the speed measured now (the resident loop
+        keeps them matched later)."""
+        if not self.config.write_gains or not self.designs:
             return None
-        return Instant(name="write gains", make=self._write_scheduled_gains)
+        return Instant(name="write gains", make=self._write_scheduled_gains, touches=self.footprint)
 
     def _write_scheduled_gains(self, telemetry: Telemetry) -> list[Command]:
-        schedule = self.design.schedule
-        speed = telemetry.speed_water if telemetry.finite("speed_water") else schedule.speed_range[0]
-        gains = gains_to_params(schedule.gains_at(speed, self.config.bounds))
+        gains: dict[str, float] = {}
+        speeds: list[float] = []
+        for name, design in self.designs.items():
+            low = min(point.speed for point in design.points)
+            speed = telemetry.speed_water if telemetry.finite("speed_water") else low
+            speeds.append(speed)
+            gains.update(self._kind(name).gains(design.schedule, speed))
         self.final_gains = gains
-        self.events.append({"type": "gains", "speed": speed, "before": self.original_gains, "after": gains})
+        speed = speeds[0]
+        before = {k: v for k, v in self.original_gains.items() if k in gains}
+        self.events.append({"type": "gains", "speed": speed, "before": before, "after": gains})
         thrust = telemetry.thrust_ratio if telemetry.finite("thrust_ratio") else self.config.thrusts[-1]
-        return [SetParameters(gains), *reengage_hold(thrust, telemetry.yaw),
-                StatusText(f"heading gains written for {speed:.2f} m/s: kp {gains['heading_p']:.3f}"
-                           f" ki {gains['heading_i']:.3f} trim {gains['rudder_trim']:.3f}")]
+        text = " ".join(f"{k} {v:.3f}" for k, v in gains.items())
+        commands: list[Command] = [SetParameters(gains)]
+        if "rudder_trim" in gains:
+            commands += reengage_hold(thrust, telemetry.yaw)
+        return commands + [StatusText(f"gains written for {speed:.2f} m/s: {text}"[:50])]
 
     # ------------------------------------------------------------------ events
-    def _on_complete(self, behavior: Behavior) -> None:
+    def _on_complete(self, behavior: Behaviour) -> None:
         if isinstance(behavior, IdentificationManoeuvre):
-            result = behavior.result()
-            self.manoeuvres.append(result)
-            for attempt in result["attempts"]:
+            self.manoeuvres.append({k: v for k, v in behavior.result().items() if k != "attempts"})
+            for attempt in behavior.attempts:
                 self.events.append({"type": "run", "attempt": attempt})
-                if attempt["accepted"]:
+                if attempt.accepted:
                     self.accepted.append(attempt)
         elif isinstance(behavior, HeadingStepTest):
             result = behavior.result()
@@ -218,52 +210,59 @@ class IdentificationCampaign:
 
     def progress(self) -> float:
         """Fraction of the campaign's manoeuvres and checks completed (0..1), for COMMAND_ACK."""
-        if self.status == "completed":
+        if self.status is Status.SUCCESS:
             return 1.0
         if self._sequence is None or not self._total:
             return 0.0
         done = sum(1 for b in self._sequence.completed if isinstance(b, (IdentificationManoeuvre, HeadingStepTest)))
         return min(1.0, done / self._total)
 
-    def design_summary(self) -> dict | None:
-        if self.design is None or self.design.schedule is None:
-            return None
-        s = self.design.schedule
-        return {"a22": s.a22, "b2_slope": s.b2_slope, "b2_intercept": s.b2_intercept, "delta0": s.delta0,
-                "per_thrust": self.design.per_thrust}
-
-    # ------------------------------------------------------------------ behaviour protocol
     @property
-    def done(self) -> bool:
-        return self.status in ("completed", "aborted")
+    def current_step(self) -> Behaviour | None:
+        return self._sequence.current if self._sequence is not None else None
 
-    def step(self, telemetry: Telemetry) -> Sequence[Command]:
-        if self.done:
-            return []
+    def design_summary(self) -> dict | None:
+        """Each designed schedule as stored (the one serialiser), keyed by kind; None when none."""
+        from companion.records.serialise import to_json
+
+        return {name: to_json(design) for name, design in self.designs.items()} or None
+
+    # ------------------------------------------------------------------ lifecycle
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
         if self._sequence is None:
             if not telemetry.finite("yaw"):
                 return []
-            self._course = telemetry.yaw
-            self._sequence = self._build(self._course)
-            self.status = "running"
-        commands = list(self._sequence.step(telemetry))
+            self._sequence = self._build(telemetry.yaw)
+        commands = list(self._sequence.tick(telemetry))
         if self._sequence.done:
-            self.status = "completed"
-            commands.append(StatusText(f"campaign complete: {len(self.accepted)} models accepted"))
+            commands += self._conclude()
         return commands
 
-    def abort(self, reason: str) -> Sequence[Command]:
-        self.status, self.reason = "aborted", reason
-        return list(self._sequence.abort(reason)) if self._sequence is not None else []
+    def _conclude(self) -> list[Command]:
+        if not self.accepted:
+            self.finish(Status.FAILURE, "no model passed validation")
+        elif self.design_errors:
+            self.finish(Status.FAILURE, "; ".join(f"{k} design: {v}" for k, v in self.design_errors.items()))
+        else:
+            self.finish(Status.SUCCESS)
+        verdict = "complete" if self.status is Status.SUCCESS else f"failed: {self.reason}"
+        return [StatusText(f"campaign {verdict}; {len(self.accepted)} models accepted"[:50],
+                           6 if self.status is Status.SUCCESS else 4)]
+
+    def terminate(self, status: Status) -> Sequence[Command]:
+        if status is Status.ABORTED and self._sequence is not None:
+            return self._sequence.stop(self.reason or "aborted")
+        return []
 
     def result(self) -> dict:
         return {
-            "status": self.status,
+            "status": {Status.SUCCESS: "completed", Status.ABORTED: "aborted"}.get(self.status, self.status.value),
             "reason": self.reason,
             "config": self.config.to_dict(),
-            "manoeuvres": [{k: v for k, v in m.items() if k != "attempts"} for m in self.manoeuvres],
-            "accepted": [{k: v for k, v in a.items() if k not in ("training", "validation")} for a in self.accepted],
+            "manoeuvres": self.manoeuvres,
+            "accepted": [a.summary() for a in self.accepted],
             "design": self.design_summary(),
+            "design_errors": self.design_errors,
             "steps": [{k: v for k, v in r.items() if k != "series"} for r in self.step_results],
             "final_gains": self.final_gains,
         }

@@ -10,6 +10,7 @@ stops procedures with COMMAND_LONG aimed at component 191:
 | MAV_CMD_USER_2 | roll stabilisation (param1: closed-loop seconds, 0 = default) |
 | MAV_CMD_USER_3 | minimum-speed seeking (param1: seconds, 0 = default) |
 | MAV_CMD_USER_4 | abort the running procedure (the autopilot is restored) |
+| MAV_CMD_USER_5 | steady-state squares and turns (SPEC C8) |
 
 A start is answered COMMAND_ACK IN_PROGRESS (with progress for the campaign) and finally ACCEPTED or
 FAILED; a retransmitted start of the procedure already running is answered IN_PROGRESS again; a
@@ -20,49 +21,54 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
-from behaviors.gain_scheduling import GainScheduler, SchedulingConfig
+from behaviors.gain_scheduling import GainDesign, GainScheduler, SchedulingConfig
+from behaviors.base import Footprint
+from companion.numerics.gains import GainBounds
+from companion.numerics.schedule import YawSchedule
 from companion.procedures.app import (
-    MAV_CMD_USER_1,
-    MAV_CMD_USER_2,
-    MAV_CMD_USER_3,
-    MAV_CMD_USER_4,
     MAV_RESULT_ACCEPTED,
     MAV_RESULT_FAILED,
     MAV_RESULT_IN_PROGRESS,
+    MAV_RESULT_TEMPORARILY_REJECTED,
     AbortFlag,
     GcsProgress,
     run_campaign,
+    run_named_procedure,
 )
-from companion.procedures.behaviour_procedures import MinSpeedProcedureConfig, RollProcedureConfig, run_named_behavior
-from companion.procedures.campaign import CampaignConfig, gains_to_params
-from companion.numerics.gains import GainBounds
-from companion.numerics.identification import YawModel
-from companion.numerics.schedule import YawSchedule, fit_yaw_schedule
+from companion.procedures.campaign import CampaignConfig
+from companion.procedures.min_speed import MinSpeedProcedureConfig
+from companion.procedures.registry import (
+    ABORT_COMMAND,
+    COMMANDS,
+    IDENTIFICATION_COMMAND,
+    ProcedureContext,
+    schedule_kind,
+)
+from companion.procedures.roll import RollProcedureConfig
 from companion.procedures.runner import RestorePoint
 from companion.records.store import Store
 
 log = logging.getLogger(__name__)
 
-MAV_RESULT_TEMPORARILY_REJECTED = 1
-
 
 def schedule_from_store(store: Store) -> YawSchedule | None:
-    """The schedule of the latest identification campaign with ≥ 2 accepted yaw models."""
-    for campaign in reversed(store.campaigns()):
-        if campaign["kind"] != "identification":
-            continue
-        models = [m for m in store.models(campaign["id"], axis="yaw") if m.speed is not None]
-        if len(models) < 2:
-            continue
-        try:
-            return fit_yaw_schedule([m.speed for m in models],
-                                    [YawModel(m.params["a22"], m.params["b2"], m.params["delta0"]) for m in models])
-        except ValueError as exc:
-            log.warning("campaign %d: no schedule (%s)", campaign["id"], exc)
-    return None
+    """The heading schedule exactly as the latest completed campaign designed and wrote it (read
+    back through the one serialiser, never re-fitted)."""
+    found = store.latest_design("heading")
+    return found[1].schedule if found is not None else None
+
+
+def designs_from_store(store: Store, names) -> list[GainDesign]:
+    """The latest stored design of each named schedule kind (those never designed are skipped)."""
+    designs = []
+    for name in names:
+        found = store.latest_design(name)
+        if found is not None:
+            designs.append(found[1])
+    return designs
 
 
 @dataclass
@@ -73,6 +79,7 @@ class ServeConfig:
     scheduling: SchedulingConfig = SchedulingConfig()
     bounds: GainBounds = GainBounds()
     schedule_gains: bool = True
+    schedules: tuple[str, ...] = ("heading", "pitch")  # kinds kept matched to speed, when designed
     preset: str | None = None  # simulator preset (analytic minimum speed, simulator hooks)
     max_vehicle_s: float | None = None  # stop after this much vehicle time (tests); None: until signalled
 
@@ -92,7 +99,7 @@ class Companion:
 
     # ------------------------------------------------------------------ ground station
     def _on_user_command(self, command: int, params: tuple[float, ...]) -> None:
-        if command == MAV_CMD_USER_4:
+        if command == ABORT_COMMAND:
             if self.procedure_abort is not None:
                 self.procedure_abort.request("ground station abort (MAV_CMD_USER_4)")
                 self.link.send_command_ack(command, MAV_RESULT_ACCEPTED)
@@ -103,7 +110,7 @@ class Companion:
             else:
                 self.link.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
             return
-        if command not in (MAV_CMD_USER_1, MAV_CMD_USER_2, MAV_CMD_USER_3):
+        if command not in COMMANDS:
             self.link.send_command_ack(command, MAV_RESULT_FAILED)
             return
         if command in (self.running, *(c for c, _ in self.pending)):
@@ -125,22 +132,31 @@ class Companion:
 
     # ------------------------------------------------------------------ loop
     def _rebuild_scheduler(self) -> None:
+        """One scheduler over every stored design of the configured kinds, reading the schedules
+        exactly as written (``schedule_from_store``), writing their scheduled gains in one set."""
         if not self.config.schedule_gains:
             return
-        schedule = schedule_from_store(self.store)
-        if schedule is None:
+        kinds = [schedule_kind(d.kind, self.config.bounds if d.kind == "heading" else None)
+                 for d in designs_from_store(self.store, self.config.schedules)]
+        designs = {d.kind: d for d in designs_from_store(self.store, self.config.schedules)}
+        known = getattr(getattr(self.link, "profile", None), "params", None)
+        kinds = [k for k in kinds if known is None or all(name in known for name in k.scheduled)]
+        if not kinds:
             self.scheduler = None
             return
-        bounds = self.config.bounds
 
-        def gains_at(speed: float) -> dict[str, float]:  # Kp and Ki only (see behaviors.gain_scheduling)
-            gains = gains_to_params(schedule.gains_at(speed, bounds))
-            return {"heading_p": gains["heading_p"], "heading_i": gains["heading_i"]}
+        def gains_at(speed: float) -> dict[str, float]:
+            gains: dict[str, float] = {}
+            for kind in kinds:
+                gains.update(kind.scheduled_gains(designs[kind.name].schedule, speed))
+            return gains
 
+        parameters = tuple(name for kind in kinds for name in kind.scheduled)
         # the gains in place before scheduling starts are what stopping the loop gives back
-        self.unscheduled = RestorePoint.capture(self.link)
-        self.scheduler = GainScheduler(gains_at, self.config.scheduling)
-        log.info("gain scheduling on: a22 %.3f, b2 = %.3f u^2 + %.3f", schedule.a22, schedule.b2_slope, schedule.b2_intercept)
+        self.unscheduled = RestorePoint.capture(self.link, Footprint.of(parameters=parameters))
+        self.scheduler = GainScheduler(gains_at, self.config.scheduling, parameters=parameters,
+                                       live_value=kinds[0].live_value)
+        log.info("gain scheduling on: %s", "; ".join(f"{k.name}: {designs[k.name].schedule.describe()}" for k in kinds))
 
     def run(self) -> list[dict]:
         """Serve until stopped; then the gains in place before scheduling started are written back."""
@@ -177,41 +193,43 @@ class Companion:
             log.warning("scheduled gain write failed: %s", exc)
             self.scheduler.reject()
             good = self.scheduler.written or self.unscheduled.parameters
-            try:
-                self.link.set_params({k: v for k, v in good.items() if k in ("heading_p", "heading_i")})
-            except Exception as rollback_exc:  # noqa: BLE001
-                log.error("could not roll the heading gains back: %s", rollback_exc)
+            for name, value in good.items():  # each one on its own: one refusal must not stop the others
+                if name not in self.scheduler.footprint.parameters:
+                    continue
+                try:
+                    self.link.set_params({name: value})
+                except Exception as rollback_exc:  # noqa: BLE001
+                    log.error("could not roll %s back: %s", name, rollback_exc)
             self.link.status_text(f"gain scheduling: write failed ({exc})"[:50], 4)
 
     def _run_procedure(self, command: int, params: tuple[float, ...]) -> None:
+        """Start what the command names (``companion.procedures.registry.COMMANDS``), one runner for all."""
         self.procedure_abort = AbortFlag()
         self.running = command
-        gcs = GcsProgress(self.link, command)
+        name = COMMANDS[command]
         abort = self._abort_requested()
         try:
-            if command == MAV_CMD_USER_1:
-                campaign, outcome, campaign_id = run_campaign(self.link, self.store, self.config.campaign,
-                                                              vehicle_id=self.vehicle_id, abort=abort, gcs=gcs)
-                entry = {"procedure": "identification", "status": outcome.status, "reason": outcome.reason,
+            if command == IDENTIFICATION_COMMAND:
+                gcs = GcsProgress(self.link, command)
+                _campaign, outcome, campaign_id = run_campaign(self.link, self.store, self.config.campaign,
+                                                               vehicle_id=self.vehicle_id, abort=abort, gcs=gcs)
+                entry = {"procedure": name, "status": outcome.status, "reason": outcome.reason,
                          "campaign_id": campaign_id}
                 self._rebuild_scheduler()
             else:
-                name = "roll" if command == MAV_CMD_USER_2 else "min_speed"
                 seconds = params[0] if params and math.isfinite(params[0]) and params[0] > 0 else None
-                roll = replace(self.config.roll, closed_s=seconds) if seconds and name == "roll" else self.config.roll
-                seek = (replace(self.config.min_speed, duration_s=seconds) if seconds and name == "min_speed"
-                        else self.config.min_speed)
-                outcome = run_named_behavior(name, self.link, self.store, vehicle_id=self.vehicle_id, campaign_id=None,
-                                             abort=abort, preset=self.config.preset, simulator=False,
-                                             roll_config=roll, min_speed_config=seek)
-                status = outcome["summary"]["status"]
+                context = ProcedureContext(roll=self.config.roll, min_speed=self.config.min_speed,
+                                           preset=self.config.preset, simulator=False, seconds=seconds)
+                ran = run_named_procedure(name, self.link, self.store, vehicle_id=self.vehicle_id, campaign_id=None,
+                                          abort=abort, context=context)
+                status = ran["summary"]["status"]
                 self.link.send_command_ack(command, MAV_RESULT_ACCEPTED if status == "completed" else MAV_RESULT_FAILED,
                                            100 if status == "completed" else 0)
-                entry = {"procedure": name, "status": status, "summary": outcome["summary"]}
+                entry = {"procedure": name, "status": status, "summary": ran["summary"]}
         except Exception as exc:  # noqa: BLE001 - the resident loop must survive a failed procedure
             log.exception("procedure %d failed", command)
             self.link.send_command_ack(command, MAV_RESULT_FAILED)
-            entry = {"procedure": command, "status": "failed", "reason": str(exc)}
+            entry = {"procedure": name, "status": "failed", "reason": str(exc)}
         finally:
             self.procedure_abort = None
             self.running = None

@@ -15,9 +15,10 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Protocol, Sequence
+from typing import Callable, Iterable, Protocol, Sequence
 
-from companion.interface import Behavior, Command, SetMode, SetParameters, Telemetry
+from behaviors.base import Footprint, Status, footprint_of
+from companion.interface import Behavior, Command, SetHeading, SetMode, SetParameters, SetRollingMass, SetThrust, Telemetry
 
 log = logging.getLogger(__name__)
 
@@ -73,43 +74,60 @@ class Link(Protocol):
     def status_text(self, text: str, severity: int = 6) -> None: ...
 
 
-#: neutral names of the gains and trims a procedure may change (the heading PI and its trim); on
-#: cascaded autopilots writing them also touches the rate-loop parameters listed after them
-RESTORED_PARAMETERS = ("heading_p", "heading_i", "rudder_trim")
-_NATIVE_TOUCHED = ("heading_p", "heading_i", "heading_imax", "rudder_trim", "heading_rate_p", "heading_rate_i",
-                   "heading_rate_d", "heading_rate_ff", "heading_rate_imax")
+#: set-points a restore point puts back, only when the vehicle was found in a mode that uses them
+_SETPOINT_MODES = ("hold", "guided")
 
 
 @dataclass
 class RestorePoint:
-    """How the autopilot was found: its mode and every parameter a procedure may write.
+    """How the autopilot was found, for everything a procedure declares it may change.
 
-    ``parameters`` holds the neutral heading gains (the "original gains" of reports and step
-    checks); ``native`` holds the autopilot's own parameters, which are what is restored: on a
-    cascaded autopilot (ArduSub/ArduRover) the neutral gains map onto several rate-loop parameters,
-    and writing the neutral values back would not give the found D/FF terms back.
+    Derived from the procedure's :class:`~behaviors.base.Footprint` (no list of names lives here):
+    ``parameters`` holds the declared neutral parameters the profile knows (the "original gains" of
+    reports and step checks); ``native`` holds the autopilot's own parameters behind them, which are
+    what is restored (on a cascaded autopilot one neutral heading gain maps onto several rate-loop
+    parameters, see ``AutopilotProfile.natives_touched``); ``setpoints`` the declared set-points
+    read from the latest telemetry (thrust, rolling-mass angle).
     """
 
     mode: str | None
     parameters: dict[str, float] = field(default_factory=dict)
     native: dict[str, float] = field(default_factory=dict)
+    setpoints: dict[str, float] = field(default_factory=dict)
+    natives_of: dict[str, tuple[str, ...]] = field(default_factory=dict)  # neutral -> its native names
 
     @classmethod
-    def capture(cls, link, parameter_names: Sequence[str] = RESTORED_PARAMETERS) -> "RestorePoint":
+    def capture(cls, link, footprint: Footprint = Footprint()) -> "RestorePoint":
         profile = getattr(link, "profile", None)
         known = profile.params if profile is not None else {}
-        neutral = [name for name in parameter_names if name in known]
+        neutral = sorted(name for name in footprint.parameters if name in known)
+        unknown = sorted(set(footprint.parameters) - set(neutral))
+        if unknown:
+            log.info("restore point: this profile has no parameter for %s (not touched)", unknown)
+        natives_of = {name: profile.natives_touched([name]) for name in neutral} if profile is not None else {}
         native: dict[str, float] = {}
-        for name in dict.fromkeys(profile.native_param(n) for n in _NATIVE_TOUCHED if n in known):
+        for name in dict.fromkeys(n for names in natives_of.values() for n in names):
             try:
                 native[name] = link.get_param(name)
             except Exception as exc:  # noqa: BLE001 - a parameter this firmware lacks is not touched either
                 log.info("restore point: %s not readable (%s)", name, exc)
-        return cls(mode=getattr(link, "mode", None) or None, parameters=dict(link.get_params(neutral)) if neutral else {},
-                   native=native)
+        latest = getattr(link, "latest_telemetry", None)
+        telemetry = latest() if callable(latest) else None
+        setpoints: dict[str, float] = {}
+        if telemetry is not None:
+            for setpoint, value in (("thrust", telemetry.thrust_ratio), ("heading", telemetry.yaw),
+                                    ("rolling_mass", telemetry.mass_angle)):
+                if setpoint in footprint.setpoints and math.isfinite(value):
+                    setpoints[setpoint] = float(value)
+        return cls(mode=getattr(link, "mode", None) or None,
+                   parameters=dict(link.get_params(neutral)) if neutral else {}, native=native,
+                   setpoints=setpoints, natives_of=natives_of)
 
-    def restore(self, link, *, parameters: bool = True, mode: bool = True) -> list[str]:
-        """Release overrides, write back every parameter that changed, restore the mode.
+    def restore(self, link, *, parameters: bool = True, mode: bool = True,
+                keep: Iterable[str] = ()) -> list[str]:
+        """Release overrides, write back every parameter that changed (except the natives of the
+        neutral names in ``keep``: verified results a procedure leaves on purpose), put the found
+        set-points back, restore the mode.
 
         Each step and each parameter is attempted even if another fails (and even on a second
         Ctrl-C): a restore must never stop half-way. The failures are returned and logged."""
@@ -124,8 +142,16 @@ class RestorePoint:
 
         attempt("release overrides", lambda: link.release(None))
         if parameters:
+            kept = {n for name in keep for n in self.natives_of.get(name, ())}
             for name, value in self.native.items():
-                attempt(f"restore {name}", lambda name=name, value=value: _write_if_changed(link, name, value))
+                if name not in kept:
+                    attempt(f"restore {name}", lambda name=name, value=value: _write_if_changed(link, name, value))
+        if self.mode in _SETPOINT_MODES and "thrust" in self.setpoints:
+            attempt("restore thrust", lambda: link.execute([SetThrust(self.setpoints["thrust"])]))
+        if self.mode in _SETPOINT_MODES and "heading" in self.setpoints:
+            attempt("restore heading", lambda: link.execute([SetHeading(self.setpoints["heading"])]))
+        if "rolling_mass" in self.setpoints:
+            attempt("restore rolling mass", lambda: link.execute([SetRollingMass(self.setpoints["rolling_mass"])]))
         if mode and self.mode:
             attempt("restore mode", lambda: link.set_mode(self.mode))
         return problems
@@ -140,7 +166,8 @@ def _write_if_changed(link, name: str, value: float) -> None:
 
 @dataclass
 class RunOutcome:
-    """What happened: ``completed`` or ``aborted`` (with the reason), plus the behaviour's result."""
+    """What happened: ``completed`` (the goal was reached), ``failed`` (the procedure ended without
+    reaching it) or ``aborted``, with the reason, plus the behaviour's result."""
 
     status: str
     reason: str | None
@@ -149,6 +176,7 @@ class RunOutcome:
     samples: int = 0
     vehicle_time_s: float = 0.0
     pilot_has_it: bool = False  # aborted because someone else took the vehicle (leave its mode alone)
+    restore: "RestorePoint | None" = None  # the restore point run_procedure took
 
 
 def run_behavior(
@@ -225,8 +253,11 @@ def run_behavior(
         _tell(link, f"aborted: {reason}", 4)
     elif restore is not None and restore_on_success:
         problems += restore.restore(link)
+    status = "aborted" if reason is not None else "completed"
+    if reason is None and getattr(behavior, "status", None) is Status.FAILURE:
+        status, reason = "failed", getattr(behavior, "reason", None) or "the procedure did not reach its goal"
     return RunOutcome(
-        status="aborted" if reason is not None else "completed",
+        status=status,
         reason=reason,
         result=behavior.result(),
         restore_problems=problems,
@@ -234,6 +265,30 @@ def run_behavior(
         vehicle_time_s=0.0 if math.isnan(first_time) else last_time - first_time,
         pilot_has_it=pilot_has_it,
     )
+
+
+def run_procedure(
+    link: Link,
+    procedure: Behavior,
+    *,
+    limits: SafetyLimits = SafetyLimits(),
+    abort_requested: Callable[[], str | None] = lambda: None,
+    on_step: Callable[[Telemetry, Behavior], None] | None = None,
+    telemetry_timeout_s: float = 5.0,
+) -> RunOutcome:
+    """Run one procedure (a behaviour, usually a sequence) under one restore point.
+
+    The restore point is derived from the procedure's declared footprint and taken before its first
+    step. Afterwards the vehicle is put back as found: always after an abort or a failure (the mode
+    too, unless the pilot took the vehicle), and after success too except for the parameters the
+    procedure keeps on purpose (``kept_parameters``, e.g. a campaign's verified final gains)."""
+    restore = RestorePoint.capture(link, footprint_of(procedure))
+    outcome = run_behavior(link, procedure, limits=limits, abort_requested=abort_requested, on_step=on_step,
+                           restore=None, telemetry_timeout_s=telemetry_timeout_s)
+    outcome.restore = restore
+    keep = getattr(procedure, "kept_parameters", frozenset()) if outcome.status == "completed" else frozenset()
+    outcome.restore_problems += restore.restore(link, mode=not outcome.pilot_has_it, keep=keep)
+    return outcome
 
 
 class _TakeoverWatchdog:

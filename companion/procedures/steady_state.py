@@ -19,7 +19,9 @@ import numpy as np
 from behaviors.steady_state import SquareConfig, SquarePattern, SteadyTurns, TurnConfig
 from companion.procedures.app import finite_or_none
 from companion.numerics.steady_state import current_direction_deg
-from companion.procedures.runner import RestorePoint, SafetyLimits, run_behavior
+from behaviors.base import Status
+from behaviors.sequence import SequenceBehavior
+from companion.procedures.runner import SafetyLimits, run_procedure
 
 log = logging.getLogger(__name__)
 
@@ -41,23 +43,37 @@ def _decimate(data: dict[str, np.ndarray], rate_hz: float) -> dict[str, list[flo
     return {name: [float(v) for v in data[name][keep]] for name in ("t", "north", "east")}
 
 
+class SteadyStateProcedure(SequenceBehavior):
+    """Squares, then turns, under one restore point; ``result()`` holds both fits and the paths."""
+
+    def __init__(self, config: SteadyStateConfig = SteadyStateConfig()) -> None:
+        self.config = config
+        self.squares = SquarePattern(config.squares)
+        self.turns = SteadyTurns(config.turns)
+        super().__init__([self.squares, self.turns], name="steady_state")
+
+    def result(self) -> dict:
+        result: dict = {"behavior": "steady_state",
+                        "status": "aborted" if self.status is Status.ABORTED else "completed"}
+        if self.status is Status.ABORTED:
+            result["abort_reason"] = self.reason
+        if self.squares.status is not Status.INVALID:
+            part = self.squares.result()
+            part["path"] = _decimate(self.squares.data(), self.config.path_rate_hz)
+            result["squares"] = part
+        if self.turns.status is not Status.INVALID:
+            part = self.turns.result()
+            part["paths"] = [_decimate(data, self.config.path_rate_hz) for data in self.turns.data()]
+            result["turns"] = part
+        return result
+
+
 def steady_state_procedure(link, abort, config: SteadyStateConfig = SteadyStateConfig(), *,
                            limits: SafetyLimits = SafetyLimits()) -> dict:
     """Squares, then turns. Returns {"status", "squares": {...}, "turns": {...}}."""
-    result: dict = {"behavior": "steady_state", "status": "completed"}
-    for name, behavior in (("squares", SquarePattern(config.squares)), ("turns", SteadyTurns(config.turns))):
-        outcome = run_behavior(link, behavior, limits=limits, abort_requested=abort,
-                               restore=RestorePoint.capture(link))
-        part = behavior.result()
-        if name == "squares":
-            part["path"] = _decimate(behavior.data(), config.path_rate_hz)
-        else:
-            part["paths"] = [_decimate(data, config.path_rate_hz) for data in behavior.data()]
-        result[name] = part
-        if outcome.status != "completed":
-            result.update(status="aborted", abort_reason=outcome.reason)
-            break
-    return result
+    procedure = SteadyStateProcedure(config)
+    run_procedure(link, procedure, limits=limits, abort_requested=abort)
+    return procedure.result()
 
 
 def steady_summary(result: dict, true_current: tuple[float, float] | None = None) -> dict:

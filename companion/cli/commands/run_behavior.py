@@ -33,7 +33,9 @@ def add_parser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from companion.procedures.app import vehicle_record
-    from companion.procedures.behaviour_procedures import MinSpeedProcedureConfig, RollProcedureConfig, run_named_behavior
+    from companion.procedures.app import run_named_behavior
+    from companion.procedures.min_speed import MinSpeedProcedureConfig
+    from companion.procedures.roll import RollProcedureConfig
     from companion.records.store import Store
 
     name = args.behavior.replace("-", "_")

@@ -1,0 +1,99 @@
+"""Minimum-speed seeking as a procedure (SPEC C7; thesis ch. 5, Fig. 5.22).
+
+A sequence under one restore point: the holding mode at the nominal thrust for ``settle_s`` (the
+depth and pitch integrators must hold the trim before the first decision, as the thesis starts
+seeking at 100 s), then the fuzzy seeker for ``duration_s``. The figures are the final thrust
+ratio and speed, against the analytic TR* and Vmin (eq. 5.28–5.54) when the vehicle data are known.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+
+from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking
+from behaviors.observe import Observe
+from behaviors.sequence import Instant, SequenceBehavior
+from companion.interface import SetMode, SetThrust
+from companion.procedures.roll import _status
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class MinSpeedProcedureConfig:
+    nominal_thrust: float = 0.70
+    settle_s: float = 100.0
+    duration_s: float = 200.0
+    period_s: float | None = None  # None: the seeker's default Ts
+
+
+class MinSpeedProcedure(SequenceBehavior):
+    def __init__(self, config: MinSpeedProcedureConfig = MinSpeedProcedureConfig(), *,
+                 depth_gains: dict[str, float] | None = None, analytic: dict | None = None) -> None:
+        seeker_config = MinSpeedConfig(nominal_thrust=config.nominal_thrust, duration_s=config.duration_s)
+        self.depth_gains_source = "Table 5.1 (autopilot's not readable)"
+        if depth_gains:  # the seeker re-computes the autopilot's desired pitch with its depth-loop gains
+            seeker_config = replace(seeker_config, depth_p=depth_gains["depth_p"], depth_i=depth_gains["depth_i"],
+                                    pitch_max=depth_gains["pitch_max"])
+            self.depth_gains_source = "autopilot"
+        if config.period_s is not None:
+            seeker_config = replace(seeker_config, seeker=replace(seeker_config.seeker, period_s=config.period_s))
+        self.analytic = analytic
+        self.seeker = MinSpeedSeeking(seeker_config)
+        super().__init__([Instant(SetMode("hold"), SetThrust(config.nominal_thrust), name="prepare"),
+                          Observe(config.settle_s, label="settle"), self.seeker],
+                         name="min_speed", stop_on_failure=True)
+
+    def result(self) -> dict:
+        result = dict(self.seeker.result()) if self.seeker.status.finished else {}
+        result["status"] = _status(self.status)
+        if self.reason and result["status"] != "completed":
+            result["abort_reason"] = self.reason
+        result["depth_gains_source"] = self.depth_gains_source
+        if self.analytic:
+            result.update(thrust_ratio_star=self.analytic.get("thrust_ratio_star"), v_min=self.analytic.get("v_min"),
+                          theta_star_deg=self.analytic.get("theta_star_deg"))
+        return result
+
+
+def read_depth_gains(link) -> dict[str, float] | None:
+    """The autopilot's depth-loop gains (None when its profile has none: the seeker then assumes Table 5.1's)."""
+    try:
+        return link.get_params(["depth_p", "depth_i", "pitch_max"])
+    except Exception as exc:  # noqa: BLE001 - e.g. a profile without these names
+        log.warning("depth-loop gains not readable (%s): the seeker assumes Table 5.1's", exc)
+        return None
+
+
+def analytic_minimum_speed(preset: str | None) -> dict | None:
+    """Eq. 5.28–5.54 for a simulator preset's vehicle data (read as data, never imported)."""
+    if not preset:
+        return None
+    from companion.numerics.minspeed import minimum_speed
+    from companion.records.vehicle_files import load_vehicle
+
+    try:
+        vehicle, _ = load_vehicle(preset, None)
+    except (OSError, ValueError, KeyError) as exc:
+        log.warning("no analytic minimum speed for %r: %s", preset, exc)
+        return None
+    return minimum_speed(vehicle).as_json()
+
+
+def min_speed_summary(result: dict) -> dict:
+    from companion.procedures.app import finite_or_none
+
+    return {key: finite_or_none(result.get(key)) for key in
+            ("thrust_ratio_final", "thrust_ratio_star", "speed_final", "v_min", "settle_time_s",
+             "max_depth_error_m", "max_depth_error_settled_m")} | {"status": result.get("status")}
+
+
+def min_speed_procedure(link, abort, config: MinSpeedProcedureConfig = MinSpeedProcedureConfig(), *,
+                        analytic: dict | None = None, limits=None) -> dict:
+    """Build and run the minimum-speed procedure under one restore point (module docstring)."""
+    from companion.procedures.roll import finish_result
+    from companion.procedures.runner import SafetyLimits, run_procedure
+
+    procedure = MinSpeedProcedure(config, depth_gains=read_depth_gains(link), analytic=analytic)
+    outcome = run_procedure(link, procedure, limits=limits or SafetyLimits(), abort_requested=abort)
+    return finish_result(procedure.result(), outcome)
