@@ -8,11 +8,13 @@ import sys
 import time
 
 import pytest
+from pymavlink.dialects.v20.common import MAV_RESULT_ACCEPTED as ACCEPTED
+from pymavlink.dialects.v20.common import MAV_RESULT_FAILED as FAILED
+from pymavlink.dialects.v20.common import MAV_RESULT_IN_PROGRESS as IN_PROGRESS
 
 pytestmark = pytest.mark.e2e
 
 MAV_CMD_USER_1, MAV_CMD_USER_3, MAV_CMD_USER_4 = 31010, 31012, 31013
-ACCEPTED, FAILED, IN_PROGRESS = 0, 4, 5
 
 
 def acks_for(gcs, command: int, until, timeout_s: float) -> list[tuple[int, int]]:

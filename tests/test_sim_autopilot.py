@@ -9,6 +9,7 @@ import sys
 
 import pytest
 
+from companion.cli.launcher import parse_ready
 from sim.autopilot import (
     MODE_ALT_HOLD,
     MODE_GUIDED,
@@ -150,6 +151,7 @@ def test_cli_run_duration_exits_cleanly():
     done = _cli("run", "--listen", "udpin:127.0.0.1:0", "--speedup", "0", "--duration", "5")
     assert done.returncode == 0, done.stderr
     assert done.stdout.count("\n") == 1  # one line on stdout, with the port the OS gave
-    kind, host, port = done.stdout.split()[1].split(":")
-    assert done.stdout.startswith("READY ") and (kind, host) == ("udpin", "127.0.0.1")
-    assert int(port) > 0
+    # the line the companion's launcher waits for (its parser is the only one)
+    assert parse_ready(done.stdout) is not None
+    kind, host, port = parse_ready(done.stdout)
+    assert (kind, host) == ("udpin", "127.0.0.1") and port > 0
