@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from companion.procedures.app import AbortFlag
-from companion.procedures.behaviour_procedures import RollProcedureConfig, roll_procedure
+from companion.procedures.roll import RollProcedureConfig, roll_procedure
 from companion.link.vehicle import VehicleLink
 from companion.cli.launcher import SimulatorProcess
 
