@@ -10,13 +10,13 @@ from behaviors.heading_schedule import HEADING
 from behaviors.identification import IdentificationAttempt
 from companion.numerics.identification import YawModel
 from behaviors.identification import ManoeuvreConfig
-from companion.procedures.app import MAV_CMD_USER_1, MAV_CMD_USER_3, MAV_CMD_USER_4, AbortFlag
+from companion.procedures.app import AbortFlag
 from companion.procedures.min_speed import MinSpeedProcedureConfig
 from companion.procedures.campaign import CampaignConfig
 from companion.procedures.resident import Companion, ServeConfig, schedule_from_store
 from companion.records.store import Store
 from harness.inprocess import InProcessLink
-from pymavlink.dialects.v20.common import (MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_IN_PROGRESS,
+from pymavlink.dialects.v20.common import (MAV_CMD_USER_1, MAV_CMD_USER_3, MAV_CMD_USER_4, MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_IN_PROGRESS,
                                            MAV_RESULT_TEMPORARILY_REJECTED)
 
 CAMPAIGN = CampaignConfig(thrusts=(0.7, 1.0), axes=("yaw",), step_labels=(),

@@ -26,15 +26,10 @@ from companion.records.store import Store
 log = logging.getLogger(__name__)
 
 from pymavlink.dialects.v20.common import (  # noqa: E402 - the protocol's own constants
-    MAV_CMD_USER_1,
-    MAV_CMD_USER_2,
-    MAV_CMD_USER_3,
-    MAV_CMD_USER_4,
-    MAV_CMD_USER_5,
     MAV_RESULT_ACCEPTED,
     MAV_RESULT_FAILED,
     MAV_RESULT_IN_PROGRESS,
-    MAV_RESULT_TEMPORARILY_REJECTED,
+    MAV_RESULT_TEMPORARILY_REJECTED,  # noqa: F401 - re-exported for the resident loop
 )
 
 

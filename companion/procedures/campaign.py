@@ -23,7 +23,6 @@ parameter, so no gain from a failed campaign stays on the vehicle).
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import asdict, dataclass, replace
 from typing import Sequence
 

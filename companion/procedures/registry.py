@@ -8,13 +8,18 @@ schedule is its behaviour module, its numerics, and one line here.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from pymavlink.dialects.v20.common import MAV_CMD_USER_1, MAV_CMD_USER_2, MAV_CMD_USER_3, MAV_CMD_USER_4, MAV_CMD_USER_5
 
 from behaviors.gain_scheduling import ScheduleKind
 from behaviors.heading_schedule import heading_kind
 from behaviors.pitch_schedule import pitch_kind
+
+if TYPE_CHECKING:
+    from companion.procedures.min_speed import MinSpeedProcedureConfig
+    from companion.procedures.roll import RollProcedureConfig
+    from companion.procedures.steady_state import SteadyStateConfig
 
 GAIN_SCHEDULES: dict[str, Callable[..., ScheduleKind]] = {
     "heading": heading_kind,

@@ -6,7 +6,7 @@ stops procedures with COMMAND_LONG aimed at component 191:
 
 | command | procedure |
 |---|---|
-| MAV_CMD_USER_1 | identification campaign (then the schedule is refitted from its models) |
+| MAV_CMD_USER_1 | identification campaign (then scheduling follows the schedule it wrote) |
 | MAV_CMD_USER_2 | roll stabilisation (param1: closed-loop seconds, 0 = default) |
 | MAV_CMD_USER_3 | minimum-speed seeking (param1: seconds, 0 = default) |
 | MAV_CMD_USER_4 | abort the running procedure (the autopilot is restored) |

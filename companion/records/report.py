@@ -21,7 +21,6 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from companion.numerics.identification import YawModel  # noqa: E402
 from companion.numerics.turning import turning_performance  # noqa: E402
 from companion.records.serialise import to_json
 from companion.records.store import Store  # noqa: E402

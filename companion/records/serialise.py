@@ -27,17 +27,18 @@ def register(cls: type) -> type:
     return cls
 
 
-def _plain(value: Any) -> Any:
+def json_ready(value: Any) -> Any:
+    """``value`` as strict-JSON-ready Python: records tagged, NaN/inf as None, numpy as lists/floats."""
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return to_json(value)
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
+        return {str(k): json_ready(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
+        return [json_ready(v) for v in value]
     if hasattr(value, "tolist"):  # numpy arrays and scalars
-        return _plain(value.tolist())
+        return json_ready(value.tolist())
     return value
 
 
@@ -48,7 +49,7 @@ def to_json(record: Any) -> dict:
         raise TypeError(f"{cls.__name__} is not a registered record type")
     out: dict[str, Any] = {"type": cls.__name__}
     for f in dataclasses.fields(record):
-        out[f.name] = _plain(getattr(record, f.name))
+        out[f.name] = json_ready(getattr(record, f.name))
     return out
 
 

@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import sqlite3
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from companion.records.serialise import from_json, to_json
+from companion.records.serialise import from_json, json_ready, to_json
 
 if TYPE_CHECKING:
     from behaviors.gain_scheduling import GainDesign
@@ -105,17 +104,8 @@ def _json(value: Any) -> str:
     return json.dumps(json_safe(value), separators=(",", ":"))
 
 
-def json_safe(value: Any) -> Any:
-    """``value`` with NaN/inf as None and numpy values as plain Python (for every JSON we write)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    if hasattr(value, "tolist"):  # numpy arrays and scalars
-        return json_safe(value.tolist())
-    return value
+#: ``value`` with NaN/inf as None, numpy values as plain Python and records tagged (every JSON we write)
+json_safe = json_ready
 
 
 @dataclass(frozen=True)

@@ -50,6 +50,23 @@ def thrust_list(text: str) -> tuple[float, ...]:
     return tuple(values)
 
 
+def schedule_list(text: str) -> tuple[str, ...]:
+    """``heading,pitch`` -> the registered gain schedules named (argparse type)."""
+    from companion.procedures.registry import GAIN_SCHEDULES
+
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in GAIN_SCHEDULES]
+    if not names or unknown:
+        raise argparse.ArgumentTypeError(f"gain schedules are {', '.join(GAIN_SCHEDULES)} (got {text!r})")
+    return names
+
+
+def add_schedules_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--schedules", type=schedule_list, default=("heading",), metavar="NAMES",
+                        help="gain schedules to design and write: heading and/or pitch (default: heading; "
+                             "pitch needs the pitch axis identified)")
+
+
 def print_json(value) -> None:
     from companion.records.store import json_safe
 

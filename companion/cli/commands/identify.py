@@ -5,7 +5,7 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
+from companion.cli.commands._common import (add_schedules_argument, ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
                                        print_json, thrust_list)
 
 
@@ -21,6 +21,7 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--depth", type=float, default=None, help="campaign depth in m (default: 2)")
     parser.add_argument("--axes", default="yaw,pitch", help="axes to identify (default: %(default)s)")
     parser.add_argument("--no-steps", action="store_true", help="skip the heading-step checks")
+    add_schedules_argument(parser)
     parser.add_argument("--thesis-estimator", action="store_true",
                         help="the seeds' exact estimator (P0 = 100·I, zero-order holds) instead of the defaults")
     parser.add_argument("--no-write", action="store_true", help="design the gains but do not write them")
@@ -33,7 +34,7 @@ def add_parser(subparsers) -> None:
 def campaign_config(args: argparse.Namespace):
     from companion.procedures.campaign import CampaignConfig
 
-    config = CampaignConfig(axes=tuple(a.strip() for a in args.axes.split(",") if a.strip()))
+    config = CampaignConfig(axes=tuple(a.strip() for a in args.axes.split(",") if a.strip()), schedules=args.schedules)
     if args.thrusts:
         config = replace(config, thrusts=args.thrusts)
     if args.depth is not None:

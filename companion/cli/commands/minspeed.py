@@ -12,11 +12,8 @@ either option the Table 5.1 vehicle (the dataclass defaults) is used.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import sys
-from pathlib import Path
-from typing import Any
 
 from companion.numerics.minspeed import minimum_speed
 from companion.records.vehicle_files import load_vehicle, preset_path  # noqa: F401 - part of this command's API

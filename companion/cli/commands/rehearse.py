@@ -5,7 +5,7 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.cli.commands._common import print_json, thrust_list
+from companion.cli.commands._common import add_schedules_argument, print_json, thrust_list
 
 
 def add_parser(subparsers) -> None:
@@ -22,6 +22,7 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--thrusts", type=thrust_list, default=None, help="thrust settings, e.g. 0.6,0.7,0.8 (default: 60..100%%)")
     parser.add_argument("--axes", default="yaw,pitch", help="axes to identify (default: %(default)s)")
     parser.add_argument("--no-steps", action="store_true", help="skip the heading-step checks")
+    add_schedules_argument(parser)
     parser.add_argument("--thesis-estimator", action="store_true",
                         help="the seeds' exact estimator (P0 = 100·I, zero-order holds) instead of the defaults")
     parser.add_argument("--behaviors", default=None,
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, AssertionError):
         print("--current takes VN,VE in m/s", file=sys.stderr)
         return 2
-    campaign = CampaignConfig(axes=axes)
+    campaign = CampaignConfig(axes=axes, schedules=args.schedules)
     if args.thrusts:
         campaign = replace(campaign, thrusts=args.thrusts)
     if args.no_steps:
