@@ -68,8 +68,8 @@ class KickedSeeker(MinSpeedSeeking):
 
     kick_at_s: float | None = None
 
-    def step(self, telemetry):
-        commands = list(super().step(telemetry))
+    def update(self, telemetry):  # the hook every caller reaches (the procedure ticks, not steps)
+        commands = list(super().update(telemetry))
         if (self.kick_at_s is not None and self._start is not None and not getattr(self, "kicked_at", None)
                 and telemetry.time_s - self._start >= self.kick_at_s):
             self.kicked_at = telemetry.time_s - self._start
