@@ -29,7 +29,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
-from companion.procedures.runner import RestorePoint, run_behavior
+from companion.procedures.runner import RestorePoint, run_procedure
 from sim.linearize import linearized_yaw
 from sim.preset import load_preset
 
@@ -40,10 +40,15 @@ def run_inprocess(seed: int, preset: str) -> dict:
     from harness.inprocess import InProcessLink
 
     link = InProcessLink(preset=preset, seed=seed)
-    restore = RestorePoint.capture(link)
-    campaign = IdentificationCampaign(CONFIG, original_gains=restore.parameters)
-    outcome = run_behavior(link, campaign, restore=restore)
-    return {"status": outcome.status, "accepted": campaign.accepted, "steps": campaign.step_results}
+    campaign = IdentificationCampaign(CONFIG)
+    campaign.original_gains = dict(RestorePoint.capture(link, campaign.footprint).parameters)
+    outcome = run_procedure(link, campaign)
+    return {"status": outcome.status, "accepted": _rows(campaign.accepted), "steps": campaign.step_results}
+
+
+def _rows(attempts) -> list[dict]:
+    """The accepted attempts as plain dicts (their summary plus the training series)."""
+    return [dict(attempt.summary(), training=attempt.training) for attempt in attempts]
 
 
 def run_mavlink(seed: int, preset: str, speedup: float) -> dict:
@@ -62,7 +67,7 @@ def run_mavlink(seed: int, preset: str, speedup: float) -> dict:
                                                 abort=AbortFlag())
         finally:
             link.close()
-    return {"status": outcome.status, "accepted": campaign.accepted, "steps": campaign.step_results}
+    return {"status": outcome.status, "accepted": _rows(campaign.accepted), "steps": campaign.step_results}
 
 
 def settled_s(history: dict | None, band: float = 0.02) -> float | None:
