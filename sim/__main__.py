@@ -45,6 +45,13 @@ def build_parser() -> argparse.ArgumentParser:
                      help="never run more than one attitude period ahead of the vehicle time the companion "
                           "acknowledged (SYSTEM_TIME from component 191): closed-loop results then do not "
                           "depend on --speedup (docs/PROTOCOL.md)")
+    run.add_argument("--autopilot", choices=("builtin", "ardurover", "ardusub"), default="builtin",
+                     help="builtin: our own autopilot (default); ardurover/ardusub: the real ArduPilot firmware "
+                          "(SITL, JSON backend) flying our physics, MAVLink on its TCP port")
+    run.add_argument("--ardupilot-bin", metavar="DIR", default=None,
+                     help="folder of the ArduPilot SITL binaries (build/sitl/bin); default $ARDUPILOT_SITL_BIN")
+    run.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                     help="extra ArduPilot parameter for SITL's defaults file (repeatable)")
     run.set_defaults(func=_run)
 
     lin = sub.add_parser("linearize", help="the preset's linearised yaw parameters (truth)")
@@ -61,8 +68,51 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _run_ardupilot(args: argparse.Namespace) -> int:
+    import os
+    from pathlib import Path
+
+    from sim.ardupilot_sitl import ArduPilotSitl, SitlConfig
+
+    bin_dir = args.ardupilot_bin or os.environ.get("ARDUPILOT_SITL_BIN")
+    if not bin_dir:
+        print("error: --autopilot ardurover/ardusub needs --ardupilot-bin DIR (or ARDUPILOT_SITL_BIN)", file=sys.stderr)
+        return 2
+    params = {}
+    for item in args.param:
+        name, _, value = item.partition("=")
+        try:
+            params[name.strip()] = float(value)
+        except ValueError:
+            print(f"error: --param takes NAME=VALUE, not {item!r}", file=sys.stderr)
+            return 2
+    preset = None if args.preset == "starfish" and args.autopilot == "ardurover" else args.preset
+    config = SitlConfig(autopilot=args.autopilot, bin_dir=Path(bin_dir), preset=preset,
+                        speedup=args.speedup if args.speedup > 0 else 1.0, seed=args.seed, current=args.current,
+                        depth=0.0 if args.autopilot == "ardurover" else args.depth, params=params)
+    try:
+        sitl = ArduPilotSitl(config, on_ready=lambda endpoint: print(f"READY {endpoint}", flush=True))
+    except (ValueError, RuntimeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+    def on_signal(signum: int, _frame: object) -> None:
+        sitl.stop()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    try:
+        return sitl.run()
+    except RuntimeError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+
+
 def _run(args: argparse.Namespace) -> int:
     from sim.server import SimConfig, SimServer
+
+    if args.autopilot != "builtin":
+        return _run_ardupilot(args)
 
     config = SimConfig(
         preset=args.preset,

@@ -170,6 +170,7 @@ class Preset:
     actuators: ActuatorDefaults
     autopilot: AutopilotDefaults
     sensors: SensorNoise
+    surface: bool = False  # a surface vessel: depth, pitch and heave held at 0 (no dive plane)
 
     @property
     def attitude_noise(self) -> float:
@@ -207,7 +208,10 @@ def _section(cls: type, data: dict[str, Any], where: str) -> Any:
 def preset_from_dict(data: dict[str, Any]) -> Preset:
     """Build a :class:`Preset` from its JSON dictionary, checking every field is present."""
     sections = {key: _section(cls, data[key], key) for key, cls in _SECTIONS.items()}
-    return Preset(name=str(data["name"]), description=str(data.get("description", "")), **sections)
+    surface = data.get("surface", False)
+    if not isinstance(surface, bool):
+        raise ValueError(f"preset field 'surface' must be true or false, not {surface!r}")
+    return Preset(name=str(data["name"]), description=str(data.get("description", "")), surface=surface, **sections)
 
 
 def load_preset(name: str) -> Preset:

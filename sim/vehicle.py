@@ -161,6 +161,10 @@ class Vehicle:
             self.thrust_ratio = trim.thrust_ratio
         self.rudder = 0.0
         self.mass_angle = 0.0
+        self._heave_force = 0.0
+        if preset.surface:
+            self.depth = self.heave = self.pitch = 0.0
+            self.elevator = 0.0
 
     # ------------------------------------------------------------------ configuration
     @property
@@ -188,6 +192,7 @@ class Vehicle:
         phi: float, p: float, thrust: float, roll_moment: float,
     ) -> tuple[float, ...]:
         du, dw, dq = dive_plane_accelerations(self._dive, u, w, q, theta, self.elevator, thrust)
+        dw += self._heave_force / self.preset.dive_plane.mass_heave
         speed = math.sqrt(u * u + w * w)
         dr = yaw_acceleration(self._yaw, speed, r, self.rudder)
         dv = sway_acceleration(self._yaw, speed, r, v)
@@ -200,8 +205,12 @@ class Vehicle:
         dz = -u * sin_t + w * cos_t
         return du, dw, dq, q, dz, dr, r, dv, p, dp, dn, de
 
-    def step(self, dt: float, demand: ActuatorDemand) -> None:
-        """Advance ``dt`` seconds: actuator limits, rate limits and mass servo lag, then physics (RK2)."""
+    def step(self, dt: float, demand: ActuatorDemand, heave_force: float = 0.0) -> None:
+        """Advance ``dt`` seconds: actuator limits, rate limits and mass servo lag, then physics (RK2).
+
+        ``heave_force`` (N, positive down) is an external vertical thrust (a vectored vehicle's
+        vertical thrusters). A surface vessel (``preset.surface``) stays at the surface, level in pitch."""
+        self._heave_force = heave_force
         lim = self.limits
         self.rudder = _toward(self.rudder, demand.rudder, lim.rudder_max, lim.rudder_rate * dt)
         self.elevator = _toward(self.elevator, demand.elevator, lim.elevator_max, lim.elevator_rate * dt)
@@ -222,6 +231,8 @@ class Vehicle:
             x + half * (a + b) for x, a, b in zip(x0, k1, k2))
         if self.depth < 0.0:  # a buoyant vehicle that loses depth control ends at the surface
             self.depth = 0.0
+        if self.preset.surface:  # a boat: no dive plane
+            self.depth = self.heave = self.pitch = self.pitch_rate = 0.0
         self.time_s += dt
 
     # ------------------------------------------------------------------ outputs

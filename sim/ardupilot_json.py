@@ -1,0 +1,226 @@
+"""Our preset physics behind ArduPilot SITL's JSON backend (``--model JSON:127.0.0.1``).
+
+The real ArduPilot firmware (built for SITL) runs the autopilot; this module is its vehicle. The
+protocol is ArduPilot's ``libraries/SITL/examples/JSON/readme.md``:
+
+* SITL sends one binary servo frame per physics step to our UDP port
+  (``uint16 magic 18458 | uint16 frame_rate | uint32 frame_count | uint16 pwm[16]``; magic 29569
+  carries 32 channels);
+* we answer each frame with one JSON line of the state after a step of ``1/frame_rate`` seconds:
+  ``timestamp`` (s), ``imu.gyro`` (body rad/s), ``imu.accel_body`` (specific force, body FRD,
+  m/s²), ``position`` and ``velocity`` (NED, m, m/s), ``attitude`` (roll, pitch, yaw).
+
+SITL waits for each answer before it advances (lockstep), so results do not depend on the
+speed-up. The state sent is the true state: ArduPilot's own SITL sensor models add their noise.
+
+Servo outputs become our actuators through a :class:`FrameDecoder` per autopilot frame:
+
+* :class:`RoverBoatDecoder` — ArduRover boat (``FRAME_CLASS 2``): SERVO1 ground steering, SERVO3
+  throttle (1500 µs = stop for boats; reverse is not simulated and reads as zero thrust).
+* :class:`SubVectoredDecoder` — ArduSub vectored frame: the six thruster outputs are un-mixed into
+  yaw, forward and vertical demands (``AP_Motors6DOF`` factors); yaw acts as an equivalent rudder
+  and the vertical demand as a heave force.
+
+Neither this module nor the simulator imports the companion.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import socket
+import struct
+from dataclasses import dataclass
+from typing import Protocol, Sequence
+
+from sim.vehicle import ActuatorDemand, Vehicle
+
+log = logging.getLogger(__name__)
+
+MAGIC_16 = 18458
+MAGIC_32 = 29569
+_HEADER = struct.Struct("<HHI")
+GRAVITY = 9.80665
+
+
+@dataclass(frozen=True)
+class ServoFrame:
+    frame_rate: int  # Hz: the step SITL asks for
+    frame_count: int
+    pwm: tuple[int, ...]  # µs, channel 1 first
+
+
+def parse_servo_frame(data: bytes) -> ServoFrame | None:
+    """A servo frame, or None for anything else (wrong magic or length: ignored, never raised)."""
+    if len(data) < _HEADER.size:
+        return None
+    magic, frame_rate, frame_count = _HEADER.unpack_from(data)
+    channels = {MAGIC_16: 16, MAGIC_32: 32}.get(magic)
+    if channels is None or len(data) < _HEADER.size + 2 * channels:
+        return None
+    pwm = struct.unpack_from(f"<{channels}H", data, _HEADER.size)
+    return ServoFrame(frame_rate=frame_rate, frame_count=frame_count, pwm=tuple(pwm))
+
+
+class FrameDecoder(Protocol):
+    """Servo outputs (µs) -> our actuator demand, plus an optional heave force (N, down positive)."""
+
+    name: str
+
+    def demand(self, pwm: Sequence[int], previous: ActuatorDemand) -> tuple[ActuatorDemand, float]: ...
+
+
+def _normalised(pwm: int, centre: float = 1500.0, half_range: float = 500.0) -> float | None:
+    """(pwm − centre)/half_range clamped to ±1; None for 0 (output disabled)."""
+    if pwm <= 0:
+        return None
+    return max(-1.0, min(1.0, (pwm - centre) / half_range))
+
+
+@dataclass(frozen=True)
+class RoverBoatDecoder:
+    """ArduRover boat: SERVO1 steering (±1 -> ±``rudder_full_scale`` rad), SERVO3 throttle."""
+
+    rudder_full_scale: float = 0.5236  # rad at 1000/2000 µs (the ardurover profile's default)
+    steering_channel: int = 1
+    throttle_channel: int = 3
+    name: str = "ardurover-boat"
+
+    def demand(self, pwm: Sequence[int], previous: ActuatorDemand) -> tuple[ActuatorDemand, float]:
+        steering = _normalised(pwm[self.steering_channel - 1])
+        throttle = _normalised(pwm[self.throttle_channel - 1])
+        rudder = previous.rudder if steering is None else steering * self.rudder_full_scale
+        thrust = 0.0 if throttle is None else max(0.0, throttle)  # reverse: not simulated
+        return ActuatorDemand(rudder=rudder, elevator=0.0, thrust_ratio=thrust,
+                              mass_angle=previous.mass_angle), 0.0
+
+
+# AP_Motors6DOF SUB_FRAME_VECTORED factors: (roll, pitch, yaw, throttle, forward, lateral) per motor
+_VECTORED = (
+    (0.0, 0.0, 1.0, 0.0, -1.0, 1.0),
+    (0.0, 0.0, -1.0, 0.0, -1.0, -1.0),
+    (0.0, 0.0, -1.0, 0.0, 1.0, 1.0),
+    (0.0, 0.0, 1.0, 0.0, 1.0, -1.0),
+    (1.0, 0.0, 0.0, -1.0, 0.0, 0.0),
+    (-1.0, 0.0, 0.0, -1.0, 0.0, 0.0),
+)
+
+
+@dataclass(frozen=True)
+class SubVectoredDecoder:
+    """ArduSub vectored frame: thruster outputs un-mixed by least squares over the frame factors.
+
+    Yaw (±1) acts as an equivalent rudder of ±``rudder_full_scale`` rad (the ardusub profile's
+    default), forward (≥ 0) as the thrust ratio, and the vertical demand as a heave force of up to
+    ``heave_force_max`` N. Motor directions (``MOT_n_DIRECTION``) are those of the parameter file
+    the launcher writes: all normal."""
+
+    rudder_full_scale: float = 0.35
+    heave_force_max: float = 60.0
+    pwm_half_range: float = 400.0
+    name: str = "ardusub-vectored"
+
+    def demand(self, pwm: Sequence[int], previous: ActuatorDemand) -> tuple[ActuatorDemand, float]:
+        outputs = [_normalised(p, 1500.0, self.pwm_half_range) for p in pwm[:6]]
+        if any(o is None for o in outputs):
+            return previous, 0.0
+        axes = []
+        for axis in (2, 3, 4):  # yaw, throttle (vertical), forward
+            factors = [row[axis] for row in _VECTORED]
+            norm = sum(f * f for f in factors)
+            axes.append(sum(f * o for f, o in zip(factors, outputs)) / norm)
+        yaw, vertical, forward = axes
+        heave_force = vertical * self.heave_force_max  # throttle factor −1 = thrust up: −vertical is up
+        return ActuatorDemand(rudder=yaw * self.rudder_full_scale, elevator=0.0, thrust_ratio=max(0.0, forward),
+                              mass_angle=previous.mass_angle), heave_force
+
+
+DECODERS: dict[str, type] = {"ardurover": RoverBoatDecoder, "ardusub": SubVectoredDecoder}
+
+
+class JsonPhysics:
+    """One step of our physics per servo frame; builds the JSON answer (see the module docstring)."""
+
+    def __init__(self, vehicle: Vehicle, decoder: FrameDecoder, max_step_s: float = 0.01) -> None:
+        self.vehicle = vehicle
+        self.decoder = decoder
+        self.max_step_s = max_step_s
+        self.demand = ActuatorDemand(thrust_ratio=0.0)
+        self.frames = 0
+        self._last_velocity = self._velocity_ned()
+
+    def _velocity_ned(self) -> tuple[float, float, float]:
+        s = self.vehicle.state
+        return s.vel_north, s.vel_east, s.vel_down
+
+    def step(self, frame: ServoFrame) -> bytes:
+        """Advance by the frame's time step (sub-stepped at ``max_step_s``); return the JSON line."""
+        self.demand, heave_force = self.decoder.demand(frame.pwm, self.demand)
+        dt = 1.0 / frame.frame_rate if frame.frame_rate > 0 else self.max_step_s
+        dt = min(dt, 0.1)
+        steps = max(1, int(math.ceil(dt / self.max_step_s - 1e-9)))
+        for _ in range(steps):
+            self.vehicle.step(dt / steps, self.demand, heave_force=heave_force)
+        self.frames += 1
+        velocity = self._velocity_ned()
+        accel_ned = [(v - v0) / dt for v, v0 in zip(velocity, self._last_velocity)]
+        self._last_velocity = velocity
+        return state_line(self.vehicle, accel_ned)
+
+
+def _body_from_ned(roll: float, pitch: float, yaw: float, vector: Sequence[float]) -> list[float]:
+    """R_nbᵀ·v: a NED vector in body axes (ZYX Euler angles)."""
+    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+    n, e, d = vector
+    x = cp * cy * n + cp * sy * e - sp * d
+    y = (sr * sp * cy - cr * sy) * n + (sr * sp * sy + cr * cy) * e + sr * cp * d
+    z = (cr * sp * cy + sr * sy) * n + (cr * sp * sy - sr * cy) * e + cr * cp * d
+    return [x, y, z]
+
+
+def state_line(vehicle: Vehicle, accel_ned: Sequence[float]) -> bytes:
+    """The JSON state SITL reads: specific force = acceleration − gravity, in body axes."""
+    s = vehicle.state
+    specific_force = _body_from_ned(s.roll, s.pitch, s.yaw, [accel_ned[0], accel_ned[1], accel_ned[2] - GRAVITY])
+    state = {
+        "timestamp": s.time_s,
+        "imu": {"gyro": [s.roll_rate, s.pitch_rate, s.yaw_rate], "accel_body": specific_force},
+        "position": [s.north, s.east, s.depth],
+        "velocity": [s.vel_north, s.vel_east, s.vel_down],
+        "attitude": [s.roll, s.pitch, s.yaw],
+    }
+    return ("\n" + json.dumps(state, separators=(",", ":")) + "\n").encode("ascii")
+
+
+class JsonBridge:
+    """UDP endpoint for SITL's servo frames (bind to port 0 for a free port, then tell SITL with
+    ``--sim-port-out``); answers each frame to the address it came from."""
+
+    def __init__(self, physics: JsonPhysics, host: str = "127.0.0.1", port: int = 0) -> None:
+        self.physics = physics
+        self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.socket.bind((host, port))
+        self.port = self.socket.getsockname()[1]
+        self.last_frame_count = -1
+
+    def serve_once(self, timeout_s: float) -> bool:
+        """Handle one frame if one arrives within ``timeout_s`` (wall clock: a process-level wait)."""
+        self.socket.settimeout(timeout_s)
+        try:
+            data, address = self.socket.recvfrom(2048)
+        except socket.timeout:
+            return False
+        frame = parse_servo_frame(data)
+        if frame is None:
+            log.debug("ignored a %d-byte datagram that is not a servo frame", len(data))
+            return True
+        if frame.frame_count == self.last_frame_count:
+            # SITL re-sends a frame it got no answer to: answer again without stepping twice
+            self.socket.sendto(state_line(self.physics.vehicle, [0.0, 0.0, 0.0]), address)
+            return True
+        self.last_frame_count = frame.frame_count
+        self.socket.sendto(self.physics.step(frame), address)
+        return True
+
+    def close(self) -> None:
+        self.socket.close()

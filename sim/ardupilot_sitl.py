@@ -1,0 +1,177 @@
+"""The real ArduPilot firmware as the autopilot of our simulated vehicle (issue 14).
+
+``python -m sim run --autopilot ardurover|ardusub --ardupilot-bin DIR`` starts ArduPilot's SITL
+binary (``DIR/ardurover`` or ``DIR/ardusub``, built from ArduPilot's sources by the user; never
+shipped with this project) with the JSON physics backend, and serves the frames it sends with our
+preset physics (:mod:`sim.ardupilot_json`). The companion then talks MAVLink to the real firmware
+on its serial0 TCP port, exactly as it would to a vehicle, while the physics keep a known
+linearised truth (``python -m sim linearize``) for scoring.
+
+Everything runs on loopback: SITL's MAVLink port is ``5760 + 10·instance`` on 127.0.0.1 (a free
+instance is chosen), its servo frames go to our UDP port (bound to port 0, passed with
+``--sim-port-out``). The parameter file written for SITL is this vehicle's configuration
+(``sim/ardupilot/*.parm``), plus any ``--param NAME=VALUE`` given.
+"""
+from __future__ import annotations
+
+import logging
+import socket
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+from sim.ardupilot_json import DECODERS, JsonBridge, JsonPhysics
+from sim.preset import load_preset
+from sim.vehicle import Vehicle
+
+log = logging.getLogger(__name__)
+
+#: autopilot -> (binary name, parameter file, the preset it flies by default)
+AUTOPILOTS = {
+    "ardurover": ("ardurover", "ardurover-boat.parm", "boat"),
+    "ardusub": ("ardusub", "ardusub-vectored.parm", "starfish"),
+}
+MAVLINK_BASE_PORT = 5760
+DEFAULT_HOME = "-35.363262,149.165237,0,0"  # sea level (ArduSub needs a sea-level home)
+
+
+@dataclass
+class SitlConfig:
+    autopilot: str
+    bin_dir: Path
+    preset: str | None = None
+    speedup: float = 1.0
+    seed: int = 0
+    current: tuple[float, float] = (0.0, 0.0)
+    depth: float = 0.0
+    home: str = DEFAULT_HOME
+    params: dict[str, float] = field(default_factory=dict)
+    workdir: Path | None = None  # None: a temporary folder (SITL writes eeprom.bin and logs there)
+
+
+def find_binary(config: SitlConfig) -> Path:
+    if config.autopilot not in AUTOPILOTS:
+        raise ValueError(f"unknown autopilot {config.autopilot!r} (known: {', '.join(AUTOPILOTS)})")
+    binary = Path(config.bin_dir) / AUTOPILOTS[config.autopilot][0]
+    if not binary.is_file():
+        raise ValueError(f"no ArduPilot SITL binary {binary} (build ArduPilot for the 'sitl' board and "
+                         "pass its build/sitl/bin folder with --ardupilot-bin)")
+    return binary
+
+
+def free_instance(limit: int = 50) -> int:
+    """The first SITL instance whose MAVLink port (5760 + 10·i) and neighbours are free on loopback."""
+    for instance in range(limit):
+        ports = [MAVLINK_BASE_PORT + 10 * instance + k for k in (0, 2, 3)]
+        try:
+            for port in ports:
+                with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+                    probe.bind(("127.0.0.1", port))
+        except OSError:
+            continue
+        return instance
+    raise RuntimeError(f"no free SITL instance among the first {limit}")
+
+
+def parameter_file(config: SitlConfig, folder: Path) -> Path:
+    """This vehicle's parameters for SITL (``--defaults``), with the ``--param`` overrides appended."""
+    name = AUTOPILOTS[config.autopilot][1]
+    text = (resources.files("sim") / "ardupilot" / name).read_text(encoding="utf-8")
+    extra = "".join(f"{key} {value:g}\n" for key, value in config.params.items())
+    path = folder / name
+    path.write_text(text + extra, encoding="utf-8")
+    return path
+
+
+class ArduPilotSitl:
+    """SITL process + JSON bridge; ``run()`` serves frames until stopped or SITL exits."""
+
+    def __init__(self, config: SitlConfig, on_ready=None) -> None:
+        self.config = config
+        self.binary = find_binary(config)
+        preset = load_preset(config.preset or AUTOPILOTS[config.autopilot][2])
+        self.vehicle = Vehicle(preset, seed=config.seed, current_north=config.current[0],
+                               current_east=config.current[1], depth=config.depth, speed=0.0)
+        decoder = DECODERS[config.autopilot]()
+        self.bridge = JsonBridge(JsonPhysics(self.vehicle, decoder))
+        self.instance = free_instance()
+        self.port = MAVLINK_BASE_PORT + 10 * self.instance
+        self._tmp = None
+        if config.workdir is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix=f"sitl-{config.autopilot}-")
+            self.workdir = Path(self._tmp.name)
+        else:
+            self.workdir = Path(config.workdir)
+            self.workdir.mkdir(parents=True, exist_ok=True)
+        self.on_ready = on_ready
+        self.process: subprocess.Popen | None = None
+        self._stop = False
+
+    @property
+    def endpoint(self) -> str:
+        return f"tcp:127.0.0.1:{self.port}"
+
+    def command(self) -> list[str]:
+        defaults = parameter_file(self.config, self.workdir)
+        return [str(self.binary), "--model", "JSON:127.0.0.1", "--sim-port-out", str(self.bridge.port),
+                "--speedup", f"{self.config.speedup:g}", "-I", str(self.instance), "--home", self.config.home,
+                "--defaults", str(defaults)]
+
+    def start(self) -> None:
+        command = self.command()
+        log.info("starting ArduPilot SITL: %s", " ".join(command))
+        self.log_path = self.workdir / "sitl.log"
+        log_file = open(self.log_path, "w")  # noqa: SIM115 - closed with the process
+        self.process = subprocess.Popen(command, cwd=self.workdir, stdout=log_file, stderr=subprocess.STDOUT,
+                                        stdin=subprocess.DEVNULL)
+        self._log_file = log_file
+        self._wait_listening()
+        if self.on_ready is not None:
+            self.on_ready(f"tcpin:127.0.0.1:{self.port}")
+
+    def _wait_listening(self, timeout_s: float = 30.0) -> None:
+        """SITL's serial0 listens before it boots (it waits for the first client): wait for that,
+        reading its log (a probe connection would be taken as the client)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.process.poll() is not None:
+                raise RuntimeError(f"ArduPilot SITL exited ({self.process.returncode}): {self.log_tail()}")
+            if "Waiting for connection" in self.log_path.read_text(errors="replace"):
+                return
+            time.sleep(0.05)
+        raise RuntimeError(f"ArduPilot SITL did not open its MAVLink port within {timeout_s:.0f} s: {self.log_tail()}")
+
+    def log_tail(self, lines: int = 15) -> str:
+        try:
+            return " | ".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
+        except OSError:
+            return "(no log)"
+
+    def run(self) -> int:
+        self.start()
+        try:
+            while not self._stop and self.process.poll() is None:
+                self.bridge.serve_once(0.5)
+        finally:
+            self.close()
+        return 0
+
+    def stop(self) -> None:
+        self._stop = True
+
+    def close(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        if getattr(self, "_log_file", None) is not None:
+            self._log_file.close()
+        self.bridge.close()
+        if self._tmp is not None:
+            self._tmp.cleanup()
