@@ -60,35 +60,19 @@ def test_profiles_name_modes_channels_and_units():
     assert ARDUSUB.channel("rudder") == 4 and ARDUSUB.channel("thrust") == 5
     assert ARDUSUB.pwm_to_thrust(1900) == pytest.approx(1.0) and ARDUSUB.pwm_to_thrust(1500) == 0.0
     assert ARDUROVER.to_native_value("cruise_thrust", 0.45) == pytest.approx(45.0)
-    assert ARDUROVER.to_native_value("rudder_trim", 0.0) == pytest.approx(1500.0)
-    assert ARDUSUB.native_candidates("gcs_sysid") == ("SYSID_MYGCS", "MAV_GCS_SYSID")
+    assert ARDUSUB.native_candidates("gcs_sysid") == ("MAV_GCS_SYSID", "SYSID_MYGCS")  # renamed in 4.7
     with pytest.raises(ProfileError):
         ARDUROVER.channel("elevator")
     assert SIM.flown and not ARDUSUB.flown and not ARDUROVER.flown
     assert set(PROFILES) == {"sim", "ardusub", "ardurover"}
 
 
-@pytest.mark.parametrize("profile", [ARDUSUB, ARDUROVER])
-def test_cascaded_heading_mapping_reproduces_the_pi(profile):
-    kp, ki, imax, rate_p = 1.02, 0.08, 0.15, 0.4
-    native = profile.heading_pi_to_native(kp, ki, imax, rate_p=rate_p)
-    assert native[profile.native_param("heading_rate_d")] == 0.0
-    native[profile.native_param("heading_rate_p")] = rate_p
-    back = profile.native_to_heading_pi(native)
-    assert back["heading_p"] == pytest.approx(kp, rel=1e-12)
-    assert back["heading_i"] == pytest.approx(ki, rel=1e-12)
-    assert back["heading_imax"] == pytest.approx(imax, rel=1e-12)
-    # P only: angle P is Kp over (full scale · rate P)
-    p_only = profile.heading_pi_to_native(kp, 0.0, imax, rate_p=rate_p)
-    assert p_only[profile.native_param("heading_p")] == pytest.approx(kp / (profile.angle_full_scale_rad * rate_p))
-    with pytest.raises(ProfileError):  # Ki too large for this rate P: no real root
-        profile.heading_pi_to_native(0.1, 10.0, imax, rate_p=rate_p)
-    with pytest.raises(ProfileError):
-        profile.heading_pi_to_native(kp, ki, imax)
-
-
-def test_sim_heading_mapping_is_identity():
-    assert SIM.heading_pi_to_native(1.1, 0.05, 0.15) == {"HDG_P": 1.1, "HDG_I": 0.05, "HDG_IMAX": 0.15}
+def test_ardupilot_profiles_name_their_native_heading_gains_one_to_one():
+    """No PI-to-cascade translation any more (issue 14): each native gain has its own neutral name."""
+    assert ARDUROVER.natives_touched(["heading_angle_p", "heading_rate_ff"]) == ("ATC_STR_ANG_P", "ATC_STR_RAT_FF")
+    assert ARDUSUB.natives_touched(["heading_rate_p", "nonexistent"]) == ("ATC_RAT_YAW_P",)
+    assert "heading_p" not in ARDUROVER.params and "rudder_trim" not in ARDUROVER.params  # never write SERVO1_TRIM
+    assert ARDUROVER.heading_schedule == ARDUSUB.heading_schedule == "cascade" and SIM.heading_schedule == "heading"
 
 
 # ============================================================================ parameter values

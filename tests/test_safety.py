@@ -52,15 +52,16 @@ class CascadedFake:
         self.mode = mode
 
 
-#: what a heading-gain procedure declares it touches (the restore point is derived from it)
-HEADING_GAINS = Footprint.of(parameters=("heading_p", "heading_i", "rudder_trim"))
+#: what a cascaded heading-gain procedure declares it touches (the restore point is derived from it)
+HEADING_GAINS = Footprint.of(parameters=("heading_angle_p", "heading_rate_p", "heading_rate_i", "heading_rate_d",
+                                         "heading_rate_ff", "heading_rate_imax"))
 
 
 def test_restore_gives_back_every_native_parameter_of_a_cascaded_autopilot():
     link = CascadedFake()
     found = dict(link.params)
     restore = RestorePoint.capture(link, HEADING_GAINS)
-    link.params.update({"ATC_STR_ANG_P": 3.0, "ATC_STR_RAT_D": 0.0, "ATC_STR_RAT_FF": 0.0})  # what a PI write does
+    link.params.update({"ATC_STR_ANG_P": 3.0, "ATC_STR_RAT_D": 0.0, "ATC_STR_RAT_FF": 0.0})  # what a design writes
     assert restore.restore(link) == []
     assert link.params == found
     assert sorted(link.writes) == ["ATC_STR_ANG_P", "ATC_STR_RAT_D", "ATC_STR_RAT_FF"]  # only what changed

@@ -48,6 +48,7 @@ class TelemetryAssembler:
     depth_sensor: DepthSensor = field(default_factory=DepthSensor)
     _fields: dict[str, Any] = field(default_factory=dict)
     _have_pressure: bool = False
+    servo_pwm: list[float] = field(default_factory=list)  # latest SERVO_OUTPUT_RAW, µs, outputs 1..16
     _warned: set[str] = field(default_factory=set)
     latest: Telemetry | None = None
 
@@ -58,6 +59,7 @@ class TelemetryAssembler:
             "LOCAL_POSITION_NED": self._on_local_position_ned,
             "VFR_HUD": self._on_vfr_hud,
             "SCALED_PRESSURE": self._on_scaled_pressure,
+            "GLOBAL_POSITION_INT": self._on_global_position_int,
             "HEARTBEAT": self._on_heartbeat,
         }
 
@@ -85,6 +87,8 @@ class TelemetryAssembler:
         return self.latest
 
     def _on_servo_output_raw(self, msg: Any) -> None:
+        self.servo_pwm = [self._number(msg, f"servo{i}_raw") if hasattr(msg, f"servo{i}_raw") else math.nan
+                          for i in range(1, 17)]
         outputs = self.profile.servo_outputs
         for actuator, telemetry_field in (("rudder", "rudder"), ("elevator", "elevator"), ("thrust", "thrust_ratio")):
             output = outputs.get(actuator)
@@ -102,13 +106,24 @@ class TelemetryAssembler:
         self._fields.update(
             north=self._number(msg, "x"), east=self._number(msg, "y"), down=down,
             vel_north=self._number(msg, "vx"), vel_east=self._number(msg, "vy"), vel_down=self._number(msg, "vz"))
-        if not self._have_pressure:
+        if not self._have_pressure and self.profile.depth_from_pressure:
             self._fields["depth"] = down
 
     def _on_vfr_hud(self, msg: Any) -> None:
-        self._fields.update(speed_water=self._number(msg, "airspeed"), speed_ground=self._number(msg, "groundspeed"))
+        ground = self._number(msg, "groundspeed")
+        # without a water-speed sensor (ArduPilot boats and subs) the ground speed stands in
+        water = self._number(msg, "airspeed") if self.profile.water_speed_sensor else ground
+        self._fields.update(speed_water=water, speed_ground=ground)
+
+    def _on_global_position_int(self, msg: Any) -> None:
+        """The autopilot's own (surface-calibrated) altitude: depth where pressure is not used."""
+        if not self.profile.depth_from_pressure:
+            relative_alt = self._number(msg, "relative_alt")
+            self._fields["depth"] = -relative_alt / 1000.0 if math.isfinite(relative_alt) else math.nan
 
     def _on_scaled_pressure(self, msg: Any) -> None:
+        if not self.profile.depth_from_pressure:
+            return  # raw pressure against 1013.25 hPa is wrong at any elevation (SPEC §4)
         press_abs = self._number(msg, "press_abs")
         self._have_pressure = True
         self._fields["depth"] = self.depth_sensor.depth(press_abs) if math.isfinite(press_abs) else math.nan

@@ -29,7 +29,8 @@ from companion.link import params as paramcodec
 from companion.link.errors import (CommandFailed, EndpointError, HeartbeatTimeout, LinkLost, ModeChangeFailed, ParamRefused,
                                    ParamTimeout, ProfileError, VehicleRebooted)
 from companion.link.overrides import OverrideTable, single_shot
-from companion.link.profiles import HEADING_PI_NAMES, AutopilotProfile, detect_profile, get_profile, marker_params
+from companion.link.autopilots import strategy_for
+from companion.link.profiles import AutopilotProfile, detect_profile, get_profile, marker_params
 from companion.link.snapshot import SAFETY_ARMED, DepthSensor, TelemetryAssembler
 
 log = logging.getLogger(__name__)
@@ -41,11 +42,8 @@ MAV_TYPE_ONBOARD_CONTROLLER = 18
 MAV_AUTOPILOT_INVALID = 8
 MAV_STATE_ACTIVE = 4
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
-MAV_CMD_CONDITION_YAW = 115
 MAV_CMD_DO_SET_MODE = 176
-MAV_CMD_DO_CHANGE_SPEED = 178
 MAV_CMD_DO_SET_SERVO = 183
-MAV_CMD_DO_CHANGE_ALTITUDE = 186
 MAV_CMD_COMPONENT_ARM_DISARM = 400
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
@@ -53,14 +51,6 @@ MAV_CMD_USER_1, MAV_CMD_USER_5 = 31010, 31014
 MAV_SEVERITY_WARNING = 4
 MSG_ID_AUTOPILOT_VERSION = 148
 
-#: message id → interval requested at connect (vehicle-time Hz; PROTOCOL.md defaults)
-DEFAULT_STREAM_RATES: dict[int, float] = {
-    30: 20.0,  # ATTITUDE
-    36: 20.0,  # SERVO_OUTPUT_RAW
-    32: 10.0,  # LOCAL_POSITION_NED
-    74: 10.0,  # VFR_HUD
-    29: 10.0,  # SCALED_PRESSURE
-}
 STATUSTEXT_CHUNK = 50
 SNAPSHOT_QUEUE_MAX = 2000
 NAMED_VALUE_MAX = 10
@@ -121,6 +111,11 @@ class VehicleLink:
         self.statustexts: collections.deque[tuple[float, int, str]] = collections.deque(maxlen=64)
         self.rejected_commands: collections.deque[tuple[float, int, int]] = collections.deque(maxlen=64)
         self.overrides = OverrideTable()
+        self.autopilot = None  # the profile's strategy (companion.link.autopilots), set at connect
+        self.commanded_mode: str | None = None  # the last mode the companion itself switched to
+        self._awaiting_ack: dict[int, float] = {}  # set-point command -> vehicle time it was sent
+        self._refusals: collections.deque[str] = collections.deque(maxlen=16)
+        self._gcs_heartbeat_component = 190
         self._last_attitude_ms: float | None = None
         self._last_heartbeat_sent: float = -math.inf
         self._last_heartbeat_msg: Any = None
@@ -145,6 +140,7 @@ class VehicleLink:
             "LOCAL_POSITION_NED": self._on_telemetry,
             "VFR_HUD": self._on_telemetry,
             "SCALED_PRESSURE": self._on_telemetry,
+            "GLOBAL_POSITION_INT": self._on_telemetry,
             "HEARTBEAT": self._on_heartbeat,
             "SYSTEM_TIME": self._on_system_time,
             "PARAM_VALUE": self._on_param_value,
@@ -197,8 +193,7 @@ class VehicleLink:
             master.mav.srcSystem = link.system_id
             master.mav.srcComponent = component
             link._on_heartbeat(heartbeat)
-            link._setup(profile, DEFAULT_STREAM_RATES if stream_rates is None else stream_rates,
-                        DepthSensor(water_density=water_density))
+            link._setup(profile, stream_rates, DepthSensor(water_density=water_density))
         except BaseException:
             master.close()
             raise
@@ -220,13 +215,14 @@ class VehicleLink:
                     MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER):
                 return msg
 
-    def _setup(self, profile: str | None, stream_rates: dict[int, float], depth_sensor: DepthSensor) -> None:
+    def _setup(self, profile: str | None, stream_rates: dict[int, float] | None, depth_sensor: DepthSensor) -> None:
         self.send_heartbeat()
-        for message_id, rate_hz in stream_rates.items():
-            self._command_long(MAV_CMD_SET_MESSAGE_INTERVAL, (message_id, 1e6 / rate_hz if rate_hz > 0 else -1))
         self._command_long(MAV_CMD_REQUEST_MESSAGE, (MSG_ID_AUTOPILOT_VERSION,))
         chosen = get_profile(profile) if profile is not None else self._detect_profile()
         self.profile = chosen
+        self.autopilot = strategy_for(self, chosen)
+        for message_id, rate_hz in (self.autopilot.streams if stream_rates is None else stream_rates).items():
+            self._command_long(MAV_CMD_SET_MESSAGE_INTERVAL, (message_id, 1e6 / rate_hz if rate_hz > 0 else -1))
         self.int_encoding = chosen.int_encoding
         self.assembler = TelemetryAssembler(chosen, depth_sensor=depth_sensor)
         if self._last_heartbeat_msg is not None:
@@ -336,10 +332,24 @@ class VehicleLink:
                 raise LinkLost(f"no telemetry snapshot for {timeout_s:g} s of wall clock "
                                f"(last message of any kind {silent:.1f} s ago)")
             self._pump(min(remaining, 0.5))
+        self._check_setpoint_answers()
         snapshot = self._unread_snapshots.popleft()
         self._returned_ms = int(round(snapshot.time_s * 1000.0))
         self._deliver_user_commands()
         return snapshot
+
+    def _check_setpoint_answers(self) -> None:
+        """A set-point the vehicle refused, or left unanswered for 3 command periods of vehicle
+        time, is a failure of the procedure that sent it (CommandFailed), never a warning."""
+        if self._refusals:
+            reason = self._refusals.popleft()
+            self._refusals.clear()
+            raise CommandFailed(reason)
+        overdue = [c for c, sent in self._awaiting_ack.items()
+                   if self.vehicle_time_s - sent > 3.0 * self.timeouts.command_s]
+        if overdue:
+            self._awaiting_ack.clear()
+            raise CommandFailed(f"the vehicle did not acknowledge command {overdue[0]}", command=overdue[0])
 
     @property
     def pending_snapshots(self) -> int:
@@ -383,6 +393,9 @@ class VehicleLink:
             return
         self._last_attitude_ms = time_ms
         self._advance_clock(time_ms)
+        if self.autopilot is not None:
+            snapshot = self.autopilot.on_snapshot(snapshot)
+            self.assembler.latest = snapshot
         if len(self._unread_snapshots) == SNAPSHOT_QUEUE_MAX:
             self.snapshots_dropped += 1
             if self.snapshots_dropped == 1 or self.snapshots_dropped % 1000 == 0:
@@ -434,9 +447,12 @@ class VehicleLink:
             return
         self._ack_count += 1
         self._acks[msg.command] = (msg.result, getattr(msg, "progress", 0) or 0, self._ack_count)
+        awaited = self._awaiting_ack.pop(msg.command, None) is not None
         if msg.result not in (MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS):
             self.rejected_commands.append((self.vehicle_time_s, msg.command, msg.result))
             log.warning("vehicle answered command %d with result %d", msg.command, msg.result)
+            if awaited:
+                self._refusals.append(f"the vehicle refused command {msg.command} (MAV_RESULT {msg.result})")
 
     def _on_statustext(self, msg: Any) -> None:
         if msg.get_srcSystem() != self.system_id:
@@ -505,6 +521,34 @@ class VehicleLink:
         self.master.mav.command_long_send(self.system_id, self.autopilot_component, command, confirmation, *values)
         return self._ack_count
 
+    def send_setpoint(self, command: int, params: Sequence[float]) -> None:
+        """A set-point COMMAND_LONG whose ACK is awaited in the background (see next_telemetry)."""
+        self._command_long(command, params)
+        self._awaiting_ack.setdefault(command, self.vehicle_time_s if math.isfinite(self.vehicle_time_s) else 0.0)
+
+    def send_attitude_target(self, quaternion: Sequence[float], thrust: float, *, ignore_thrust: bool = False) -> None:
+        """SET_ATTITUDE_TARGET: attitude from the quaternion, body rates ignored (type_mask 7, +64
+        to ignore the thrust field)."""
+        type_mask = 7 | (64 if ignore_thrust else 0)
+        time_ms = int(self.vehicle_time_s * 1000) if math.isfinite(self.vehicle_time_s) else 0
+        self.master.mav.set_attitude_target_send(time_ms & 0xFFFFFFFF, self.system_id, self.autopilot_component,
+                                                 type_mask, [float(q) for q in quaternion], 0.0, 0.0, 0.0,
+                                                 float(thrust))
+
+    def send_gcs_heartbeat(self) -> None:
+        """A HEARTBEAT as the ground station (its system id, type GCS): what a GCS failsafe watches."""
+        mav = self.master.mav
+        own = (mav.srcSystem, mav.srcComponent)
+        mav.srcSystem, mav.srcComponent = self.gcs_sysid, self._gcs_heartbeat_component
+        try:
+            mav.heartbeat_send(MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE)
+        finally:
+            mav.srcSystem, mav.srcComponent = own
+
+    def servo_pwm(self) -> list[float]:
+        """The latest SERVO_OUTPUT_RAW, outputs 1..16 in µs (empty before the first one)."""
+        return list(self.assembler.servo_pwm) if self.assembler is not None else []
+
     def command(self, command: int, params: Sequence[float], *, retries: int = 2) -> int:
         """Send a COMMAND_LONG and wait (vehicle time) for its ACK; returns the MAV_RESULT.
         Raises CommandFailed when no ACK arrives after all tries."""
@@ -531,21 +575,21 @@ class VehicleLink:
 
     # ================================================================== commands
     def execute(self, commands: Sequence[Command]) -> None:
-        """Carry out behaviour commands in order. Set-points (heading, depth, thrust, rolling mass)
-        are sent without waiting: their ACKs are checked as they arrive (``rejected_commands``).
-        SetMode and SetParameters block until verified and raise on failure."""
+        """Carry out behaviour commands in order, through the autopilot's strategy
+        (``companion.link.autopilots``). Set-points are sent without waiting; a refusal or a
+        missing acknowledgement makes the next :meth:`next_telemetry` raise. SetMode and
+        SetParameters block until verified and raise on failure."""
         for command in commands:
             if isinstance(command, OverrideActuator):
-                self.override(command.actuator, command.value)
+                self.autopilot.override(command.actuator, command.value)
             elif isinstance(command, ReleaseActuator):
-                self.release(command.actuator)
+                self.autopilot.release(command.actuator)
             elif isinstance(command, SetHeading):
-                heading_deg = math.degrees(command.heading) % 360.0
-                self._command_long(MAV_CMD_CONDITION_YAW, (heading_deg, 0.0, 0.0, 0.0))
+                self.autopilot.set_heading(command.heading)
             elif isinstance(command, SetDepth):
-                self._command_long(MAV_CMD_DO_CHANGE_ALTITUDE, (-command.depth, 0.0))
+                self.autopilot.set_depth(command.depth)
             elif isinstance(command, SetThrust):
-                self._command_long(MAV_CMD_DO_CHANGE_SPEED, (0.0, -1.0, 100.0 * command.thrust_ratio))
+                self.autopilot.set_thrust(command.thrust_ratio)
             elif isinstance(command, SetRollingMass):
                 if self._profile().mass_servo is None:
                     raise ProfileError(f"profile {self._profile().name!r} has no rolling-mass servo")
@@ -595,6 +639,9 @@ class VehicleLink:
             if ack is not None and ack[2] > since_ack and ack[0] not in (MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS):
                 raise ModeChangeFailed(f"vehicle refused mode {neutral!r} ({target}): result {ack[0]}")
             if self._heartbeat_count > since_hb and self.custom_mode == target:
+                self.commanded_mode = neutral
+                if self.autopilot is not None:
+                    self.autopilot.mode_changed(neutral)
                 return
         raise ModeChangeFailed(f"heartbeat did not show mode {neutral!r} ({target}) within {self.timeouts.mode_s:g} s")
 
@@ -624,6 +671,14 @@ class VehicleLink:
         else:
             self.overrides.active.pop(channel, None)
             self._send_rc_override(single_shot(channel, pwm))
+
+    def override_raw(self, channel_name: str, pwm: int) -> None:
+        """Hold a raw PWM on the profile's channel ``channel_name`` (kept alive like an override)."""
+        channel = self._profile().channel(channel_name)
+        changed = self.overrides.active.get(channel) != pwm
+        self.overrides.hold(channel, int(pwm))
+        if changed:
+            self._send_overrides()
 
     def release(self, actuator: str | None = None) -> None:
         """Give ``actuator`` (None = every overridden one) back to the autopilot."""
@@ -731,18 +786,7 @@ class VehicleLink:
     def get_params(self, neutral_names: Iterable[str]) -> dict[str, float]:
         """Read parameters by neutral name (profile mapping and unit conversion applied)."""
         profile = self._profile()
-        names = list(neutral_names)
-        result: dict[str, float] = {}
-        heading = [n for n in names if n in HEADING_PI_NAMES]
-        if heading and profile.cascaded_heading:
-            native = {n: self.get_param(n) for n in profile.heading_native_names()}
-            pi = profile.native_to_heading_pi(native)
-            result.update({n: pi[n] for n in heading})
-            names = [n for n in names if n not in HEADING_PI_NAMES]
-        for neutral in names:
-            native_value = self._read_neutral(neutral)
-            result[neutral] = profile.to_neutral_value(neutral, native_value)
-        return result
+        return {neutral: profile.to_neutral_value(neutral, self._read_neutral(neutral)) for neutral in neutral_names}
 
     def _read_neutral(self, neutral: str) -> float:
         candidates = self._profile().native_candidates(neutral)
@@ -754,28 +798,12 @@ class VehicleLink:
         return self.get_param(candidates[-1])
 
     def set_params(self, neutral_values: dict[str, float]) -> dict[str, float]:
-        """Write parameters by neutral name; returns neutral name → confirmed value.
-
-        On cascaded autopilots the heading PI names go through
-        :meth:`AutopilotProfile.heading_pi_to_native` (missing ones are read from the vehicle).
-        Writes stop at the first failure (ParamRefused / ParamTimeout propagate).
-        """
+        """Write parameters by neutral name; returns neutral name → confirmed value. Writes stop at
+        the first failure (ParamRefused / ParamTimeout propagate)."""
         profile = self._profile()
         confirmed: dict[str, float] = {}
-        values = dict(neutral_values)
-        heading = {n: values.pop(n) for n in HEADING_PI_NAMES if n in values}
-        if heading and profile.cascaded_heading:
-            current = self.get_params([n for n in HEADING_PI_NAMES if n not in heading])
-            gains = {**current, **heading}
-            rate_p = self.get_param(profile.native_param("heading_rate_p"))
-            for native, native_value in profile.heading_pi_to_native(
-                    gains["heading_p"], gains["heading_i"], gains["heading_imax"], rate_p=rate_p).items():
-                self.set_param(native, native_value)
-            confirmed.update(heading)
-        else:
-            values = {**heading, **values}
-        for neutral, value in values.items():
-            native = self._profile().native_param(neutral)
+        for neutral, value in neutral_values.items():
+            native = profile.native_param(neutral)
             echoed = self.set_param(native, profile.to_native_value(neutral, value))
             confirmed[neutral] = profile.to_neutral_value(neutral, echoed)
         return confirmed

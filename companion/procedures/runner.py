@@ -202,7 +202,9 @@ def run_behavior(
     nan_run = 0
     reason: str | None = None
     pilot_has_it = False
-    watchdog = _TakeoverWatchdog(limits)
+    watchdog = _TakeoverWatchdog(limits, link)
+    if hasattr(link, "commanded_mode"):
+        link.commanded_mode = None  # only modes switched to during this run are the procedure's own
     skip_to_now = getattr(link, "skip_to_now", None)
     if skip_to_now is not None and skip_backlog:
         # snapshots queued during earlier blocking calls (a restore, a mode change) predate this
@@ -296,8 +298,11 @@ class _TakeoverWatchdog:
     procedure asked for (the mode it was found in until then) for longer than the grace period.
     A procedure must then stop at once, not fight the pilot (SPEC §4: record, switch, restore)."""
 
-    def __init__(self, limits: SafetyLimits) -> None:
+    def __init__(self, limits: SafetyLimits, link=None) -> None:
         self.limits = limits
+        self.link = link
+        profile = getattr(link, "profile", None)
+        self._number = profile.mode_number if profile is not None else None
         self.expected_mode: str | None = None
         self.armed_seen = False
         self.foreign_since: float | None = None
@@ -306,6 +311,19 @@ class _TakeoverWatchdog:
         for command in commands:
             if isinstance(command, SetMode):
                 self.expected_mode = command.mode
+        # a mode the companion switched to itself (an autopilot strategy's excitation mode) is ours
+        own = getattr(self.link, "commanded_mode", None)
+        if isinstance(own, str) and own:
+            self.expected_mode = own
+
+    def _same(self, a: str, b: str) -> bool:
+        """Two neutral names of one mode number (e.g. ArduRover's "hold" and "guided") are the same mode."""
+        if a == b:
+            return True
+        try:
+            return self._number is not None and self._number(a) == self._number(b)
+        except Exception:  # noqa: BLE001 - an unknown name is another mode
+            return False
 
     def check(self, telemetry: Telemetry) -> str | None:
         if self.limits.require_armed:
@@ -319,7 +337,7 @@ class _TakeoverWatchdog:
             return None
         if self.expected_mode is None:
             self.expected_mode = telemetry.mode
-        if telemetry.mode == self.expected_mode:
+        if self._same(telemetry.mode, self.expected_mode):
             self.foreign_since = None
             return None
         if self.foreign_since is None:

@@ -1,0 +1,128 @@
+"""ArduRover boats (``FRAME_CLASS 2``), as seen live on ArduPilot 4.7 SITL (SPEC §4).
+
+Which mode each phase uses (decided here, documented in the README):
+
+* **settle on course at a thrust**, and the **heading-step checks**: GUIDED, with
+  SET_ATTITUDE_TARGET carrying the heading (quaternion) and the "thrust" field, which ArduRover
+  reads as a speed: thrust × WP_SPEED. So on ArduRover a campaign's thrust settings are fractions
+  of WP_SPEED. The target is refreshed every vehicle second (Rover stops after 3 s without one).
+  The neutral "hold" mode is GUIDED.
+* **open-loop excitation**: MANUAL, the only mode that passes the steering stick to the steering
+  servo (ACRO makes it a turn-rate demand). At the first rudder override the throttle the speed
+  loop had settled on (SERVO3, read back) is held by a throttle override, so the speed stays put,
+  and the steering override carries the doublet. Releasing the rudder ends the excitation:
+  overrides released, back to GUIDED with the targets re-sent (heading control re-engaged, as the
+  thesis does after the doublet).
+
+Actuators are read back from SERVO_OUTPUT_RAW (SERVO1 steering, SERVO3 throttle). Depth is not a
+boat's notion (a depth set-point is refused); the water speed is the ground speed (no water-speed
+sensor; a current biases it). Rover refuses to arm with the throttle off neutral.
+"""
+from __future__ import annotations
+
+import math
+
+from companion.interface import Telemetry
+from companion.link.autopilots.base import AutopilotStrategy, yaw_quaternion
+from companion.link.profile import AutopilotProfile, NativeScale
+
+PROFILE = AutopilotProfile(
+    name="ardurover",
+    # "hold" = GUIDED: heading and speed held from SET_ATTITUDE_TARGET (Rover's HOLD mode stops)
+    modes={"manual": 0, "hold": 15, "guided": 15, "acro": 1, "steering": 3, "stop": 4, "loiter": 5, "auto": 10,
+           "rtl": 11},
+    channels={"rudder": 1, "thrust": 3},
+    servo_outputs={"rudder": 1, "thrust": 3},
+    params={
+        "heading_angle_p": "ATC_STR_ANG_P", "heading_rate_p": "ATC_STR_RAT_P", "heading_rate_i": "ATC_STR_RAT_I",
+        "heading_rate_d": "ATC_STR_RAT_D", "heading_rate_ff": "ATC_STR_RAT_FF", "heading_rate_imax": "ATC_STR_RAT_IMAX",
+        "turn_rate_max": "ATC_STR_RAT_MAX", "cruise_speed": "CRUISE_SPEED", "cruise_thrust": "CRUISE_THROTTLE",
+        "speed_default": "WP_SPEED", "gcs_sysid": "MAV_GCS_SYSID", "override_timeout": "RC_OVERRIDE_TIME",
+        "system_id": "MAV_SYSID",
+    },
+    aliases={"gcs_sysid": ("SYSID_MYGCS",), "system_id": ("SYSID_THISMAV",)},
+    native_scales={"cruise_thrust": NativeScale(scale=100.0)},  # CRUISE_THROTTLE is percent
+    marker_param="ATC_STR_ANG_P",
+    angle_full_scale_rad=0.5236,  # steering output ±1 ↔ ±30° of rudder: a property of the boat
+    thrust_pwm_zero=1500,  # boats: throttle centred = stop
+    thrust_pwm_full=2000,
+    mass_servo=None,
+    int_encoding="cast",
+    heading_schedule="cascade",
+    strategy="ardurover",
+    water_speed_sensor=False,
+    depth_from_pressure=False,
+)
+
+#: GLOBAL_POSITION_INT joins the base streams (the autopilot's own position and altitude)
+STREAMS = {30: 20.0, 36: 20.0, 32: 10.0, 33: 10.0, 74: 10.0}
+
+
+class Strategy(AutopilotStrategy):
+    streams = STREAMS
+    refresh_s = 1.0  # vehicle seconds between target refreshes (Rover gives up after 3 s)
+
+    def __init__(self, link) -> None:
+        super().__init__(link)
+        self.heading = math.nan
+        self.speed_fraction = math.nan
+        self._sent_at = -math.inf
+        self._excitation: dict | None = None
+
+    def _in_guided(self) -> bool:
+        return self.link.custom_mode == self.profile.modes["guided"]
+
+    def set_heading(self, heading: float) -> None:
+        self.heading = heading
+        self._send()
+
+    def set_thrust(self, thrust_ratio: float) -> None:
+        if not 0.0 <= thrust_ratio <= 1.0:
+            raise ValueError(f"thrust (fraction of WP_SPEED) {thrust_ratio!r} outside 0..1")
+        self.speed_fraction = thrust_ratio
+        self._send()
+
+    def set_depth(self, depth: float) -> None:
+        raise self._cannot("depth set-point: it is a boat (run the campaign without a depth)")
+
+    def _send(self) -> None:
+        if not self._in_guided() or self._excitation is not None:
+            return  # kept, and sent when GUIDED is entered
+        heading = self.heading
+        if not math.isfinite(heading):
+            latest = self.link.latest_telemetry
+            heading = latest.yaw if latest is not None and math.isfinite(latest.yaw) else 0.0
+        thrust = self.speed_fraction if math.isfinite(self.speed_fraction) else 0.0
+        self.link.send_attitude_target(yaw_quaternion(heading), thrust)
+        self._sent_at = self.link.vehicle_time_s
+
+    def mode_changed(self, neutral: str) -> None:
+        if self.link.custom_mode != self.profile.modes["manual"]:
+            self._excitation = None  # whoever left MANUAL ended the excitation
+        self._send()
+
+    def override(self, actuator: str, value: float) -> None:
+        if actuator == "rudder" and self._excitation is None and self._in_guided():
+            latest = self.link.latest_telemetry
+            throttle = latest.thrust_ratio if latest is not None and math.isfinite(latest.thrust_ratio) else None
+            if throttle is None:
+                raise self._cannot("throttle read-back (SERVO3): the speed cannot be held open loop")
+            self._excitation = {"mode": self.link.mode, "throttle": throttle}
+            self.link.override("thrust", throttle)  # before the switch: MANUAL never sees a stopped stick
+            self.link.override(actuator, value)
+            self.link.set_mode("manual")
+            return
+        self.link.override(actuator, value)
+
+    def release(self, actuator: str | None) -> None:
+        if self._excitation is not None and actuator in (None, "rudder"):
+            mode = self._excitation["mode"]
+            self.link.set_mode(mode)  # mode_changed ends the excitation and re-sends the targets
+            self.link.release(None)
+            return
+        self.link.release(actuator)
+
+    def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
+        if self._excitation is None and self._in_guided() and telemetry.time_s - self._sent_at >= self.refresh_s:
+            self._send()
+        return telemetry

@@ -1,0 +1,149 @@
+"""One autopilot's notions, as data: modes, channels, parameters, PWM conversions (SPEC C1, §4).
+
+A profile says which custom_mode number is "manual", "hold" (the heading-and-depth/speed holding
+mode) and "guided", which RC channel drives the rudder / elevator / thrust, which servo output
+reports each actuator, how PWM converts to SI, and which autopilot parameter holds each neutral
+quantity (``heading_p``, ``gcs_sysid``, ``override_timeout`` ...). How the autopilot is
+*commanded* (set-points, excitation, telemetry sources) is its strategy, in the module named by
+``strategy`` under ``companion.link.autopilots``: one module per autopilot holds both.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+from companion.link.errors import ProfileError
+
+#: PWM values that mean "no data" in SERVO_OUTPUT_RAW / RC fields, and the plausible PWM range.
+PWM_VALID_MIN = 800
+PWM_VALID_MAX = 2200
+
+
+
+@dataclass(frozen=True)
+class NativeScale:
+    """``native = neutral·scale + offset`` (e.g. a ratio written as percent, a trim as PWM)."""
+
+    scale: float = 1.0
+    offset: float = 0.0
+
+    def to_native(self, neutral_value: float) -> float:
+        return neutral_value * self.scale + self.offset
+
+    def to_neutral(self, native_value: float) -> float:
+        return (native_value - self.offset) / self.scale
+
+
+@dataclass(frozen=True)
+class AutopilotProfile:
+    """How the product's neutral notions map onto one autopilot (see the module docstring)."""
+
+    name: str
+    modes: dict[str, int]
+    channels: dict[str, int]  # neutral actuator -> RC input channel (1-based)
+    params: dict[str, str]  # neutral -> autopilot parameter name
+    servo_outputs: dict[str, int] = field(default_factory=dict)  # neutral actuator -> servo output read back
+    aliases: dict[str, tuple[str, ...]] = field(default_factory=dict)  # neutral -> other native names to try
+    native_scales: dict[str, NativeScale] = field(default_factory=dict)  # neutral -> unit conversion
+    marker_param: str = ""  # a parameter only this autopilot has (profile detection)
+    heading_schedule: str = "heading"  # the gain schedule of its heading loop (procedures.registry)
+    strategy: str = "sim"  # module of companion.link.autopilots that commands this autopilot
+    water_speed_sensor: bool = True  # False: VFR_HUD.airspeed is not a water speed; ground speed stands in
+    depth_from_pressure: bool = True  # False: depth is the autopilot's own estimate (GLOBAL_POSITION_INT)
+    angle_full_scale_rad: float = 0.5236  # fin angle at pwm_center ± pwm_half_range
+    pwm_center: int = 1500
+    pwm_half_range: int = 500
+    thrust_pwm_zero: int = 1000  # PWM of thrust ratio 0
+    thrust_pwm_full: int = 2000  # PWM of thrust ratio 1
+    mass_servo: int | None = None  # servo output of the rolling mass (DO_SET_SERVO), None = not fitted
+    int_encoding: Literal["cast", "bytewise"] = "cast"
+    flown: bool = False  # True only for profiles verified on the real autopilot / simulator
+
+    # ------------------------------------------------------------------ PWM <-> SI
+    def pwm_to_angle(self, pwm: float) -> float:
+        """Fin angle (rad) from PWM; NaN for 0/65535/out-of-range ("no data")."""
+        if not _pwm_valid(pwm):
+            return math.nan
+        return (pwm - self.pwm_center) / self.pwm_half_range * self.angle_full_scale_rad
+
+    def angle_to_pwm(self, angle: float) -> int:
+        """PWM for a fin angle (rad), clamped to the channel's full scale; ValueError if non-finite."""
+        if not math.isfinite(angle):
+            raise ValueError(f"non-finite actuator angle {angle!r}")
+        pwm = self.pwm_center + angle / self.angle_full_scale_rad * self.pwm_half_range
+        return int(round(min(max(pwm, self.pwm_center - self.pwm_half_range), self.pwm_center + self.pwm_half_range)))
+
+    def pwm_to_thrust(self, pwm: float) -> float:
+        """Thrust ratio (0..1 forward) from PWM; NaN when the PWM means "no data"."""
+        if not _pwm_valid(pwm):
+            return math.nan
+        return (pwm - self.thrust_pwm_zero) / (self.thrust_pwm_full - self.thrust_pwm_zero)
+
+    def thrust_to_pwm(self, thrust_ratio: float) -> int:
+        """PWM for a thrust ratio, clamped to 0..1; ValueError if non-finite."""
+        if not math.isfinite(thrust_ratio):
+            raise ValueError(f"non-finite thrust ratio {thrust_ratio!r}")
+        ratio = min(max(thrust_ratio, 0.0), 1.0)
+        return int(round(self.thrust_pwm_zero + ratio * (self.thrust_pwm_full - self.thrust_pwm_zero)))
+
+    def actuator_to_pwm(self, actuator: str, value: float) -> int:
+        """PWM of an RC override for a neutral actuator (fins in rad, thrust as a ratio)."""
+        self.channel(actuator)
+        return self.thrust_to_pwm(value) if actuator == "thrust" else self.angle_to_pwm(value)
+
+    # ------------------------------------------------------------------ names
+    def channel(self, actuator: str) -> int:
+        try:
+            return self.channels[actuator]
+        except KeyError:
+            raise ProfileError(f"profile {self.name!r} has no RC channel for actuator {actuator!r}") from None
+
+    def mode_number(self, neutral: str) -> int:
+        """custom_mode of a neutral name; ``custom_<n>`` (a mode this profile does not name, as
+        :meth:`mode_name` reports it) gives n back, so a vehicle found in it can be restored."""
+        if neutral.startswith("custom_") and neutral[7:].isdigit():
+            return int(neutral[7:])
+        try:
+            return self.modes[neutral]
+        except KeyError:
+            raise ProfileError(f"profile {self.name!r} has no mode {neutral!r} (has {sorted(self.modes)})") from None
+
+    def mode_name(self, custom_mode: int) -> str:
+        """Neutral name of a custom_mode number, ``custom_<n>`` when the profile does not name it."""
+        for neutral, number in self.modes.items():
+            if number == custom_mode:
+                return neutral
+        return f"custom_{custom_mode}"
+
+    def native_param(self, neutral: str) -> str:
+        """Autopilot name of a neutral parameter (the primary name; see :meth:`native_candidates`)."""
+        try:
+            return self.params[neutral]
+        except KeyError:
+            raise ProfileError(f"profile {self.name!r} has no parameter for {neutral!r}") from None
+
+    def native_candidates(self, neutral: str) -> tuple[str, ...]:
+        """Primary name followed by the aliases (renamed parameters across firmware versions)."""
+        return (self.native_param(neutral),) + self.aliases.get(neutral, ())
+
+    def to_native_value(self, neutral: str, value: float) -> float:
+        scale = self.native_scales.get(neutral)
+        return scale.to_native(value) if scale else value
+
+    def to_neutral_value(self, neutral: str, native_value: float) -> float:
+        scale = self.native_scales.get(neutral)
+        return scale.to_neutral(native_value) if scale else native_value
+
+    def natives_touched(self, neutral_names) -> tuple[str, ...]:
+        """Autopilot parameters behind these neutral names (names the profile lacks are skipped)."""
+        return tuple(dict.fromkeys(self.params[n] for n in neutral_names if n in self.params))
+
+
+def _pwm_valid(pwm: float) -> bool:
+    try:
+        return math.isfinite(pwm) and PWM_VALID_MIN <= pwm <= PWM_VALID_MAX
+    except TypeError:
+        return False
+
+
