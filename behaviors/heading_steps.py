@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass
 from typing import Sequence
 
 import numpy as np
+from scipy.integrate import trapezoid
 from scipy.signal import savgol_filter
 
 from behaviors.base import Behaviour, Footprint, Status
@@ -50,19 +51,48 @@ def smooth_heading(times: np.ndarray, heading: np.ndarray, window_s: float = 1.0
     return savgol_filter(heading, window, 2) if window >= 5 else heading
 
 
+#: a reversal of the error counts only beyond this fraction of the step (noise stays inside)
+OSCILLATION_BAND = 0.03
+#: settled: the error stays within this fraction of the step to the end of the record
+SETTLE_BAND = 0.05
+
+
 def step_metrics(times: Sequence[float], heading: Sequence[float], start: float, target: float) -> dict:
-    """Overshoot (% of the step) and 90 % rise time of one heading step (headings unwrapped,
-    smoothed by :func:`smooth_heading` first)."""
+    """One heading step (headings unwrapped, smoothed by :func:`smooth_heading` first): overshoot
+    (% of the step), 90 % rise time, settling time (within 5 % to the end, NaN if never), the
+    integrated absolute error normalised by the step (``iae_s``, seconds: one figure of merit to
+    compare gain sets) and the number of reversals of the error beyond ±3 % of the step after the
+    target was first crossed (``oscillations``; a well-damped step has at most one)."""
     t = np.asarray(times, dtype=float)
     psi = smooth_heading(t, np.asarray(heading, dtype=float))
     size = target - start
     if len(t) < 2 or abs(size) < 1e-9:
-        return {"overshoot_pct": math.nan, "rise_time_s": math.nan}
+        return {"overshoot_pct": math.nan, "rise_time_s": math.nan, "settling_time_s": math.nan,
+                "iae_s": math.nan, "oscillations": 0}
     progress = (psi - start) / size  # 0 at the start, 1 on target
     overshoot = max(0.0, float(np.max(progress)) - 1.0) * 100.0
     reached = np.nonzero(progress >= 0.9)[0]
     rise = float(t[reached[0]] - t[0]) if len(reached) else math.nan
-    return {"overshoot_pct": overshoot, "rise_time_s": rise}
+    error = progress - 1.0
+    outside = np.nonzero(np.abs(error) > SETTLE_BAND)[0]
+    if len(outside) == 0:
+        settling = 0.0
+    elif outside[-1] == len(t) - 1:
+        settling = math.nan
+    else:
+        settling = float(t[outside[-1] + 1] - t[0])
+    iae = float(trapezoid(np.abs(error), t))
+    crossed = np.nonzero(error >= 0.0)[0]
+    reversals, sign = 0, 0
+    for value in (error[crossed[0]:] if len(crossed) else []):
+        if abs(value) <= OSCILLATION_BAND:
+            continue
+        current = 1 if value > 0 else -1
+        if sign and current != sign:
+            reversals += 1
+        sign = current
+    return {"overshoot_pct": overshoot, "rise_time_s": rise, "settling_time_s": settling, "iae_s": iae,
+            "oscillations": reversals}
 
 
 class HeadingStepTest(Behaviour):
@@ -155,6 +185,8 @@ class HeadingStepTest(Behaviour):
             "gains": self.gains,
             "steps": self.steps,
             "max_overshoot_pct": max(overshoots) if overshoots else math.nan,
+            "iae_s": float(sum(s["iae_s"] for s in self.steps)) if self.steps else math.nan,
+            "oscillations": int(max((s["oscillations"] for s in self.steps), default=0)),
             "config": asdict(self.config),
             "series": self.series,
             "aborted": self.aborted,

@@ -163,7 +163,7 @@ def test_nan_telemetry_aborts_after_a_bounded_number_of_samples():
 
 def test_refused_gain_write_aborts_and_restores():
     link = InProcessLink(seed=2, refuse={"HDG_P"})
-    config = replace(FAST, thrusts=(0.8,), step_labels=())
+    config = replace(FAST, thrusts=(0.8,), step_labels=("scheduled",))  # the step check writes HDG_P
     campaign, outcome, restore = run_campaign(link, config)
     assert outcome.status == "aborted" and "refused" in outcome.reason
     link.refuse.clear()
@@ -228,3 +228,24 @@ def test_new_trim_is_not_counted_twice_by_a_charged_integrator():
     assert abs(up - down) < 1.5, (up, down)
     assert up < 5.5 and down < 5.5
     assert "guided" in link.mode_changes and link.mode == "hold"
+
+
+def test_without_step_checks_no_gain_is_written(completed):
+    """Nothing unverified is left on a vehicle: a campaign whose gains were not checked writes none."""
+    link = InProcessLink(seed=2)
+    campaign, outcome, restore = run_campaign(link, replace(FAST, thrusts=(0.8,), step_labels=()))
+    assert outcome.status == "completed" and campaign.final_gains is None
+    assert "not verified" in campaign.verification
+    _assert_restored(link, restore)
+
+
+def test_gains_that_fail_their_check_are_reverted():
+    """An impossible overshoot limit: the check fails, the campaign fails, the original gains stay."""
+    from companion.procedures.campaign import GainCheck
+
+    link = InProcessLink(seed=2)
+    config = replace(FAST, thrusts=(0.8,), verify=GainCheck(max_overshoot_pct=0.0))
+    campaign, outcome, restore = run_campaign(link, config)
+    assert outcome.status == "failed" and "gains rejected" in outcome.reason and "overshoot" in outcome.reason
+    assert campaign.final_gains is None
+    _assert_restored(link, restore)

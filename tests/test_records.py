@@ -23,7 +23,7 @@ from companion.records.store import Store
 from harness.inprocess import InProcessLink
 
 # three speeds: enough for the a22 trend test (the simulator's STARFISH damping grows with speed)
-TREND = CampaignConfig(thrusts=(0.6, 0.8, 1.0), axes=("yaw",), step_labels=(),
+TREND = CampaignConfig(thrusts=(0.6, 0.8, 1.0), axes=("yaw",), step_labels=("scheduled",),
                        yaw=ManoeuvreConfig(settle_s=15.0, resettle_s=12.0))
 
 

@@ -51,6 +51,7 @@ class AutopilotProfile:
     strategy: str = "sim"  # module of companion.link.autopilots that commands this autopilot
     water_speed_sensor: bool = True  # False: VFR_HUD.airspeed is not a water speed; ground speed stands in
     depth_from_pressure: bool = True  # False: depth is the autopilot's own estimate (GLOBAL_POSITION_INT)
+    depth_setpoint: bool = True  # False: no depth target can be commanded (a boat; ArduSub ALT_HOLD)
     angle_full_scale_rad: float = 0.5236  # fin angle at pwm_center ± pwm_half_range
     pwm_center: int = 1500
     pwm_half_range: int = 500

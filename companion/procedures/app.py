@@ -155,6 +155,7 @@ def run_campaign(
     """Run the identification campaign as one procedure (``run_procedure``: one restore point from
     its declared footprint), storing as it goes. Afterwards the vehicle is as found, except for the
     final gains of a successful campaign (the step checks' trial gains are always undone)."""
+    config = config.resolved_for(getattr(link, "profile", None))
     campaign_id = store.start_campaign(vehicle_id, "identification", config.to_dict())
     campaign = IdentificationCampaign(config)
     original = RestorePoint.capture(link, campaign.footprint)  # the original gains, for the step checks

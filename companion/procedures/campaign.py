@@ -23,8 +23,11 @@ parameter, so no gain from a failed campaign stays on the vehicle).
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass, replace
+import math
+from dataclasses import asdict, dataclass, field, replace
 from typing import Sequence
+
+import numpy as np
 
 from behaviors.base import Behaviour, Footprint, Status
 from behaviors.gain_scheduling import GainDesign, ScheduleKind
@@ -32,6 +35,7 @@ from behaviors.heading_steps import HeadingStepTest, StepTestConfig, reengage_ho
 from behaviors.identification import IdentificationAttempt, IdentificationManoeuvre, ManoeuvreConfig, thesis_estimator
 from behaviors.sequence import Deferred, Instant, SequenceBehavior
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
+from companion.numerics.cascade_gains import CascadeRules, quicktune_feed_forward
 from companion.numerics.gains import GainBounds
 from companion.procedures.registry import schedule_kind
 
@@ -45,7 +49,7 @@ class CampaignConfig:
     """Everything that shapes a campaign; stored with it."""
 
     thrusts: tuple[float, ...] = DEFAULT_THRUSTS
-    depth: float = 2.0  # m (thesis §3.3.1: straight runs at 2 m)
+    depth: float | None = 2.0  # m (thesis §3.3.1: straight runs at 2 m); None: no depth set-point
     axes: tuple[str, ...] = ("yaw", "pitch")
     yaw: ManoeuvreConfig = ManoeuvreConfig()
     pitch: ManoeuvreConfig = ManoeuvreConfig(axis="pitch", settle_s=15.0, training_amplitude=0.10,
@@ -54,9 +58,14 @@ class CampaignConfig:
     # gain schedules designed and written (registry names); the pitch schedule is opt-in: it
     # changes the autopilot's depth behaviour, which the seeds' procedure does not touch
     schedules: tuple[str, ...] = ("heading",)
+    cascade: CascadeRules = CascadeRules()  # design targets of the native ArduPilot heading gains
     write_gains: bool = True
-    step_labels: tuple[str, ...] = ("original", "constant", "scheduled")  # () skips the step checks
+    # heading-step checks: the original gains, one constant gain tuned at the lowest thrust (or, on
+    # ArduPilot, Rover QuickTune's feed-forward rule) and the scheduled gains; () skips them, and
+    # then no gain is written (nothing unverified is left on a vehicle)
+    step_labels: tuple[str, ...] = ("original", "constant", "scheduled")
     step_test: StepTestConfig = StepTestConfig()
+    verify: "GainCheck" = field(default_factory=lambda: GainCheck())
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -66,8 +75,58 @@ class CampaignConfig:
         return replace(self, yaw=thesis_estimator(self.yaw), pitch=thesis_estimator(self.pitch))
 
     def kinds(self) -> list[ScheduleKind]:
-        """The requested gain schedules (heading with this config's bounds)."""
-        return [schedule_kind(name, self.bounds if name == "heading" else None) for name in self.schedules]
+        """The requested gain schedules (heading with this config's bounds, cascade with its rules)."""
+        options = {"heading": self.bounds, "cascade": self.cascade}
+        return [schedule_kind(name, options.get(name)) for name in self.schedules]
+
+    def resolved_for(self, profile) -> "CampaignConfig":
+        """This configuration for one autopilot: "heading" names the profile's heading schedule
+        (the PI on the simulator, the native cascade on ArduPilot, designed for its rudder full
+        scale), no depth set-point where the autopilot has none, and QuickTune's rule as the
+        comparison on cascaded autopilots."""
+        if profile is None:
+            return self
+        heading = getattr(profile, "heading_schedule", "heading")
+        schedules = tuple(heading if name == "heading" else name for name in self.schedules)
+        config = replace(self, schedules=schedules,
+                         cascade=replace(self.cascade, full_scale=profile.angle_full_scale_rad))
+        if not getattr(profile, "depth_setpoint", True):
+            config = replace(config, depth=None)
+        if heading == "cascade":
+            config = replace(config, step_labels=tuple("quicktune" if label == "constant" else label
+                                                       for label in config.step_labels))
+        return config
+
+
+@dataclass(frozen=True)
+class GainCheck:
+    """When the heading steps let the scheduled gains stay on the vehicle: at every thrust the
+    scheduled gains overshoot at most ``max_overshoot_pct`` and do not oscillate, and (with
+    ``better_than_original``) their summed step error (IAE) is below the original gains'."""
+
+    max_overshoot_pct: float = 10.0
+    max_oscillations: int = 1
+    better_than_original: bool = True
+
+    def verdict(self, steps: Sequence[dict]) -> str | None:
+        """None when the check passes, else the reason."""
+        scheduled = [s for s in steps if s["label"] == "scheduled"]
+        if not scheduled:
+            return "no heading-step check of the scheduled gains"
+        for result in scheduled:
+            overshoot = result["max_overshoot_pct"]
+            if not (isinstance(overshoot, float) and math.isfinite(overshoot)):
+                return f"thrust {result['thrust']:.2f}: no overshoot measured"
+            if overshoot > self.max_overshoot_pct:
+                return f"thrust {result['thrust']:.2f}: overshoot {overshoot:.1f} % > {self.max_overshoot_pct:.0f} %"
+            if result.get("oscillations", 0) > self.max_oscillations:
+                return f"thrust {result['thrust']:.2f}: the heading oscillates ({result['oscillations']} reversals)"
+        original = [s for s in steps if s["label"] == "original"]
+        if self.better_than_original and original:
+            new, old = sum(s["iae_s"] for s in scheduled), sum(s["iae_s"] for s in original)
+            if not new < old:
+                return f"the scheduled gains are not better than the original ones (step IAE {new:.1f} s vs {old:.1f} s)"
+        return None
 
 
 class IdentificationCampaign(Behaviour):
@@ -88,13 +147,15 @@ class IdentificationCampaign(Behaviour):
         self._sequence: SequenceBehavior | None = None
         self._total = 0
         parameters = {name for kind in self.kinds for name in kind.parameters}
-        if config.step_labels:
-            parameters |= {"heading_p", "heading_i", "rudder_trim"}
+        self.heading_kind = next((k for k in self.kinds if k.axis == "yaw"), None)
+        if config.step_labels and self.heading_kind is not None:
+            parameters |= set(self.heading_kind.parameters)
+        self.verification: str | None = None
         self.footprint = Footprint.of(parameters, ("mode", "thrust", "heading", "depth", "rudder", "elevator"))
 
     @property
     def heading_design(self) -> GainDesign | None:
-        return self.designs.get("heading")
+        return self.designs.get(self.heading_kind.name) if self.heading_kind is not None else None
 
     @property
     def kept_parameters(self) -> frozenset[str]:
@@ -104,7 +165,8 @@ class IdentificationCampaign(Behaviour):
     # ------------------------------------------------------------------ construction
     def _build(self, course: float) -> SequenceBehavior:
         cfg = self.config
-        items: list = [Instant(SetMode("hold"), SetDepth(cfg.depth), SetHeading(course), SetThrust(cfg.thrusts[0]),
+        depth = [SetDepth(cfg.depth)] if cfg.depth is not None else []
+        items: list = [Instant(SetMode("hold"), *depth, SetHeading(course), SetThrust(cfg.thrusts[0]),
                                StatusText(f"identification campaign: {len(cfg.thrusts)} thrusts, axes {','.join(cfg.axes)}"),
                                name="prepare")]
         for index, thrust in enumerate(cfg.thrusts):
@@ -115,7 +177,8 @@ class IdentificationCampaign(Behaviour):
                 items.append(IdentificationManoeuvre(replace(manoeuvre_config, axis=axis), thrust=thrust,
                                                      status_prefix=prefix))
         items.append(Deferred(self._design_step))
-        heading_gains = Footprint.of(("heading_p", "heading_i", "rudder_trim"), ("mode", "thrust", "heading"))
+        heading_gains = Footprint.of(self.heading_kind.parameters if self.heading_kind else (),
+                                     ("mode", "thrust", "heading"))
         for thrust in cfg.thrusts:
             for label in cfg.step_labels:
                 items.append(Deferred(self._step_test_factory(thrust, label), heading_gains))
@@ -146,8 +209,14 @@ class IdentificationCampaign(Behaviour):
         design = self.heading_design
         if design is None:
             return None
+        names = self.heading_kind.parameters
         if label == "original":
-            return {k: v for k, v in self.original_gains.items() if k in ("heading_p", "heading_i", "rudder_trim")} or None
+            return {k: v for k, v in self.original_gains.items() if k in names} or None
+        if label == "quicktune":
+            feed_forward = self._quicktune_feed_forward(thrust)
+            if feed_forward is None:
+                return None
+            return {**{k: v for k, v in self.original_gains.items() if k in names}, "heading_rate_ff": feed_forward}
         if label == "constant":  # one gain tuned at the lowest identified thrust, used everywhere
             lowest = min(design.points, key=lambda point: point.thrust)
             return dict(lowest.scheduled)
@@ -155,7 +224,25 @@ class IdentificationCampaign(Behaviour):
         speed = speeds.get(thrust)
         if speed is None:  # this thrust has no accepted model: extrapolate on the nearest speed
             speed = min(design.points, key=lambda point: abs(point.thrust - thrust)).speed
-        return dict(self._kind("heading").gains(design.schedule, speed))
+        return dict(self.heading_kind.gains(design.schedule, speed))
+
+    def _quicktune_feed_forward(self, thrust: float) -> float | None:
+        """ArduRover QuickTune's FF rule on this thrust's training data (the nearest thrust with a model)."""
+        attempts = [a for a in self.accepted if a.axis == "yaw"]
+        if not attempts:
+            return None
+        attempt = min(attempts, key=lambda a: abs((a.thrust or 0.0) - thrust))
+        series = attempt.training
+        times, heading, rudder = (np.asarray(series.get(k, []), dtype=float) for k in ("time", "signal", "actuator"))
+        if len(times) < 3:
+            return None
+        turn_rate = np.gradient(np.unwrap(heading), times)
+        try:
+            value = quicktune_feed_forward(list(rudder / self.config.cascade.full_scale), list(turn_rate))
+        except ValueError:
+            return None
+        low, high = self.config.cascade.rate_ff_range
+        return float(min(max(value, low), high))
 
     def _kind(self, name: str) -> ScheduleKind:
         return next(kind for kind in self.kinds if kind.name == name)
@@ -170,9 +257,17 @@ class IdentificationCampaign(Behaviour):
 
     def _final_gains_step(self) -> Behaviour | None:
         """Write every designed schedule's gains for the speed measured now (the resident loop
-        keeps them matched later)."""
+        keeps them matched later), only once the heading steps passed :class:`GainCheck`."""
         if not self.config.write_gains or not self.designs:
             return None
+        if self.heading_kind is not None and self.heading_kind.name in self.designs:
+            if not self.config.step_labels:
+                self.verification = "not verified: the heading-step checks were skipped, so no gain is written"
+                return Instant(StatusText("gains not written: not verified (no heading-step checks)", 4), name="write gains")
+            self.verification = self.config.verify.verdict(self.step_results)
+            if self.verification is not None:
+                self.design_errors["verification"] = self.verification
+                return Instant(StatusText(f"gains rejected: {self.verification}"[:50], 4), name="write gains")
         return Instant(name="write gains", make=self._write_scheduled_gains, touches=self.footprint)
 
     def _write_scheduled_gains(self, telemetry: Telemetry) -> list[Command]:
@@ -241,7 +336,8 @@ class IdentificationCampaign(Behaviour):
         if not self.accepted:
             self.finish(Status.FAILURE, "no model passed validation")
         elif self.design_errors:
-            self.finish(Status.FAILURE, "; ".join(f"{k} design: {v}" for k, v in self.design_errors.items()))
+            self.finish(Status.FAILURE, "; ".join(f"gains rejected: {v}" if k == "verification" else f"{k} design: {v}"
+                                                  for k, v in self.design_errors.items()))
         else:
             self.finish(Status.SUCCESS)
         verdict = "complete" if self.status is Status.SUCCESS else f"failed: {self.reason}"
@@ -262,6 +358,7 @@ class IdentificationCampaign(Behaviour):
             "accepted": [a.summary() for a in self.accepted],
             "design": self.design_summary(),
             "design_errors": self.design_errors,
+            "verification": self.verification or ("passed" if self.final_gains else None),
             "steps": [{k: v for k, v in r.items() if k != "series"} for r in self.step_results],
             "final_gains": self.final_gains,
         }

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Callable
 
 from pymavlink.dialects.v20.common import MAV_CMD_USER_1, MAV_CMD_USER_2, MAV_CMD_USER_3, MAV_CMD_USER_4, MAV_CMD_USER_5
 
+from behaviors.cascade_schedule import cascade_kind
 from behaviors.gain_scheduling import ScheduleKind
 from behaviors.heading_schedule import heading_kind
 from behaviors.pitch_schedule import pitch_kind
@@ -24,6 +25,7 @@ if TYPE_CHECKING:
 GAIN_SCHEDULES: dict[str, Callable[..., ScheduleKind]] = {
     "heading": heading_kind,
     "pitch": pitch_kind,
+    "cascade": cascade_kind,  # ArduPilot's native heading gains (the ardurover/ardusub profiles' "heading")
 }
 
 

@@ -52,6 +52,7 @@ PROFILE = AutopilotProfile(
     strategy="ardurover",
     water_speed_sensor=False,
     depth_from_pressure=False,
+    depth_setpoint=False,
 )
 
 #: GLOBAL_POSITION_INT joins the base streams (the autopilot's own position and altitude)

@@ -51,6 +51,7 @@ PROFILE = AutopilotProfile(
     strategy="ardusub",
     water_speed_sensor=False,
     depth_from_pressure=False,
+    depth_setpoint=False,
 )
 
 STREAMS = {30: 20.0, 36: 20.0, 32: 10.0, 33: 10.0, 74: 10.0}

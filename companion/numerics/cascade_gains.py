@@ -1,0 +1,91 @@
+"""Native gains of a cascaded heading controller (ArduPilot) from the identified yaw model (SPEC C5).
+
+ArduPilot steers with an angle P feeding a rate PID with feed-forward, on a normalised output
+s ∈ [−1, 1] with rudder δ = s·δfs: s = FF·r_d + P·(r_d − r) + I·∫(r_d − r), r_d = ANG_P·(ψd − ψ).
+The plant is the identified ṙ = a22·r + b2·δ = a22·r + b·s with b = b2·δfs. Design rule:
+
+* **FF = −a22/b** (output per rad/s of turn rate): the steady turn needs exactly that output;
+  with it the rate error obeys ė = (a22 − b·P)·e, whatever r_d does.
+* **P = (ωr + a22)/b** moves the rate-loop pole from a22 to −ωr, the stated rate bandwidth
+  (``rate_bandwidth``, 3 rad/s by default); 0 when the plant is already that fast.
+* **I = ωr_a/(N·b)** with N = 10: the integrator alone would close a loop a decade slower than the
+  achieved bandwidth ωr_a = −a22 + b·P; it removes the trim δ0 and any model error.
+* **ANG_P = ωr_a/2**: with the rate loop as a first-order lag 1/(1 + s/ωr_a), the heading loop
+  s² + ωr_a·s + ωr_a·ANG_P has ζ = 0.7071 at ANG_P = ωr_a/2 (a 4.3 % step overshoot).
+
+Every gain is kept inside ArduPilot's documented range (Rover ``ATC_STR_*``: ANG_P 1–10, RAT_P
+and RAT_I 0–2, RAT_FF 0–3); a clamped gain is listed in ``clamped``. A clamp means the design's
+damping is not met (e.g. FF at its limit at low speed); :func:`design_cascade_gains` reports the
+damping ratio the clamped gains give, so a check can refuse them.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .identification import YawModel
+
+
+@dataclass(frozen=True)
+class CascadeRules:
+    """The stated design targets and the autopilot's documented gain ranges."""
+
+    full_scale: float = 0.5236  # rad of rudder at output ±1 (the autopilot profile's)
+    rate_bandwidth: float = 3.0  # ωr, rad/s
+    integral_ratio: float = 10.0  # N
+    angle_p_range: tuple[float, float] = (1.0, 10.0)
+    rate_p_range: tuple[float, float] = (0.0, 2.0)
+    rate_i_range: tuple[float, float] = (0.0, 2.0)
+    rate_ff_range: tuple[float, float] = (0.0, 3.0)
+
+
+@dataclass
+class CascadeGains:
+    angle_p: float
+    rate_p: float
+    rate_i: float
+    rate_ff: float
+    rate_bandwidth: float  # achieved ωr_a, rad/s
+    heading_damping: float  # ζ of the heading loop with these (clamped) gains
+    speed: float | None = None
+    clamped: tuple[str, ...] = ()
+
+    def params(self) -> dict[str, float]:
+        """Neutral parameter names (companion.link.autopilots.ardurover / ardusub)."""
+        return {"heading_rate_ff": self.rate_ff, "heading_rate_p": self.rate_p, "heading_rate_i": self.rate_i,
+                "heading_angle_p": self.angle_p}
+
+
+def _clamp(name: str, value: float, limits: tuple[float, float], clamped: list[str]) -> float:
+    low, high = limits
+    if value < low or value > high:
+        clamped.append(name)
+        return min(max(value, low), high)
+    return value
+
+
+def design_cascade_gains(model: YawModel, rules: CascadeRules = CascadeRules(), speed: float | None = None) -> CascadeGains:
+    """The rule of the module docstring; ValueError for a model without a22 < 0 and b2 > 0."""
+    a22, b2 = float(model.a22), float(model.b2)
+    if not (math.isfinite(a22) and math.isfinite(b2)) or a22 >= 0.0 or b2 <= 0.0:
+        raise ValueError(f"the model needs finite a22 < 0 and b2 > 0, got a22={a22}, b2={b2}")
+    b = b2 * rules.full_scale
+    clamped: list[str] = []
+    rate_ff = _clamp("rate_ff", -a22 / b, rules.rate_ff_range, clamped)
+    rate_p = _clamp("rate_p", max(0.0, (rules.rate_bandwidth + a22) / b), rules.rate_p_range, clamped)
+    achieved = -a22 + b * rate_p
+    rate_i = _clamp("rate_i", achieved / (rules.integral_ratio * b), rules.rate_i_range, clamped)
+    angle_p = _clamp("angle_p", achieved / 2.0, rules.angle_p_range, clamped)
+    # heading loop s² + ωr_a·s + ωr_a·ANG_P (FF exact): ζ = ωr_a / (2·sqrt(ωr_a·ANG_P))
+    damping = achieved / (2.0 * math.sqrt(achieved * angle_p))
+    return CascadeGains(angle_p=angle_p, rate_p=rate_p, rate_i=rate_i, rate_ff=rate_ff, rate_bandwidth=achieved,
+                        heading_damping=damping, speed=speed, clamped=tuple(clamped))
+
+
+def quicktune_feed_forward(steering: list[float], turn_rate: list[float]) -> float:
+    """ArduRover QuickTune's rule on recorded data: FF = 0.9·Σ|steering| / Σ|turn rate| (output per rad/s)."""
+    total_rate = sum(abs(r) for r in turn_rate if math.isfinite(r))
+    total_steering = sum(abs(s) for s in steering if math.isfinite(s))
+    if total_rate <= 0.0:
+        raise ValueError("no turn rate in the data")
+    return 0.9 * total_steering / total_rate
