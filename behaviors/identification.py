@@ -31,6 +31,8 @@ from companion.interface import (
     NamedValue,
     OverrideActuator,
     ReleaseActuator,
+    SetHeading,
+    SetMode,
     StatusText,
     Telemetry,
 )
@@ -145,7 +147,8 @@ class IdentificationManoeuvre(Behaviour):
         if config.axis not in ("yaw", "pitch"):
             raise ValueError(f"axis must be 'yaw' or 'pitch', not {config.axis!r}")
         super().__init__(f"{config.axis} identification")
-        self.footprint = Footprint.of(setpoints=(config.actuator,))
+        self.footprint = Footprint.of(setpoints=(config.actuator, "mode", "heading"))
+        self._course = math.nan
         self.config = config
         self.thrust = thrust
         self._prefix = status_prefix
@@ -221,11 +224,18 @@ class IdentificationManoeuvre(Behaviour):
         # the doublet is injected around the trim the autopilot is holding now
         actuator = self._actuator(telemetry)
         self._trim = actuator if math.isfinite(actuator) else 0.0
+        self._course = telemetry.yaw
         self._identifier = self._new_identifier()
         self._training = _Record()
         self._speeds = []
         self._enter(TRAIN, telemetry.time_s)
         return [self._status(f"training, attempt {self.attempt}: {self.config.training_amplitude:.2f} rad doublet")]
+
+    def _reengage(self) -> list[Command]:
+        """The holding mode and the course again once a record ends: on autopilots whose open-loop
+        excitation needs another mode (ArduSub's MANUAL) this is what ends it; elsewhere a no-op."""
+        heading = [SetHeading(self._course)] if math.isfinite(self._course) else []
+        return [SetMode("hold"), *heading]
 
     def _new_identifier(self):
         # convergence only counts once the whole doublet has been seen (eq. 3.39 + thesis §3.3.1)
@@ -263,6 +273,7 @@ class IdentificationManoeuvre(Behaviour):
                 commands.append(ReleaseActuator(self.config.actuator))
             self._training_time_s = t_rel
             self._enter(RESETTLE, telemetry.time_s)
+            commands += self._reengage()
             model = self._identifier.model()
             commands.append(self._status(f"trained in {t_rel:.1f} s: {self._describe(model)}"))
         return commands
@@ -277,6 +288,7 @@ class IdentificationManoeuvre(Behaviour):
         if self._overriding:
             self._overriding = False
             commands.append(ReleaseActuator(self.config.actuator))
+        commands += self._reengage()
         commands += self._finish_attempt(telemetry.time_s)
         return commands
 

@@ -62,6 +62,9 @@ class SimulatorProcess:
     transport: str = "tcp"  # or "udp"
     log_path: Path | None = None  # the simulator's stderr (None: discarded)
     lockstep: bool = True  # results independent of the speed-up (docs/PROTOCOL.md, "Lockstep")
+    # "builtin" (our autopilot) or "ardurover"/"ardusub": the real ArduPilot SITL flying our physics
+    autopilot: str = "builtin"
+    ardupilot_bin: str | None = None
     process: subprocess.Popen | None = None
     port: int = 0
 
@@ -76,8 +79,17 @@ class SimulatorProcess:
         port itself and reports it on its READY line (no race)."""
         return f"{'tcpin' if self.transport == 'tcp' else 'udpin'}:127.0.0.1:{self.port}"
 
+    @property
+    def real_autopilot(self) -> bool:
+        return self.autopilot != "builtin"
+
     def command(self) -> list[str]:
         """The command line of the child process."""
+        if self.real_autopilot:  # ArduPilot SITL serves MAVLink on its own TCP port (lockstep with the physics)
+            return [sys.executable, "-m", "sim", "run", "--autopilot", self.autopilot, "--preset", self.preset,
+                    "--speedup", str(self.speedup), "--seed", str(self.seed),
+                    "--current", f"{self.current[0]},{self.current[1]}",
+                    *(["--ardupilot-bin", self.ardupilot_bin] if self.ardupilot_bin else []), *self.extra_args]
         return [sys.executable, "-m", "sim", "run", "--preset", self.preset, "--speedup", str(self.speedup),
                 "--listen", self.listen, "--seed", str(self.seed),
                 "--current", f"{self.current[0]},{self.current[1]}",

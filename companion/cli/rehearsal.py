@@ -49,6 +49,8 @@ class RehearsalConfig:
     current: tuple[float, float] = (0.0, 0.0)
     steady_state: bool = False
     progress: bool = True
+    autopilot: str = "builtin"  # or "ardurover"/"ardusub": real ArduPilot SITL (needs ardupilot_bin)
+    ardupilot_bin: str | None = None
 
 
 def preset_defaults(preset: str) -> dict:
@@ -60,7 +62,37 @@ def preset_defaults(preset: str) -> dict:
     14 mm/s towards 300° (0.007 N, −0.012 E m/s) so the current estimate can be scored."""
     if preset.startswith("hugin"):
         return {"behaviors": (), "steady_state": True, "current": (0.007, -0.012)}
+    if preset == "boat":  # no rolling mass, no depth: neither behaviour applies
+        return {"behaviors": (), "steady_state": False, "current": (0.0, 0.0)}
     return {"behaviors": ("roll", "min_speed"), "steady_state": False, "current": (0.0, 0.0)}
+
+
+def arm_when_ready(link, patience_s: float) -> None:
+    """Arm. A real autopilot refuses while it is still initialising (EKF, GPS), and ArduRover takes
+    GUIDED while disarmed but not once armed until its EKF uses GPS: so retry arming, then entering
+    the holding mode (and back to the mode found), for ``patience_s`` seconds of vehicle time;
+    raise with the vehicle's last words when it never becomes ready."""
+    from companion.link.errors import CommandFailed, ModeChangeFailed
+
+    start = link.next_telemetry(timeout_s=30.0).time_s  # the vehicle clock runs before anything is timed
+
+    def retry(action) -> None:
+        while True:
+            try:
+                action()
+                return
+            except (CommandFailed, ModeChangeFailed) as exc:
+                if not link.vehicle_time_s - start < patience_s:
+                    texts = [t for _, _, t in list(link.statustexts)[-3:]]
+                    raise type(exc)(f"{exc}; the vehicle said: {texts}") from exc
+                for _ in range(40):  # about 2 s of vehicle time between tries
+                    link.next_telemetry()
+
+    retry(lambda: link.arm(True))
+    if patience_s > 0:
+        found = link.mode
+        retry(lambda: link.set_mode("hold"))
+        link.set_mode(found)
 
 
 def _run_rows(campaign, truth: dict) -> list[dict]:
@@ -96,11 +128,15 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
     store_path = out / "store.sqlite"
     summary: dict = {"preset": config.preset, "speedup": config.speedup, "seed": config.seed}
     simulator = SimulatorProcess(config.preset, config.speedup, config.seed, config.current,
-                                 log_path=out / "simulator.log")
+                                 log_path=out / "simulator.log", autopilot=config.autopilot,
+                                 ardupilot_bin=config.ardupilot_bin, lockstep=config.autopilot == "builtin",
+                                 ready_timeout_s=120.0)
+    summary["autopilot"] = config.autopilot
     with Store(store_path) as store, simulator as sim:
-        link = VehicleLink.connect(sim.endpoint, lockstep=sim.lockstep)
+        link = VehicleLink.connect(sim.endpoint, lockstep=sim.lockstep,
+                                   heartbeat_timeout_s=60.0 if sim.real_autopilot else 10.0)
         try:
-            link.arm(True)
+            arm_when_ready(link, patience_s=120.0 if sim.real_autopilot else 0.0)
             vehicle_id = vehicle_record(store, link, f"sim:{config.preset}", {"preset": config.preset, "seed": config.seed})
             console = ConsoleProgress("identification", enabled=config.progress)
             campaign, outcome, campaign_id = run_campaign(link, store, config.campaign, vehicle_id=vehicle_id,

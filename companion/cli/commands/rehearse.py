@@ -32,6 +32,11 @@ def add_parser(subparsers) -> None:
                         help="run the steady-state squares and turns (default: on for hugin)")
     parser.add_argument("--current", default=None, metavar="VN,VE",
                         help="water current north,east in m/s (default: still water; hugin: 0.007,-0.012)")
+    parser.add_argument("--autopilot", choices=("builtin", "ardurover", "ardusub"), default="builtin",
+                        help="builtin: our own autopilot (default); ardurover/ardusub: the real ArduPilot firmware "
+                             "(SITL, JSON backend) flying our physics (boat preset for ardurover)")
+    parser.add_argument("--ardupilot-bin", metavar="DIR", default=None,
+                        help="ArduPilot SITL binaries (build/sitl/bin); default $ARDUPILOT_SITL_BIN")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.set_defaults(func=run)
 
@@ -45,6 +50,15 @@ def run(args: argparse.Namespace) -> int:
     if not axes or any(a not in ("yaw", "pitch") for a in axes):
         print("--axes takes yaw and/or pitch", file=sys.stderr)
         return 2
+    import os
+
+    if args.autopilot == "ardurover" and args.preset == "starfish":
+        args.preset = "boat"  # ArduRover flies the boat preset unless told otherwise
+    ardupilot_bin = args.ardupilot_bin or os.environ.get("ARDUPILOT_SITL_BIN")
+    if args.autopilot != "builtin" and not ardupilot_bin:
+        print(f"--autopilot {args.autopilot} needs --ardupilot-bin DIR (or ARDUPILOT_SITL_BIN): the folder of "
+              "ArduPilot SITL binaries built from ArduPilot's sources", file=sys.stderr)
+        return 2
     defaults = preset_defaults(args.preset)
     try:
         current = defaults["current"] if args.current is None else tuple(float(v) for v in args.current.split(","))
@@ -53,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
         print("--current takes VN,VE in m/s", file=sys.stderr)
         return 2
     campaign = CampaignConfig(axes=axes, schedules=args.schedules)
+    if args.autopilot == "ardurover":  # fractions of WP_SPEED (2.5 m/s on the boat): 1.5, 2.0, 2.5 m/s
+        campaign = replace(campaign, thrusts=(0.6, 0.8, 1.0), axes=("yaw",))
     if args.thrusts:
         campaign = replace(campaign, thrusts=args.thrusts)
     if args.no_steps:
@@ -72,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     steady = defaults["steady_state"] if args.steady_state is None else args.steady_state
     config = RehearsalConfig(preset=args.preset, speedup=args.speedup, seed=args.seed, out_dir=args.out,
                              campaign=campaign, behaviors=behaviors, current=current, steady_state=steady,
-                             progress=not args.json)
+                             progress=not args.json, autopilot=args.autopilot, ardupilot_bin=ardupilot_bin)
     abort = AbortFlag()
     undo = install_signal_handlers(abort)
     try:
