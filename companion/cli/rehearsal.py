@@ -12,7 +12,7 @@ import math
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from companion.cli.launcher import SimulatorError, SimulatorProcess  # noqa: F401 - re-exported
@@ -67,6 +67,44 @@ def preset_defaults(preset: str) -> dict:
     return {"behaviors": ("roll", "min_speed"), "steady_state": False, "current": (0.0, 0.0)}
 
 
+#: ArduSub (vectored frame) on the STARFISH physics: the forward thrust and the yaw share motors 1-4,
+#: each saturating at ±1, so forward + |yaw| must stay below 1 or both are clipped (forward 0.65
+#: leaves 0.35 of yaw, the 0.12 rad of equivalent rudder the heading loop and a 0.10 rad doublet
+#: need). Thrusts 0.45, 0.55, 0.65 run the AUV at about 0.7, 1.0 and 1.26 m/s.
+ARDUSUB_THRUSTS = (0.45, 0.55, 0.65)
+ARDUSUB_DOUBLETS = (0.10, 0.06)  # rad of equivalent rudder: training, validation (yaw 0.29, 0.17)
+#: what the companion is told about the AUV under ArduSub: nothing beyond the profile; its equivalent
+#: rudder is the thrusters' yaw differential, no fin servo (sim.ardupilot_sitl.FRAME_LIMITS)
+ARDUSUB_VEHICLE: dict = {}
+
+#: ``python -m sim run`` options for ArduSub: the AUV boots 2 m down (the thesis' depth). ArduSub's
+#: EKF starts its height at 0 and converges onto the depth sensor: from 2 m within 3 s, while from
+#: 5 m (the simulator's default) the innovations fail their gate, the height runs away at 5 m/s
+#: and the EKF resets itself 10 s later (measured).
+ARDUSUB_SIM_ARGS = ("--depth", "2")
+
+
+def ardusub_campaign(campaign: CampaignConfig) -> CampaignConfig:
+    """The campaign a rehearsal flies on ArduSub unless told otherwise: yaw only (no pitch actuator
+    on the vectored frame), at thrusts and doublet amplitudes that keep the motors out of saturation."""
+    training, validation = ARDUSUB_DOUBLETS
+    return replace(campaign, thrusts=ARDUSUB_THRUSTS, axes=("yaw",),
+                   yaw=replace(campaign.yaw, training_amplitude=training, validation_amplitude=validation))
+
+
+def preset_vehicle(preset: str) -> dict:
+    """What the companion is told about a simulated vehicle flown by a real autopilot, as it would be
+    told about a real one: the rudder servo's slew rate (the preset's data, read as a file)."""
+    from companion.records.vehicle_files import preset_path
+
+    try:
+        actuators = json.loads(preset_path(preset).read_text(encoding="utf-8"))["actuators"]
+        return {"actuator_rate_rad_s": float(actuators["rudder_rate"])}
+    except (OSError, KeyError, ValueError) as exc:
+        log.warning("no servo rate for preset %r: %s", preset, exc)
+        return {}
+
+
 def arm_when_ready(link, patience_s: float) -> None:
     """Arm. A real autopilot refuses while it is still initialising (EKF, GPS), and ArduRover takes
     GUIDED while disarmed but not once armed until its EKF uses GPS: so retry arming, then entering
@@ -93,6 +131,33 @@ def arm_when_ready(link, patience_s: float) -> None:
         found = link.mode
         retry(lambda: link.set_mode("hold"))
         link.set_mode(found)
+
+
+def arm_ardusub_when_ready(link, patience_s: float) -> None:
+    """ArduSub: wait, disarmed, until the EKF navigates (ArduSub accepts POSHOLD, disarmed, only
+    with a predicted absolute position: until then its height is still converging onto the depth
+    sensor and the ground speed, our water speed, reads 0), then arm and hold the depth in
+    ALT_HOLD. Ends in ALT_HOLD at zero thrust, so a campaign's restore leaves the vehicle stopped
+    and holding its depth. (The simulated AUV waits in its launch cradle, sim.ardupilot_json.)"""
+    from companion.link.errors import CommandFailed, ModeChangeFailed
+
+    start = link.next_telemetry(timeout_s=30.0).time_s
+
+    def retry(action) -> None:
+        while True:
+            try:
+                action()
+                return
+            except (CommandFailed, ModeChangeFailed) as exc:
+                if not link.vehicle_time_s - start < patience_s:
+                    texts = [t for _, _, t in list(link.statustexts)[-3:]]
+                    raise type(exc)(f"{exc}; the vehicle said: {texts}") from exc
+                for _ in range(40):  # about 2 s of vehicle time between tries
+                    link.next_telemetry()
+
+    retry(lambda: link.set_mode("poshold"))
+    link.set_mode("hold")
+    retry(lambda: link.arm(True))
 
 
 def _run_rows(campaign, truth: dict) -> list[dict]:
@@ -130,13 +195,19 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
     simulator = SimulatorProcess(config.preset, config.speedup, config.seed, config.current,
                                  log_path=out / "simulator.log", autopilot=config.autopilot,
                                  ardupilot_bin=config.ardupilot_bin, lockstep=config.autopilot == "builtin",
-                                 ready_timeout_s=120.0)
+                                 ready_timeout_s=120.0,
+                                 extra_args=list(ARDUSUB_SIM_ARGS) if config.autopilot == "ardusub" else [])
     summary["autopilot"] = config.autopilot
     with Store(store_path) as store, simulator as sim:
         link = VehicleLink.connect(sim.endpoint, lockstep=sim.lockstep,
-                                   heartbeat_timeout_s=60.0 if sim.real_autopilot else 10.0)
+                                   heartbeat_timeout_s=60.0 if sim.real_autopilot else 10.0,
+                                   vehicle=(preset_vehicle(config.preset) if config.autopilot != "ardusub" else
+                                            ARDUSUB_VEHICLE) if sim.real_autopilot else None)
         try:
-            arm_when_ready(link, patience_s=120.0 if sim.real_autopilot else 0.0)
+            if config.autopilot == "ardusub":
+                arm_ardusub_when_ready(link, patience_s=120.0)
+            else:
+                arm_when_ready(link, patience_s=120.0 if sim.real_autopilot else 0.0)
             vehicle_id = vehicle_record(store, link, f"sim:{config.preset}", {"preset": config.preset, "seed": config.seed})
             console = ConsoleProgress("identification", enabled=config.progress)
             campaign, outcome, campaign_id = run_campaign(link, store, config.campaign, vehicle_id=vehicle_id,

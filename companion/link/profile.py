@@ -52,6 +52,21 @@ class AutopilotProfile:
     water_speed_sensor: bool = True  # False: VFR_HUD.airspeed is not a water speed; ground speed stands in
     depth_from_pressure: bool = True  # False: depth is the autopilot's own estimate (GLOBAL_POSITION_INT)
     depth_setpoint: bool = True  # False: no depth target can be commanded (a boat; ArduSub ALT_HOLD)
+    # the autopilot sends each loop's SERVO_OUTPUT_RAW right after that loop's ATTITUDE (ArduPilot):
+    # a snapshot then waits for it, so attitude and actuator come from the same loop
+    servo_follows_attitude: bool = False
+    # how the actuator read-back behaves between samples, for the identifier's input filter:
+    # "foh" a physical deflection (our simulator reports the rudder itself), "zoh" an output held
+    # from one control loop to the next (ArduPilot reports its commanded output)
+    actuator_hold: str = "foh"
+    # the fin servo's slew rate (rad/s), a property of the vehicle: where the autopilot reports its
+    # commanded output (ArduPilot), the snapshot carries the deflection a servo of this rate makes of
+    # it; None: the commanded output as is
+    actuator_rate_rad_s: float | None = None
+    # train on the whole window (10.5 s after the doublet) instead of stopping at convergence: with
+    # ArduPilot's low-noise attitude eq. 3.39 holds 0.8 s after the doublet, and a22/b2 then depend
+    # on the few samples around its switches (measured: −2…−7 % against −1…−6 % on the full window)
+    train_full_window: bool = False
     angle_full_scale_rad: float = 0.5236  # fin angle at pwm_center ± pwm_half_range
     pwm_center: int = 1500
     pwm_half_range: int = 500

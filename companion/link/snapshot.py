@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 from companion.interface import Telemetry
@@ -51,6 +51,7 @@ class TelemetryAssembler:
     servo_pwm: list[float] = field(default_factory=list)  # latest SERVO_OUTPUT_RAW, µs, outputs 1..16
     _warned: set[str] = field(default_factory=set)
     latest: Telemetry | None = None
+    _held: Telemetry | None = None  # a snapshot waiting for its loop's SERVO_OUTPUT_RAW
 
     def __post_init__(self) -> None:
         self._handlers: dict[str, Callable[[Any], Telemetry | None]] = {
@@ -84,9 +85,28 @@ class TelemetryAssembler:
             roll_rate=self._number(msg, "rollspeed"), pitch_rate=self._number(msg, "pitchspeed"),
             yaw_rate=self._number(msg, "yawspeed"))
         self.latest = Telemetry(time_s=time_ms / 1000.0, **self._fields)
+        if not self.profile.servo_follows_attitude:
+            return self.latest
+        # ArduPilot: this loop's actuator outputs follow in SERVO_OUTPUT_RAW; a snapshot whose
+        # servo message never came is released by the next ATTITUDE, with the last outputs known
+        released, self._held = self._held, self.latest
+        return released
+
+    def _on_servo_output_raw(self, msg: Any) -> Telemetry | None:
+        self._fold_servo_outputs(msg)
+        held = self._held
+        if held is None:
+            return None
+        time_ms = self._number(msg, "time_usec") / 1000.0
+        if not (math.isfinite(time_ms) and time_ms >= held.time_s * 1000.0 - 1.0):
+            return None  # an older loop's outputs
+        self._held = None
+        actuators = {name: self._fields[name] for name in ("rudder", "elevator", "thrust_ratio", "mass_angle")
+                     if name in self._fields}
+        self.latest = replace(held, **actuators)
         return self.latest
 
-    def _on_servo_output_raw(self, msg: Any) -> None:
+    def _fold_servo_outputs(self, msg: Any) -> None:
         self.servo_pwm = [self._number(msg, f"servo{i}_raw") if hasattr(msg, f"servo{i}_raw") else math.nan
                           for i in range(1, 17)]
         outputs = self.profile.servo_outputs

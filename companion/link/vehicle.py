@@ -13,6 +13,7 @@ processed — and active overrides refreshed — whatever the caller is waiting 
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 import math
 import os
@@ -156,7 +157,7 @@ class VehicleLink:
                 signing_key: bytes | None = None, heartbeat_timeout_s: float = 10.0,
                 system_id_hint: int = 1, stream_rates: dict[int, float] | None = None,
                 water_density: float = 1000.0, timeouts: LinkTimeouts = LinkTimeouts(),
-                lockstep: bool = False) -> "VehicleLink":
+                lockstep: bool = False, vehicle: dict | None = None) -> "VehicleLink":
         """Connect to the autopilot at ``endpoint`` (any pymavlink connection string).
 
         Waits (wall clock, ``heartbeat_timeout_s``) for an autopilot HEARTBEAT, beaconing our own
@@ -193,7 +194,7 @@ class VehicleLink:
             master.mav.srcSystem = link.system_id
             master.mav.srcComponent = component
             link._on_heartbeat(heartbeat)
-            link._setup(profile, stream_rates, DepthSensor(water_density=water_density))
+            link._setup(profile, stream_rates, DepthSensor(water_density=water_density), vehicle or {})
         except BaseException:
             master.close()
             raise
@@ -215,10 +216,13 @@ class VehicleLink:
                     MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER):
                 return msg
 
-    def _setup(self, profile: str | None, stream_rates: dict[int, float] | None, depth_sensor: DepthSensor) -> None:
+    def _setup(self, profile: str | None, stream_rates: dict[int, float] | None, depth_sensor: DepthSensor,
+               vehicle: dict | None = None) -> None:
         self.send_heartbeat()
         self._command_long(MAV_CMD_REQUEST_MESSAGE, (MSG_ID_AUTOPILOT_VERSION,))
         chosen = get_profile(profile) if profile is not None else self._detect_profile()
+        if vehicle:  # properties of this vehicle (rudder full scale, servo rate) over the profile's defaults
+            chosen = dataclasses.replace(chosen, **vehicle)
         self.profile = chosen
         self.autopilot = strategy_for(self, chosen)
         for message_id, rate_hz in (self.autopilot.streams if stream_rates is None else stream_rates).items():
@@ -389,10 +393,13 @@ class VehicleLink:
                 self._advance_clock(time_ms)
             return
         snapshot = self.assembler.on_message(msg)
-        if snapshot is None:
-            return
-        self._last_attitude_ms = time_ms
-        self._advance_clock(time_ms)
+        if isinstance(time_ms, (int, float)) and math.isfinite(time_ms):
+            self._last_attitude_ms = time_ms
+            self._advance_clock(time_ms)
+        if snapshot is not None:
+            self._queue_snapshot(snapshot)
+
+    def _queue_snapshot(self, snapshot: Telemetry) -> None:
         if self.autopilot is not None:
             snapshot = self.autopilot.on_snapshot(snapshot)
             self.assembler.latest = snapshot
@@ -418,7 +425,9 @@ class VehicleLink:
 
     def _on_telemetry(self, msg: Any) -> None:
         if self.assembler is not None and msg.get_srcSystem() == self.system_id:
-            self.assembler.on_message(msg)
+            snapshot = self.assembler.on_message(msg)  # ArduPilot: SERVO_OUTPUT_RAW completes a snapshot
+            if snapshot is not None:
+                self._queue_snapshot(snapshot)
 
     def _on_heartbeat(self, msg: Any) -> None:
         if not self._from_autopilot(msg):

@@ -92,6 +92,13 @@ class CampaignConfig:
                          cascade=replace(self.cascade, full_scale=profile.angle_full_scale_rad))
         if not getattr(profile, "depth_setpoint", True):
             config = replace(config, depth=None)
+        # a modelled servo deflection is continuous (first-order hold); a raw loop output is held (zero-order)
+        hold = "foh" if getattr(profile, "actuator_rate_rad_s", None) else getattr(profile, "actuator_hold", "foh")
+        if hold != "foh":
+            config = replace(config, yaw=replace(config.yaw, input_hold=hold), pitch=replace(config.pitch, input_hold=hold))
+        if getattr(profile, "train_full_window", False):
+            config = replace(config, yaw=replace(config.yaw, stop_on_convergence=False),
+                             pitch=replace(config.pitch, stop_on_convergence=False))
         if heading == "cascade":
             config = replace(config, step_labels=tuple("quicktune" if label == "constant" else label
                                                        for label in config.step_labels))

@@ -10,9 +10,11 @@ Which mode each phase uses (decided here, documented in the README):
 * **open-loop excitation**: MANUAL, the only mode that passes the steering stick to the steering
   servo (ACRO makes it a turn-rate demand). At the first rudder override the throttle the speed
   loop had settled on (SERVO3, read back) is held by a throttle override, so the speed stays put,
-  and the steering override carries the doublet. Releasing the rudder ends the excitation:
-  overrides released, back to GUIDED with the targets re-sent (heading control re-engaged, as the
-  thesis does after the doublet).
+  and the steering override carries the doublet. Releasing the rudder holds the steering the
+  heading loop had before the doublet (read back from SERVO1), still in MANUAL, so the whole
+  training or validation record is open loop at constant throttle: measured, in GUIDED ArduRover
+  slows in turns and b2 ∝ u² then drifts within the record (a22/b2 errors up to 10 %). The
+  manoeuvre's next "hold" mode command ends the excitation: GUIDED again, targets re-sent.
 
 Actuators are read back from SERVO_OUTPUT_RAW (SERVO1 steering, SERVO3 throttle). Depth is not a
 boat's notion (a depth set-point is refused); the water speed is the ground speed (no water-speed
@@ -53,10 +55,19 @@ PROFILE = AutopilotProfile(
     water_speed_sensor=False,
     depth_from_pressure=False,
     depth_setpoint=False,
+    servo_follows_attitude=True,
+    actuator_hold="zoh",
+    train_full_window=True,
 )
 
-#: GLOBAL_POSITION_INT joins the base streams (the autopilot's own position and altitude)
-STREAMS = {30: 20.0, 36: 20.0, 32: 10.0, 33: 10.0, 74: 10.0}
+#: GLOBAL_POSITION_INT joins the base streams (the autopilot's own position and altitude).
+#: ATTITUDE and SERVO_OUTPUT_RAW at 25 Hz, every second loop of the 50 Hz rover loop: at 20 Hz the
+#: samples come 40 and 60 ms apart in turn (measured), and 50 Hz is refused (DENIED). Each snapshot
+#: pairs a loop's attitude with that loop's outputs (``servo_follows_attitude``), which the next
+#: physics step applies: a zero-order hold for the identifier (``actuator_hold``). Pairing with the
+#: previous message instead scattered a22 and b2 by ±5 %, and same-loop pairing with a first-order
+#: hold biased them by −13 % (measured on SITL).
+STREAMS = {30: 25.0, 36: 25.0, 32: 10.0, 33: 10.0, 74: 10.0}
 
 
 class Strategy(AutopilotStrategy):
@@ -97,18 +108,14 @@ class Strategy(AutopilotStrategy):
         self.link.send_attitude_target(yaw_quaternion(heading), thrust)
         self._sent_at = self.link.vehicle_time_s
 
-    def mode_changed(self, neutral: str) -> None:
-        if self.link.custom_mode != self.profile.modes["manual"]:
-            self._excitation = None  # whoever left MANUAL ended the excitation
-        self._send()
-
     def override(self, actuator: str, value: float) -> None:
         if actuator == "rudder" and self._excitation is None and self._in_guided():
             latest = self.link.latest_telemetry
             throttle = latest.thrust_ratio if latest is not None and math.isfinite(latest.thrust_ratio) else None
+            steering = latest.rudder if latest is not None and math.isfinite(latest.rudder) else 0.0
             if throttle is None:
                 raise self._cannot("throttle read-back (SERVO3): the speed cannot be held open loop")
-            self._excitation = {"mode": self.link.mode, "throttle": throttle}
+            self._excitation = {"mode": self.link.mode, "throttle": throttle, "steering": steering}
             self.link.override("thrust", throttle)  # before the switch: MANUAL never sees a stopped stick
             self.link.override(actuator, value)
             self.link.set_mode("manual")
@@ -116,14 +123,22 @@ class Strategy(AutopilotStrategy):
         self.link.override(actuator, value)
 
     def release(self, actuator: str | None) -> None:
-        if self._excitation is not None and actuator in (None, "rudder"):
-            mode = self._excitation["mode"]
-            self.link.set_mode(mode)  # mode_changed ends the excitation and re-sends the targets
-            self.link.release(None)
+        if self._excitation is not None and actuator == "rudder":
+            self.link.override("rudder", self._excitation["steering"])  # open loop at the found steering
             return
+        if self._excitation is not None and actuator is None:
+            self.link.set_mode(self._excitation["mode"])  # mode_changed ends the excitation, re-sends targets
         self.link.release(actuator)
+
+    def mode_changed(self, neutral: str) -> None:
+        ended = self._excitation is not None and self.link.custom_mode != self.profile.modes["manual"]
+        if self.link.custom_mode != self.profile.modes["manual"]:
+            self._excitation = None  # whoever left MANUAL ended the excitation
+        if ended:
+            self.link.release(None)
+        self._send()
 
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
         if self._excitation is None and self._in_guided() and telemetry.time_s - self._sent_at >= self.refresh_s:
             self._send()
-        return telemetry
+        return self.servo_model(telemetry)

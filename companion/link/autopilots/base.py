@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import replace
 
 from companion.interface import Telemetry
 
@@ -63,6 +64,21 @@ class AutopilotStrategy:
         """Per-snapshot upkeep (refresh targets); may complete the snapshot (e.g. a commanded
         actuator where nothing reports it back)."""
         return telemetry
+
+    def servo_model(self, telemetry: Telemetry) -> Telemetry:
+        """The rudder a servo of ``profile.actuator_rate_rad_s`` makes of the commanded output
+        (rate-limited in vehicle time between snapshots); the snapshot unchanged without a rate."""
+        rate = self.profile.actuator_rate_rad_s
+        if rate is None or not math.isfinite(telemetry.rudder):
+            return telemetry
+        previous = getattr(self, "_servo_state", None)
+        if previous is None or not math.isfinite(previous[1]):
+            modelled = telemetry.rudder
+        else:
+            step = rate * max(0.0, telemetry.time_s - previous[0])
+            modelled = previous[1] + max(-step, min(step, telemetry.rudder - previous[1]))
+        self._servo_state = (telemetry.time_s, modelled)
+        return replace(telemetry, rudder=modelled)
 
     def _cannot(self, what: str):
         from companion.link.errors import ProfileError
