@@ -24,6 +24,32 @@ def add_connect_arguments(parser: argparse.ArgumentParser) -> None:
                         help="autopilot profile (default: detected from the parameter names)")
     parser.add_argument("--signing-key", metavar="HEX", default=None,
                         help="MAVLink 2 signing key as 64 hex characters (32 bytes)")
+    vehicle = parser.add_argument_group("vehicle properties (over the profile's defaults)")
+    vehicle.add_argument("--rudder-full-scale", type=_positive, default=None, metavar="RAD",
+                         help="rudder deflection at full steering output (ArduPilot profiles: 0.5236 rover, 0.35 sub)")
+    vehicle.add_argument("--rudder-rate", type=_positive, default=None, metavar="RAD_S",
+                         help="rudder servo slew rate: where the autopilot reports its commanded output (ArduPilot), "
+                              "the identifier uses the deflection such a servo makes of it")
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, not {text!r}") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, not {text!r}")
+    return value
+
+
+def vehicle_properties(args: argparse.Namespace) -> dict:
+    """The ``--rudder-*`` options as AutopilotProfile fields."""
+    out = {}
+    if getattr(args, "rudder_full_scale", None) is not None:
+        out["angle_full_scale_rad"] = args.rudder_full_scale
+    if getattr(args, "rudder_rate", None) is not None:
+        out["actuator_rate_rad_s"] = args.rudder_rate
+    return out
 
 
 def signing_key(args: argparse.Namespace) -> bytes | None:
@@ -96,7 +122,8 @@ def connected_vehicle(args: argparse.Namespace):
     undo = install_signal_handlers(abort)
     try:
         try:
-            link = VehicleLink.connect(args.connect, profile=args.profile, signing_key=signing_key(args))
+            link = VehicleLink.connect(args.connect, profile=args.profile, signing_key=signing_key(args),
+                                       vehicle=vehicle_properties(args))
         except LinkError as exc:  # no heartbeat, endpoint that cannot be opened, ...
             raise ConnectFailed(f"error: {exc}") from exc
         try:
