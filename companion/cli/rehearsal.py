@@ -134,11 +134,14 @@ def arm_when_ready(link, patience_s: float) -> None:
 
 
 def arm_ardusub_when_ready(link, patience_s: float) -> None:
-    """ArduSub: wait, disarmed, until the EKF navigates (ArduSub accepts POSHOLD, disarmed, only
-    with a predicted absolute position: until then its height is still converging onto the depth
-    sensor and the ground speed, our water speed, reads 0), then arm and hold the depth in
-    ALT_HOLD. Ends in ALT_HOLD at zero thrust, so a campaign's restore leaves the vehicle stopped
-    and holding its depth. (The simulated AUV waits in its launch cradle, sim.ardupilot_json.)"""
+    """ArduSub: wait, disarmed, until the EKF navigates (ArduSub accepts POSHOLD, disarmed, only with
+    a predicted absolute position; before that its height is still converging onto the depth sensor
+    and the ground speed, our water speed, reads 0), then hold the depth in ALT_HOLD and arm. Ends in
+    ALT_HOLD at zero thrust, so a campaign's restore leaves the vehicle stopped at its depth.
+
+    Disarmed, because armed before its EKF uses GPS ArduSub dead-reckons a vehicle at rest into
+    2 m/s of ground speed and a heading 15° off (measured). The simulated AUV waits in its launch
+    cradle until the thrusters run (sim.ardupilot_json.SubVectoredDecoder)."""
     from companion.link.errors import CommandFailed, ModeChangeFailed
 
     start = link.next_telemetry(timeout_s=30.0).time_s
@@ -227,8 +230,11 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                 truth[f"{attempt.thrust:.2f}"] = simulator_truth(config.preset, attempt.speed)
         summary["runs"] = _run_rows(campaign, truth)
         summary["design"] = campaign.design_summary()
-        summary["heading_steps"] = [{"thrust": s["thrust"], "label": s["label"], "max_overshoot_pct": finite_or_none(s["max_overshoot_pct"])}
+        summary["heading_steps"] = [{"thrust": s["thrust"], "label": s["label"],
+                                     "max_overshoot_pct": finite_or_none(s["max_overshoot_pct"]),
+                                     "iae_s": finite_or_none(s.get("iae_s")), "oscillations": s.get("oscillations")}
                                     for s in campaign.step_results]
+        summary["verification"] = campaign.verification or ("passed" if campaign.final_gains else None)
         summary["final_gains"] = campaign.final_gains
         summary["store"] = str(store_path)
         summary["report"] = str(out / "report.html")
