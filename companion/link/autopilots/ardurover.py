@@ -50,6 +50,7 @@ PROFILE = AutopilotProfile(
     thrust_pwm_full=2000,
     mass_servo=None,
     int_encoding="cast",
+    flown=True,  # campaign, gain check and restores run against ArduRover 4.7 SITL (tests/test_ardupilot_rover.py)
     heading_schedule="cascade",
     strategy="ardurover",
     water_speed_sensor=False,
