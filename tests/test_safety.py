@@ -10,6 +10,8 @@ from companion.procedures.app import run_named_behavior
 from companion.procedures.roll import RollProcedureConfig, roll_procedure
 from companion.procedures.campaign import CampaignConfig
 from companion.link.profiles import ARDUROVER
+import pytest
+
 from behaviors.base import Footprint
 from companion.procedures.runner import RestorePoint, RunOutcome
 from companion.records.store import Store
@@ -184,3 +186,16 @@ def test_pilot_takeover_during_roll_stabilisation_keeps_the_pilots_mode():
                                                                      kick_deg=0.0), simulator=True)
     assert result["status"] == "aborted" and result["pilot_has_it"]
     assert link.mode == "manual" and link.autopilot.mass_angle_demand == 0.0
+
+
+@pytest.mark.parametrize("name, why", [("roll", "rolling mass"), ("min_speed", "depth loop")])
+def test_a_procedure_that_does_not_apply_refuses_with_the_reason(name, why):
+    """Roll stabilisation without a rolling mass, minimum-speed seeking on a boat: refused, never completed."""
+    link = CascadedFake()  # an ArduRover boat: no mass servo, no elevator, no depth set-point
+    link.status_text = lambda text, severity=6: None
+    with Store(":memory:") as store:
+        out = run_named_behavior(name, link, store, vehicle_id=store.add_vehicle("boat"), campaign_id=None,
+                                 abort=AbortFlag(), simulator=False)
+        assert out["result"]["status"] == "refused" and why in out["result"]["abort_reason"]
+        assert out["summary"]["status"] == "refused"
+        assert store.campaigns()[0]["status"] == "refused"

@@ -202,6 +202,14 @@ def run_named_procedure(name: str, link, store: Store, *, vehicle_id: int, campa
         campaign_id = store.start_campaign(vehicle_id, name, {"preset": getattr(context, "preset", None)})
     result: dict = {"status": "failed", "abort_reason": "not started"}
     outcome = None
+    refusal = spec.applies(getattr(link, "profile", None))
+    if refusal is not None:  # never "completed": the procedure does not apply to this vehicle
+        result = {"status": "refused", "abort_reason": refusal}
+        store.add_behavior_result(campaign_id, name, "refused", result)
+        if own:
+            store.finish_campaign(campaign_id, "refused", refusal)
+        _tell(link, f"{name} refused: {refusal}"[:50], 4)
+        return {"result": result, "summary": spec.summary(result), "outcome": None}
     try:
         procedure = spec.build(link, context or ProcedureContext())
         outcome = run_procedure(link, procedure, limits=limits, abort_requested=abort)
@@ -211,6 +219,13 @@ def run_named_procedure(name: str, link, store: Store, *, vehicle_id: int, campa
         if own:
             store.finish_campaign(campaign_id, result["status"], result.get("abort_reason"))
     return {"result": result, "summary": spec.summary(result), "outcome": outcome}
+
+
+def _tell(link, text: str, severity: int) -> None:
+    try:
+        link.status_text(text, severity)
+    except Exception:  # noqa: BLE001 - a dead link cannot be told anything
+        log.debug("could not send status text %r", text)
 
 
 def run_named_behavior(name: str, link, store: Store, *, vehicle_id: int, campaign_id: int | None, abort,

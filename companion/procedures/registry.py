@@ -63,6 +63,7 @@ class ProcedureSpec:
     command: int | None
     build: Callable[[object, ProcedureContext], object]
     summary: Callable[[dict], dict]
+    applies: Callable[[object], str | None] = lambda profile: None  # None, or why it does not apply
 
 
 def _roll_config():
@@ -121,11 +122,26 @@ def _steady_summary(result: dict) -> dict:
     return steady_summary(result)
 
 
+def _needs_rolling_mass(profile) -> str | None:
+    if profile is not None and getattr(profile, "mass_servo", None) is None:
+        return f"roll stabilisation needs a rolling mass on a spare servo output; the {profile.name} profile has none"
+    return None
+
+
+def _needs_fin_depth_loop(profile) -> str | None:
+    if profile is None:
+        return None
+    if "elevator" not in profile.servo_outputs or not getattr(profile, "depth_setpoint", True):
+        return (f"minimum-speed seeking needs a depth loop flown by an elevator with a thrust set-point; "
+                f"the {profile.name} profile has none (a boat, or an ROV holding depth with thrusters)")
+    return None
+
+
 #: procedures started by name; the identification campaign (MAV_CMD_USER_1) is run by
 #: ``companion.procedures.app.run_campaign`` because it stores its records as it goes
 PROCEDURES: dict[str, ProcedureSpec] = {
-    "roll": ProcedureSpec("roll", MAV_CMD_USER_2, _build_roll, _roll_summary),
-    "min_speed": ProcedureSpec("min_speed", MAV_CMD_USER_3, _build_min_speed, _min_speed_summary),
+    "roll": ProcedureSpec("roll", MAV_CMD_USER_2, _build_roll, _roll_summary, _needs_rolling_mass),
+    "min_speed": ProcedureSpec("min_speed", MAV_CMD_USER_3, _build_min_speed, _min_speed_summary, _needs_fin_depth_loop),
     "steady_state": ProcedureSpec("steady_state", MAV_CMD_USER_5, _build_steady_state, _steady_summary),
 }
 
