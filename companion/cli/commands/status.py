@@ -1,7 +1,9 @@
 """``companion status``: one live snapshot of a vehicle (SPEC C1, C10).
 
-Connects, waits for one complete telemetry snapshot and prints it: a JSON object with ``--json``
-(mode, armed, attitude in degrees, depth, speeds, actuators, vehicle time, profile), a table
+Connects, waits (up to ``--timeout`` seconds of wall clock) until the snapshot has every field this
+autopilot reports — attitude, mode, depth, position, speeds and the actuators its profile reads back
+— and prints it: a JSON object with ``--json`` (mode, armed, attitude in degrees, depth, speeds,
+actuators, vehicle time, profile, and ``missing``: the fields that never arrived), a table
 otherwise. Exit code 1 with a clear message on stderr when nothing answers.
 """
 from __future__ import annotations
@@ -49,6 +51,20 @@ def snapshot_record(link, telemetry) -> dict:
     }
 
 
+def missing_fields(link, telemetry) -> list[str]:
+    """The snapshot fields this autopilot should report that are still unknown (NaN or empty)."""
+    profile = link.profile
+    wanted = ["roll", "pitch", "yaw", "depth", "north", "east", "speed_ground"]
+    if profile.water_speed_sensor:
+        wanted.append("speed_water")
+    wanted += [{"rudder": "rudder", "elevator": "elevator", "thrust": "thrust_ratio"}[actuator]
+               for actuator in profile.servo_outputs]
+    missing = [name for name in wanted if not telemetry.finite(name)]
+    if not telemetry.mode:
+        missing.append("mode")
+    return missing
+
+
 def _table(record: dict) -> str:
     def fmt(value) -> str:
         if isinstance(value, float):
@@ -76,8 +92,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"companion status: cannot reach a vehicle on {args.connect}: {exc}", file=sys.stderr)
         return 1
     try:
+        import time
+
+        deadline = time.monotonic() + args.timeout  # a process-level wait for the fields, not vehicle logic
         telemetry = link.next_telemetry(timeout_s=args.timeout)
+        while missing_fields(link, telemetry) and time.monotonic() < deadline:
+            telemetry = link.next_telemetry(timeout_s=max(0.1, deadline - time.monotonic()))
         record = snapshot_record(link, telemetry)
+        record["missing"] = missing_fields(link, telemetry)
+        if record["missing"]:
+            print(f"companion status: no {', '.join(record['missing'])} within {args.timeout:g} s", file=sys.stderr)
     except LinkError as exc:
         print(f"companion status: {exc}", file=sys.stderr)
         return 1
