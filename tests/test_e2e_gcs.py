@@ -23,7 +23,8 @@ def acks_for(gcs, command: int, until, timeout_s: float) -> list[tuple[int, int]
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline and not until(seen):
         msg = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=0.5)
-        if msg is not None and msg.command == command and msg.get_srcComponent() == 191:
+        if msg is not None and msg.command == command and msg.get_srcComponent() == 191 \
+                and getattr(msg, "target_system", 0) in (0, gcs.mav.srcSystem):
             seen.append((msg.result, msg.progress))
     return seen
 
@@ -99,3 +100,29 @@ def test_user_4_aborts_the_campaign(companion, mav_client):
     gcs.mav.param_request_read_send(1, 1, b"HDG_P", -1)
     value = gcs.recv_match(type="PARAM_VALUE", blocking=True, timeout=10)
     assert value is not None and value.param_value == pytest.approx(0.64, abs=1e-6)
+
+
+def test_a_stranger_cannot_start_a_procedure(companion, mav_client):
+    """Issue 9: procedure commands are obeyed only from the ground station's system id; another
+    system gets DENIED and a STATUSTEXT, and nothing starts."""
+    sim, process = companion
+    gcs = mav_client(sim.endpoint)
+    stranger = mav_client(sim.endpoint, source_system=77)
+    wait_for_companion(gcs)
+    arm(gcs)
+    acks = start(stranger, MAV_CMD_USER_3, 20.0)
+    assert acks and acks[0][0] == 2, acks  # MAV_RESULT_DENIED
+    assert not acks_for(stranger, MAV_CMD_USER_3, lambda seen: bool(seen), 3.0)  # no IN_PROGRESS follows
+    # the ground station itself is still obeyed
+    first = start(gcs, MAV_CMD_USER_3, 5.0)
+    assert first and first[0][0] == IN_PROGRESS, first
+
+
+def test_a_procedure_longer_than_an_hour_is_refused(companion, mav_client):
+    sim, process = companion
+    gcs = mav_client(sim.endpoint)
+    wait_for_companion(gcs)
+    arm(gcs)
+    start(gcs, MAV_CMD_USER_3, 1e30)
+    final = acks_for(gcs, MAV_CMD_USER_3, lambda seen: seen and seen[-1][0] != IN_PROGRESS, 30.0)
+    assert final and final[-1][0] == FAILED, final

@@ -21,8 +21,8 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Sequence
 
-from pymavlink.dialects.v20.common import (MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_IN_PROGRESS,
-                                           MAV_RESULT_UNSUPPORTED)
+from pymavlink.dialects.v20.common import (MAV_RESULT_ACCEPTED, MAV_RESULT_DENIED, MAV_RESULT_FAILED,
+                                           MAV_RESULT_IN_PROGRESS, MAV_RESULT_UNSUPPORTED)
 
 from companion.interface import (Command, NamedValue, OverrideActuator, ReleaseActuator, SetDepth, SetHeading,
                                  SetMode, SetParameters, SetRollingMass, SetThrust, StatusText, Telemetry)
@@ -117,6 +117,7 @@ class VehicleLink:
         self._awaiting_ack: dict[int, float] = {}  # set-point command -> vehicle time it was sent
         self._refusals: collections.deque[str] = collections.deque(maxlen=16)
         self._gcs_heartbeat_component = 190
+        self.allowed_senders: set[int] = set()  # more system ids allowed to start procedures
         self._last_attitude_ms: float | None = None
         self._last_heartbeat_sent: float = -math.inf
         self._last_heartbeat_msg: Any = None
@@ -480,10 +481,22 @@ class VehicleLink:
         if msg.target_system not in (0, self.system_id) or msg.target_component not in (0, self.component):
             return
         if MAV_CMD_USER_1 <= msg.command <= MAV_CMD_USER_5:
+            sender = msg.get_srcSystem()
+            if sender not in self.command_senders():
+                # a procedure moves the vehicle: only the ground station (or an allowed system) starts one
+                self._send_ack(msg.command, MAV_RESULT_DENIED, 0, sender, msg.get_srcComponent())
+                self.status_text(f"command {msg.command} from system {sender} refused: not the ground station"[:50], 4)
+                log.warning("COMMAND_LONG %d from system %d refused (ground station is %d, allowed %s)",
+                            msg.command, sender, self.gcs_sysid, sorted(self.allowed_senders))
+                return
             params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
-            self._user_queue.append(UserCommand(msg.command, params, msg.get_srcSystem(), msg.get_srcComponent()))
+            self._user_queue.append(UserCommand(msg.command, params, sender, msg.get_srcComponent()))
         elif msg.target_component == self.component:
             self._send_ack(msg.command, MAV_RESULT_UNSUPPORTED, 0, msg.get_srcSystem(), msg.get_srcComponent())
+
+    def command_senders(self) -> set[int]:
+        """System ids whose procedure commands are obeyed: the ground station's and ``allowed_senders``."""
+        return {self.gcs_sysid, *self.allowed_senders}
 
     # ================================================================== user commands
     def on_user_command(self, callback: Callable[[int, tuple[float, ...]], None] | None) -> None:

@@ -53,6 +53,9 @@ from companion.records.store import Store
 
 log = logging.getLogger(__name__)
 
+#: the longest run a ground station may ask for with param1 (seconds of vehicle time)
+MAX_PROCEDURE_S = 3600.0
+
 
 def schedule_from_store(store: Store) -> YawSchedule | None:
     """The heading schedule exactly as the latest completed campaign designed and wrote it (read
@@ -218,6 +221,8 @@ class Companion:
                 self._rebuild_scheduler()
             else:
                 seconds = params[0] if params and math.isfinite(params[0]) and params[0] > 0 else None
+                if seconds is not None and seconds > MAX_PROCEDURE_S:
+                    raise ValueError(f"param1 {seconds:g} s is beyond the {MAX_PROCEDURE_S:g} s a procedure may last")
                 context = ProcedureContext(roll=self.config.roll, min_speed=self.config.min_speed,
                                            preset=self.config.preset, simulator=False, seconds=seconds)
                 ran = run_named_procedure(name, self.link, self.store, vehicle_id=self.vehicle_id, campaign_id=None,
