@@ -172,3 +172,25 @@ def test_status_command_fails_clearly_when_nothing_answers(capsys):
 
     assert status_main(["status", "--connect", f"udpout:127.0.0.1:{free_port()}", "--timeout", "0.5"]) == 1
     assert "no autopilot HEARTBEAT" in capsys.readouterr().err
+
+
+def test_a_simulator_killed_under_a_tcp_link_is_link_loss_not_a_print_loop(sim_factory, capfd):
+    """Issue 9: EOF on TCP becomes LinkLost at once; pymavlink prints nothing to stdout."""
+    import os
+    import signal
+
+    from companion.link.errors import LinkLost
+    from companion.link.vehicle import VehicleLink
+
+    sim = sim_factory(transport="tcp", speedup=20)
+    link = VehicleLink.connect(sim.endpoint)
+    link.next_telemetry()
+    os.kill(sim.process.pid, signal.SIGKILL)
+    sim.process.wait()
+    with pytest.raises(LinkLost):
+        for _ in range(10000):
+            link.next_telemetry(timeout_s=5.0)
+    with pytest.raises(LinkLost):
+        link.get_param("HDG_P", retries=1)
+    link.close()
+    assert "EOF on TCP socket" not in capfd.readouterr().out

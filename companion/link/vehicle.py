@@ -181,6 +181,7 @@ class VehicleLink:
             raise EndpointError(f"cannot open {endpoint}: {exc}") from exc
         if signing_key is not None:
             master.setup_signing(signing_key, sign_outgoing=True)
+        _raise_on_stream_end(master, endpoint)
         try:
             try:
                 heartbeat = cls._await_autopilot_heartbeat(master, heartbeat_timeout_s, endpoint, component)
@@ -829,6 +830,21 @@ class VehicleLink:
             echoed = self.set_param(native, profile.to_native_value(neutral, value))
             confirmed[neutral] = profile.to_neutral_value(neutral, echoed)
         return confirmed
+
+
+def _raise_on_stream_end(master: Any, endpoint: str) -> None:
+    """A TCP peer that closed or reset the connection is link loss (LinkLost, which the runner's
+    abort and the restore's bounded retries handle), not pymavlink's print-and-reconnect loop on
+    stdout (it spun at 100 % CPU and spoiled ``--json`` output)."""
+    def lost(what: str):
+        def handler(*_args) -> None:
+            raise LinkLost(f"{endpoint}: {what}")
+        return handler
+
+    if hasattr(master, "handle_eof"):
+        master.handle_eof = lost("the vehicle closed the TCP connection")
+    if hasattr(master, "handle_disconnect"):
+        master.handle_disconnect = lost("the TCP connection was reset")
 
 
 def validate_named_value_name(name: str) -> str:
