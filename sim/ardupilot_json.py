@@ -106,33 +106,58 @@ _VECTORED = (
 )
 
 
-@dataclass(frozen=True)
+def unmix_vectored(outputs: Sequence[float]) -> dict[str, float]:
+    """Least-squares un-mix of the vectored frame's six motor outputs (±1) into its axes.
+
+    Each axis is Σ fᵢ·oᵢ / Σ fᵢ² over the frame factors (exact while no motor saturates; once one
+    does, the axes the motors actually produce). ``throttle`` is ArduSub's bidirectional throttle:
+    positive = climb (motors 5/6 have throttle factor −1, so a climb drives them below 1500 µs)."""
+    axes = {}
+    for index, name in ((0, "roll"), (2, "yaw"), (3, "throttle"), (4, "forward"), (5, "lateral")):
+        factors = [row[index] for row in _VECTORED]
+        axes[name] = sum(f * o for f, o in zip(factors, outputs)) / sum(f * f for f in factors)
+    return axes
+
+
+@dataclass
 class SubVectoredDecoder:
     """ArduSub vectored frame: thruster outputs un-mixed by least squares over the frame factors.
 
     Yaw (±1) acts as an equivalent rudder of ±``rudder_full_scale`` rad (the ardusub profile's
-    default), forward (≥ 0) as the thrust ratio, and the vertical demand as a heave force of up to
-    ``heave_force_max`` N. Motor directions (``MOT_n_DIRECTION``) are those of the parameter file
-    the launcher writes: all normal."""
+    default), forward (≥ 0) as the thrust ratio, and the throttle (vertical thrusters, positive =
+    climb) as a heave force of up to ``heave_force_max`` N upwards. Roll and lateral are not
+    simulated. Motor directions (``MOT_n_DIRECTION``) are those of the parameter file the launcher
+    writes: all normal.
+
+    **Launch cradle**: until the thrusters first run (any of motors 1..6 off 1500 µs), the AUV is
+    held where it boots by a heave force of ``cradle_force`` N (down; its buoyancy minus its
+    weight), as if hanging from a launch crane. ArduSub's EKF needs tens of seconds after boot
+    before it navigates, and the buoyant AUV would meanwhile float up and pitch (measured: from
+    2 m to the surface in 17 s, 20° of pitch; our physics cannot rest at the surface)."""
 
     rudder_full_scale: float = 0.35
     heave_force_max: float = 60.0
     pwm_half_range: float = 400.0
+    cradle_force: float = 0.0
     name: str = "ardusub-vectored"
+    launched: bool = False
+
+    @classmethod
+    def for_preset(cls, preset) -> SubVectoredDecoder:
+        """The decoder of this vehicle: its cradle cancels the preset's net buoyancy."""
+        return cls(cradle_force=preset.dive_plane.buoyancy - preset.dive_plane.weight)
 
     def demand(self, pwm: Sequence[int], previous: ActuatorDemand) -> tuple[ActuatorDemand, float]:
         outputs = [_normalised(p, 1500.0, self.pwm_half_range) for p in pwm[:6]]
-        if any(o is None for o in outputs):
-            return previous, 0.0
-        axes = []
-        for axis in (2, 3, 4):  # yaw, throttle (vertical), forward
-            factors = [row[axis] for row in _VECTORED]
-            norm = sum(f * f for f in factors)
-            axes.append(sum(f * o for f, o in zip(factors, outputs)) / norm)
-        yaw, vertical, forward = axes
-        heave_force = vertical * self.heave_force_max  # throttle factor −1 = thrust up: −vertical is up
-        return ActuatorDemand(rudder=yaw * self.rudder_full_scale, elevator=0.0, thrust_ratio=max(0.0, forward),
-                              mass_angle=previous.mass_angle), heave_force
+        if len(outputs) < 6 or any(o is None for o in outputs):
+            return previous, (0.0 if self.launched else self.cradle_force)
+        if not self.launched and all(o == 0.0 for o in outputs):
+            return previous, self.cradle_force
+        self.launched = True
+        axes = unmix_vectored(outputs)
+        heave_force = -axes["throttle"] * self.heave_force_max  # climb demand -> force up (negative down)
+        return ActuatorDemand(rudder=axes["yaw"] * self.rudder_full_scale, elevator=0.0,
+                              thrust_ratio=max(0.0, axes["forward"]), mass_angle=previous.mass_angle), heave_force
 
 
 DECODERS: dict[str, type] = {"ardurover": RoverBoatDecoder, "ardusub": SubVectoredDecoder}

@@ -15,6 +15,7 @@ instance is chosen), its servo frames go to our UDP port (bound to port 0, passe
 from __future__ import annotations
 
 import logging
+import math
 import socket
 import subprocess
 import tempfile
@@ -34,6 +35,11 @@ AUTOPILOTS = {
     "ardurover": ("ardurover", "ardurover-boat.parm", "boat"),
     "ardusub": ("ardusub", "ardusub-vectored.parm", "starfish"),
 }
+#: actuator limits (sim.vehicle.ActuatorLimits fields) an autopilot's frame imposes instead of the
+#: preset's fin servos: ArduSub's equivalent rudder is the thrusters' yaw differential, which follows
+#: the mix within a physics step (a 0.5 rad/s fin servo would lag it by 0.2-0.4 s in a doublet)
+FRAME_LIMITS: dict[str, dict[str, float]] = {"ardusub": {"rudder_rate": math.inf}}
+
 MAVLINK_BASE_PORT = 5760
 DEFAULT_HOME = "-35.363262,149.165237,0,0"  # sea level (ArduSub needs a sea-level home)
 
@@ -95,7 +101,10 @@ class ArduPilotSitl:
         preset = load_preset(config.preset or AUTOPILOTS[config.autopilot][2])
         self.vehicle = Vehicle(preset, seed=config.seed, current_north=config.current[0],
                                current_east=config.current[1], depth=config.depth, speed=0.0)
-        decoder = DECODERS[config.autopilot]()
+        for name, value in FRAME_LIMITS.get(config.autopilot, {}).items():
+            setattr(self.vehicle.limits, name, value)
+        factory = DECODERS[config.autopilot]
+        decoder = factory.for_preset(preset) if hasattr(factory, "for_preset") else factory()
         self.bridge = JsonBridge(JsonPhysics(self.vehicle, decoder))
         self.instance = free_instance()
         self.port = MAVLINK_BASE_PORT + 10 * self.instance
