@@ -9,23 +9,45 @@ Which mode each phase uses (decided here, documented in the README):
   A depth set-point is accepted only as "stay where you are" (within 0.5 m): ALT_HOLD has no
   depth target to set.
 * **open-loop excitation**: MANUAL, where the yaw channel (RC 4) is passed to the thruster mix
-  (ALT_HOLD makes it a yaw-rate demand). The forward override stays; the vertical thrusters get
-  neutral (the vehicle's buoyancy acts for the ~16 s of a training window). Returning to
-  ALT_HOLD (the next "hold" mode command, which the manoeuvre sends after training) ends it.
+  (ALT_HOLD makes it a yaw-rate demand). MANUAL scales the yaw stick by ACRO_YAW_P / 3.375
+  (mode_manual.cpp): the override divides by that ratio, read from the vehicle, so the motors get
+  the yaw asked for. The forward override stays; the vertical thrusters get, through the throttle
+  channel (RC 3), the mean vertical thrust ALT_HOLD was producing (un-mixed from motors 5/6 and
+  averaged over ``VERTICAL_AVERAGE_S``), so the depth drifts little in the ~15 s of a record
+  (measured: 0.06 m at thrust 0.45, 0.27 m at 0.65). After the doublet the yaw stick is centred
+  (MANUAL: a known zero output) and the record stays open loop; the manoeuvre's next "hold" mode
+  command ends the excitation.
+
+ArduSub habits the strategy answers for:
+
+* without an RC receiver (a vehicle flown from a ground station) a released RC override leaves the
+  channel at its **last value**: the forward channel would keep the thrust, the yaw channel a
+  turn. So :meth:`Strategy.release` centres a stick (1500 µs: stop, no turn, no climb) and
+  releases it ``RELEASE_AFTER_S`` later (both in one ArduSub loop leave the old value). A restore
+  that calls ``VehicleLink.release`` directly bypasses this.
+* ArduSub disarms after FS_PILOT_TIMEOUT (3 s) without pilot input (FS_PILOT_INPUT, "Lost manual
+  control"), and after 5 s without a heartbeat from the ground station's system id
+  (FS_GCS_ENABLE). While connected, the companion is the pilot: it sends a GCS heartbeat every
+  vehicle second, and an RC override that changes no channel (every value "ignore") whenever no
+  override is being refreshed. When the companion goes away, both failsafes act as designed.
+* ArduSub 4.7 computes ATC_RAT_YAW_FF but never applies it (AC_AttitudeControl_Sub sends only the
+  rate PID's P+I+D to the motors): a feed-forward written here changes nothing (measured).
 
 The yaw actuator is read back by un-mixing the thruster outputs of SERVO_OUTPUT_RAW with the
 vectored frame's factors (AP_Motors6DOF): yaw ±1 ↔ ±``angle_full_scale_rad`` of equivalent
-rudder; forward ±1 ↔ thrust ratio. Depth is the autopilot's own estimate (GLOBAL_POSITION_INT),
-never raw pressure against 1013.25 hPa. ArduSub's GCS failsafe (FS_GCS_ENABLE) disarms 5 s after
-the last heartbeat from the ground station's system id: the strategy sends one every vehicle second.
+rudder; forward ±1 ↔ thrust ratio. Each motor saturates at ±1, so forward + |yaw| above 1 clips
+both (the read-back shows what the motors do). Attitude and outputs are paired per loop at 50 Hz:
+at 20 Hz the doublet's switches fall up to 50 ms between samples and a22/b2 scattered by ±5 %
+(measured). Depth: see :meth:`Strategy.depth`.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 from companion.interface import Telemetry
 from companion.link.autopilots.base import AutopilotStrategy, yaw_quaternion
+from companion.link.overrides import OverrideTable
 from companion.link.profile import AutopilotProfile
 
 PROFILE = AutopilotProfile(
@@ -52,23 +74,68 @@ PROFILE = AutopilotProfile(
     water_speed_sensor=False,
     depth_from_pressure=False,
     depth_setpoint=False,
+    servo_follows_attitude=True,
+    actuator_hold="zoh",
+    train_full_window=True,
 )
 
-STREAMS = {30: 20.0, 36: 20.0, 32: 10.0, 33: 10.0, 74: 10.0}
+#: the base streams, GLOBAL_POSITION_INT (depth) and HOME_POSITION (the surface, see Strategy.depth)
+STREAMS = {30: 50.0, 36: 50.0, 32: 10.0, 33: 10.0, 74: 10.0, 242: 0.5}
 
-#: AP_Motors6DOF SUB_FRAME_VECTORED factors (yaw, forward) of motors 1..4
-VECTORED_YAW_FORWARD = ((1.0, -1.0), (-1.0, -1.0), (-1.0, 1.0), (1.0, 1.0))
-MOTOR_PWM_CENTRE, MOTOR_PWM_HALF_RANGE = 1500.0, 400.0
+#: AP_Motors6DOF SUB_FRAME_VECTORED factors (roll, yaw, throttle, forward) of motors 1..6
+VECTORED_FACTORS = (
+    (0.0, 1.0, 0.0, -1.0),
+    (0.0, -1.0, 0.0, -1.0),
+    (0.0, -1.0, 0.0, 1.0),
+    (0.0, 1.0, 0.0, 1.0),
+    (1.0, 0.0, -1.0, 0.0),
+    (-1.0, 0.0, -1.0, 0.0),
+)
+MOTOR_PWM_CENTRE, MOTOR_PWM_HALF_RANGE = 1500.0, 400.0  # MOT_PWM_MIN/MAX 1100/1900
+STICK_CENTRE, STICK_HALF_RANGE = 1500, 400  # RC 3/4/5 trim and range: no climb, no turn, stop
+ACRO_YAW_P_DEFAULT = 3.375  # ArduSub's ACRO_YAW_P define: MANUAL's yaw scale is ACRO_YAW_P / this
+RELEASE_AFTER_S = 0.25  # a centred stick is held this long (vehicle time) before it is released
+VERTICAL_AVERAGE_S = 3.0  # time constant of the mean vertical thrust held in MANUAL
+PILOT_PRESENCE_S = 1.0  # vehicle seconds between "no change" overrides (FS_PILOT_TIMEOUT is 3 s)
 
 
-def unmix_vectored(pwm: list[float]) -> tuple[float, float] | None:
-    """(yaw, forward) in ±1 from the first four thruster outputs; None when one is missing."""
-    if len(pwm) < 4 or any(not (800 <= p <= 2200) for p in pwm[:4]):
+@dataclass(frozen=True)
+class VectoredAxes:
+    """The vectored frame's demands recovered from its motor outputs (each in ±1).
+
+    ``throttle`` is ArduSub's bidirectional throttle: positive = climb (motors 5/6 have throttle
+    factor −1, so a climb drives them below 1500 µs)."""
+
+    yaw: float
+    forward: float
+    throttle: float = math.nan
+
+
+def _motor_output(pwm) -> float | None:
+    valid = isinstance(pwm, (int, float)) and 800 <= pwm <= 2200
+    return (pwm - MOTOR_PWM_CENTRE) / MOTOR_PWM_HALF_RANGE if valid else None
+
+
+def unmix_vectored(pwm: list[float]) -> VectoredAxes | None:
+    """Least-squares un-mix (Σ fᵢ·oᵢ / Σ fᵢ²) of the thruster outputs in µs; None when one of
+    motors 1..4 is missing. ``throttle`` is NaN without motors 5 and 6."""
+    outputs = [_motor_output(p) for p in list(pwm[:6]) + [None] * (6 - len(pwm[:6]))]
+    if any(o is None for o in outputs[:4]):
         return None
-    outputs = [(p - MOTOR_PWM_CENTRE) / MOTOR_PWM_HALF_RANGE for p in pwm[:4]]
-    yaw = sum(f[0] * o for f, o in zip(VECTORED_YAW_FORWARD, outputs)) / 4.0
-    forward = sum(f[1] * o for f, o in zip(VECTORED_YAW_FORWARD, outputs)) / 4.0
-    return yaw, forward
+
+    def axis(index: int, motors: range) -> float:
+        factors = [VECTORED_FACTORS[m][index] for m in motors]
+        return sum(f * outputs[m] for f, m in zip(factors, motors)) / sum(f * f for f in factors)
+
+    throttle = axis(2, range(4, 6)) if None not in outputs[4:] else math.nan
+    return VectoredAxes(yaw=axis(1, range(4)), forward=axis(3, range(4)), throttle=throttle)
+
+
+def throttle_stick(throttle: float) -> int:
+    """RC 3 PWM that gives MANUAL this bidirectional throttle (set_throttle((norm + 1) / 2));
+    centre for NaN."""
+    value = min(max(throttle, -1.0), 1.0) if math.isfinite(throttle) else 0.0
+    return round(STICK_CENTRE + value * STICK_HALF_RANGE)
 
 
 class Strategy(AutopilotStrategy):
@@ -80,10 +147,19 @@ class Strategy(AutopilotStrategy):
         self.heading = math.nan
         self._sent_at = -math.inf
         self._gcs_heartbeat_at = -math.inf
+        self._pilot_at = -math.inf
+        self._vertical_mean = math.nan  # mean ALT_HOLD throttle (±1), from motors 5/6
+        self._vertical_at = math.nan
+        self._manual_yaw_scale: float | None = None  # ACRO_YAW_P / 3.375
+        self._release_at: dict[str, float] = {}  # centred sticks -> vehicle time to release them
 
     def _in_hold(self) -> bool:
         return self.link.custom_mode == self.profile.modes["hold"]
 
+    def _in_manual(self) -> bool:
+        return self.link.custom_mode == self.profile.modes["manual"]
+
+    # ------------------------------------------------------------------ set-points
     def set_heading(self, heading: float) -> None:
         self.heading = heading
         self._send()
@@ -91,6 +167,7 @@ class Strategy(AutopilotStrategy):
     def set_thrust(self, thrust_ratio: float) -> None:
         if not 0.0 <= thrust_ratio <= 1.0:
             raise ValueError(f"thrust ratio {thrust_ratio!r} outside 0..1")
+        self._release_at.pop("thrust", None)
         self.link.override("thrust", thrust_ratio)
 
     def set_depth(self, depth: float) -> None:
@@ -107,34 +184,108 @@ class Strategy(AutopilotStrategy):
         self._sent_at = self.link.vehicle_time_s
 
     def mode_changed(self, neutral: str) -> None:
-        if self._in_hold():
-            self.link.release("rudder")
-            self.link.release("vertical")
+        if self._in_hold():  # MANUAL's sticks are not ALT_HOLD's: centre them, then give them back
+            self._centre_and_release("rudder")
+            self._centre_and_release("vertical")
         self._send()
 
+    # ------------------------------------------------------------------ excitation
     def override(self, actuator: str, value: float) -> None:
+        self._release_at.pop(actuator, None)
         if actuator == "rudder" and self._in_hold():
-            self.link.override_raw("vertical", 1500)  # MANUAL: neutral vertical thrust
-            self.link.override(actuator, value)
+            scale = self._yaw_scale()
+            self._release_at.pop("vertical", None)
+            self.link.override_raw("vertical", throttle_stick(self._vertical_mean))  # before the switch
+            self.link.override(actuator, value / scale)
             self.link.set_mode("manual")
             return
+        if actuator == "rudder" and self._in_manual():
+            value /= self._yaw_scale()
         self.link.override(actuator, value)
 
     def release(self, actuator: str | None) -> None:
-        if actuator == "rudder" and self.link.custom_mode == self.profile.modes["manual"]:
+        if actuator == "rudder" and self._in_manual():
             self.link.override(actuator, 0.0)  # MANUAL: centred yaw stick, a known zero output
             return
-        self.link.release(actuator)
+        names = [actuator] if actuator is not None else [name for name in self.profile.channels
+                                                        if self.profile.channels[name] in self.link.overrides.active]
+        for name in names:
+            self._centre_and_release(name)
 
+    def _centre_and_release(self, actuator: str) -> None:
+        """Centre the stick, and release it ``RELEASE_AFTER_S`` later: ArduSub keeps a released
+        override's last value, and a centring and a release that arrive within one of its loops
+        leave the stick where it was (measured: a descent demand outlived its release)."""
+        channel = self.profile.channel(actuator)
+        if channel not in self.link.overrides.active:
+            self.link.release(actuator)
+            return
+        self.link.override_raw(actuator, STICK_CENTRE)
+        self._release_at[actuator] = self.link.vehicle_time_s + RELEASE_AFTER_S
+
+    def _release_centred(self, now: float) -> None:
+        for actuator, due in list(self._release_at.items()):
+            if now < due:
+                continue
+            del self._release_at[actuator]
+            if self.link.overrides.active.get(self.profile.channel(actuator)) == STICK_CENTRE:
+                self.link.release(actuator)
+
+    def _yaw_scale(self) -> float:
+        """MANUAL's yaw scale ACRO_YAW_P / 3.375, read once (1 when the vehicle does not answer)."""
+        if self._manual_yaw_scale is None:
+            from companion.link.errors import ParamTimeout
+
+            try:
+                value = self.link.get_param("ACRO_YAW_P", retries=2)
+            except ParamTimeout:
+                value = ACRO_YAW_P_DEFAULT
+            self._manual_yaw_scale = value / ACRO_YAW_P_DEFAULT if value > 0 else 1.0
+        return self._manual_yaw_scale
+
+    # ------------------------------------------------------------------ upkeep
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
         now = telemetry.time_s
         if now - self._gcs_heartbeat_at >= 1.0:
             self.link.send_gcs_heartbeat()
             self._gcs_heartbeat_at = now
+        if self.link.overrides.pending:
+            self._pilot_at = now  # the link refreshes what is held with this snapshot
+        elif now - self._pilot_at >= PILOT_PRESENCE_S:
+            # the pilot is present, no stick moves: an override whose every channel says "ignore"
+            self.link._send_rc_override(OverrideTable().channel_values())
+            self._pilot_at = now
+        self._release_centred(now)
         if self._in_hold() and now - self._sent_at >= self.refresh_s:
             self._send()
         mixed = unmix_vectored(self.link.servo_pwm())
         if mixed is None:
             return telemetry
-        yaw, forward = mixed
-        return replace(telemetry, rudder=yaw * self.profile.angle_full_scale_rad, thrust_ratio=max(0.0, forward))
+        if self._in_hold() and self.link.armed and math.isfinite(mixed.throttle):
+            self._average_vertical(now, mixed.throttle)
+        return replace(telemetry, rudder=mixed.yaw * self.profile.angle_full_scale_rad,
+                       thrust_ratio=max(0.0, mixed.forward), depth=self.depth(telemetry.depth))
+
+    def depth(self, reported: float) -> float:
+        """Depth below the surface: home's altitude minus the vehicle's (both above mean sea level).
+
+        ArduSub puts home at the surface (its depth sensor's zero) and reports as relative_alt the
+        EKF's down position from the EKF origin minus home's altitude above sea level: right when
+        the origin was set at the surface (a GPS fix only comes there), off by the origin's depth
+        otherwise (SITL gives a fix under water: measured 0.0 m at 2 m). GLOBAL_POSITION_INT.alt is
+        the origin's altitude minus that down position, so home minus it is the depth either way.
+        Before home is set, relative_alt is ArduSub's depth sensor reading: ``reported`` is kept."""
+        messages = getattr(self.link.master, "messages", {})
+        home, position = messages.get("HOME_POSITION"), messages.get("GLOBAL_POSITION_INT")
+        if home is None or position is None:
+            return reported
+        return (home.altitude - position.alt) / 1000.0
+
+    def _average_vertical(self, now: float, throttle: float) -> None:
+        """First-order mean (``VERTICAL_AVERAGE_S``, vehicle time) of ALT_HOLD's vertical thrust."""
+        if not math.isfinite(self._vertical_mean):
+            self._vertical_mean = throttle
+        elif now > self._vertical_at:
+            weight = 1.0 - math.exp(-(now - self._vertical_at) / VERTICAL_AVERAGE_S)
+            self._vertical_mean += weight * (throttle - self._vertical_mean)
+        self._vertical_at = now
