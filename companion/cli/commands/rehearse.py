@@ -69,6 +69,10 @@ def run(args: argparse.Namespace) -> int:
     campaign = CampaignConfig(axes=axes, schedules=args.schedules)
     if args.autopilot == "ardurover":  # fractions of WP_SPEED (2.5 m/s on the boat): 1.5, 2.0, 2.5 m/s
         campaign = replace(campaign, thrusts=(0.6, 0.8, 1.0), axes=("yaw",))
+    if args.autopilot == "ardusub":  # yaw at 0.45..0.65 thrust, smaller doublets (motor saturation)
+        from companion.cli.rehearsal import ardusub_campaign
+
+        campaign = ardusub_campaign(campaign)
     if args.thrusts:
         campaign = replace(campaign, thrusts=args.thrusts)
     if args.no_steps:
@@ -76,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
     if args.thesis_estimator:
         campaign = campaign.with_thesis_estimator()
     if args.behaviors is None:
-        behaviors = defaults["behaviors"]
+        # ArduSub: no rolling mass, and the minimum-speed seeker drives a depth loop ALT_HOLD keeps
+        behaviors = () if args.autopilot == "ardusub" else defaults["behaviors"]
     elif args.behaviors == "none":
         behaviors = ()
     else:
