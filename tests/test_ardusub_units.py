@@ -211,6 +211,24 @@ def test_the_doublet_switches_to_manual_holding_the_vertical_thrust_alt_hold_had
     assert PROFILE.channel("rudder") not in link.overrides.active
 
 
+def test_in_manual_the_throttle_stick_keeps_the_depth_manual_was_entered_at(link):
+    link.pwm = [1500, 1500, 1500, 1500, 1520, 1520]  # ALT_HOLD's mean: -0.05, down against buoyancy
+    for _ in range(1000):
+        link.snapshot()
+    link.latest_telemetry = Telemetry(time_s=link.vehicle_time_s, depth=1.5)  # entered at 1.5 m
+    strategy.override("rudder", 0.05)
+    vertical = PROFILE.channel("vertical")
+    link.snapshot()  # at 1.5 m: the mean thrust alone
+    assert link.overrides.active[vertical] == throttle_stick(-0.05) == 1480
+    link.master.messages["HOME_POSITION"] = SimpleNamespace(altitude=0)
+    link.master.messages["GLOBAL_POSITION_INT"] = SimpleNamespace(alt=-1000)  # risen to 1.0 m
+    link.snapshot()
+    assert link.overrides.active[vertical] == throttle_stick(-0.05 - 0.15)  # push down: 0.3 per metre
+    link.master.messages["GLOBAL_POSITION_INT"] = SimpleNamespace(alt=-5000)  # far too deep
+    link.snapshot()
+    assert link.overrides.active[vertical] == throttle_stick(-0.05 + 0.3)  # climb, limited
+
+
 def test_the_companion_stays_present_as_a_pilot_without_moving_a_stick(link):
     for _ in range(150):  # 3 s with nothing held
         link.snapshot()

@@ -11,12 +11,12 @@ Which mode each phase uses (decided here, documented in the README):
 * **open-loop excitation**: MANUAL, where the yaw channel (RC 4) is passed to the thruster mix
   (ALT_HOLD makes it a yaw-rate demand). MANUAL scales the yaw stick by ACRO_YAW_P / 3.375
   (mode_manual.cpp): the override divides by that ratio, read from the vehicle, so the motors get
-  the yaw asked for. The forward override stays; the vertical thrusters get, through the throttle
-  channel (RC 3), the mean vertical thrust ALT_HOLD was producing (un-mixed from motors 5/6 and
-  averaged over ``VERTICAL_AVERAGE_S``), so the depth drifts little in the ~15 s of a record
-  (measured: 0.06 m at thrust 0.45, 0.27 m at 0.65). After the doublet the yaw stick is centred
-  (MANUAL: a known zero output) and the record stays open loop; the manoeuvre's next "hold" mode
-  command ends the excitation.
+  the yaw asked for. The forward override stays; the throttle stick (RC 3) keeps the depth MANUAL
+  was entered at: ALT_HOLD's mean vertical thrust (un-mixed from motors 5/6, averaged over
+  ``VERTICAL_AVERAGE_S``) plus ``DEPTH_STICK_GAIN`` per metre of depth error, so the heading is
+  excited open loop with the depth loop closed, as in the thesis (measured: ±0.15 m over a
+  record). After the doublet the yaw stick is centred (MANUAL: a known zero output) and the
+  record stays open loop; the manoeuvre's next "hold" mode command ends the excitation.
 
 ArduSub habits the strategy answers for:
 
@@ -95,7 +95,9 @@ MOTOR_PWM_CENTRE, MOTOR_PWM_HALF_RANGE = 1500.0, 400.0  # MOT_PWM_MIN/MAX 1100/1
 STICK_CENTRE, STICK_HALF_RANGE = 1500, 400  # RC 3/4/5 trim and range: no climb, no turn, stop
 ACRO_YAW_P_DEFAULT = 3.375  # ArduSub's ACRO_YAW_P define: MANUAL's yaw scale is ACRO_YAW_P / this
 RELEASE_AFTER_S = 0.25  # a centred stick is held this long (vehicle time) before it is released
-VERTICAL_AVERAGE_S = 3.0  # time constant of the mean vertical thrust held in MANUAL
+VERTICAL_AVERAGE_S = 10.0  # time constant of ALT_HOLD's mean vertical thrust (its depth loop swings ±0.3)
+DEPTH_STICK_GAIN = 0.3  # MANUAL: throttle (±1) per metre of depth error, around ALT_HOLD's mean
+DEPTH_STICK_LIMIT = 0.3  # the most throttle the depth stick adds
 PILOT_PRESENCE_S = 1.0  # vehicle seconds between "no change" overrides (FS_PILOT_TIMEOUT is 3 s)
 
 
@@ -152,6 +154,7 @@ class Strategy(AutopilotStrategy):
         self._vertical_at = math.nan
         self._manual_yaw_scale: float | None = None  # ACRO_YAW_P / 3.375
         self._release_at: dict[str, float] = {}  # centred sticks -> vehicle time to release them
+        self._manual_depth = math.nan  # the depth MANUAL was entered at (the throttle stick keeps it)
 
     def _in_hold(self) -> bool:
         return self.link.custom_mode == self.profile.modes["hold"]
@@ -194,6 +197,8 @@ class Strategy(AutopilotStrategy):
         self._release_at.pop(actuator, None)
         if actuator == "rudder" and self._in_hold():
             scale = self._yaw_scale()
+            latest = self.link.latest_telemetry
+            self._manual_depth = latest.depth if latest is not None else math.nan
             self._release_at.pop("vertical", None)
             self.link.override_raw("vertical", throttle_stick(self._vertical_mean))  # before the switch
             self.link.override(actuator, value / scale)
@@ -263,8 +268,11 @@ class Strategy(AutopilotStrategy):
             return telemetry
         if self._in_hold() and self.link.armed and math.isfinite(mixed.throttle):
             self._average_vertical(now, mixed.throttle)
+        depth = self.depth(telemetry.depth)
+        if self._in_manual():
+            self._hold_depth(depth)
         return replace(telemetry, rudder=mixed.yaw * self.profile.angle_full_scale_rad,
-                       thrust_ratio=max(0.0, mixed.forward), depth=self.depth(telemetry.depth))
+                       thrust_ratio=max(0.0, mixed.forward), depth=depth)
 
     def depth(self, reported: float) -> float:
         """Depth below the surface: home's altitude minus the vehicle's (both above mean sea level).
@@ -280,6 +288,22 @@ class Strategy(AutopilotStrategy):
         if home is None or position is None:
             return reported
         return (home.altitude - position.alt) / 1000.0
+
+    def _hold_depth(self, depth: float) -> None:
+        """MANUAL with the vertical stick held by this strategy: keep the depth MANUAL was entered at
+        (the thesis excites the heading open loop with the depth loop closed). ALT_HOLD's mean
+        thrust alone let the AUV rise 1.1 m in one record (its 10 s mean still swings ±0.03 of
+        throttle, 2 N against 1.9 N of buoyancy; measured), and ArduSub's EKF re-aligned its yaw
+        on the magnetometer in the middle of the record (a 2° heading jump)."""
+        channel = self.profile.channel("vertical")
+        if channel not in self.link.overrides.active or "vertical" in self._release_at:
+            return
+        if not (math.isfinite(depth) and math.isfinite(self._manual_depth)):
+            return
+        correction = DEPTH_STICK_GAIN * (depth - self._manual_depth)  # deeper than wanted: climb
+        correction = min(max(correction, -DEPTH_STICK_LIMIT), DEPTH_STICK_LIMIT)
+        base = self._vertical_mean if math.isfinite(self._vertical_mean) else 0.0
+        self.link.override_raw("vertical", throttle_stick(base + correction))
 
     def _average_vertical(self, now: float, throttle: float) -> None:
         """First-order mean (``VERTICAL_AVERAGE_S``, vehicle time) of ALT_HOLD's vertical thrust."""
