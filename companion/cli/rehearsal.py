@@ -72,7 +72,7 @@ def preset_defaults(preset: str) -> dict:
 #: leaves 0.35 of yaw, the 0.12 rad of equivalent rudder the heading loop and a 0.10 rad doublet
 #: need). Thrusts 0.45, 0.55, 0.65 run the AUV at about 0.7, 1.0 and 1.26 m/s.
 ARDUSUB_THRUSTS = (0.45, 0.55, 0.65)
-ARDUSUB_DOUBLETS = (0.10, 0.06)  # rad of equivalent rudder: training, validation (yaw 0.29, 0.17)
+ARDUSUB_DOUBLETS = (0.10, 0.08)  # rad of equivalent rudder: training, validation (yaw 0.29, 0.23)
 #: what the companion is told about the AUV under ArduSub: nothing beyond the profile; its equivalent
 #: rudder is the thrusters' yaw differential, no fin servo (sim.ardupilot_sitl.FRAME_LIMITS)
 ARDUSUB_VEHICLE: dict = {}
