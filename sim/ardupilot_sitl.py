@@ -92,6 +92,17 @@ def parameter_file(config: SitlConfig, folder: Path) -> Path:
     return path
 
 
+def _die_with_parent() -> None:
+    """In the SITL child: be SIGKILLed when this process dies, however it dies (Linux prctl)."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # not Linux: the close() path still stops SITL
+        pass
+
+
 class ArduPilotSitl:
     """SITL process + JSON bridge; ``run()`` serves frames until stopped or SITL exits."""
 
@@ -135,7 +146,7 @@ class ArduPilotSitl:
         self.log_path = self.workdir / "sitl.log"
         log_file = open(self.log_path, "w")  # noqa: SIM115 - closed with the process
         self.process = subprocess.Popen(command, cwd=self.workdir, stdout=log_file, stderr=subprocess.STDOUT,
-                                        stdin=subprocess.DEVNULL)
+                                        stdin=subprocess.DEVNULL, preexec_fn=_die_with_parent)
         self._log_file = log_file
         self._wait_listening()
         if self.on_ready is not None:
@@ -173,9 +184,11 @@ class ArduPilotSitl:
 
     def close(self) -> None:
         if self.process is not None and self.process.poll() is None:
+            # SITL waiting for a physics answer cannot act on SIGTERM (measured: orphans busy-looping),
+            # so it gets a short grace and then SIGKILL
             self.process.terminate()
             try:
-                self.process.wait(timeout=10)
+                self.process.wait(timeout=2)
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()

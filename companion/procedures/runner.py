@@ -140,7 +140,10 @@ class RestorePoint:
                 log.error("%s failed: %s", what, exc)
                 problems.append(f"{what}: {exc}")
 
-        attempt("release overrides", lambda: link.release(None))
+        # through the autopilot's strategy: ArduSub keeps a released override's last value unless the
+        # stick is centred first, and ArduRover's excitation ends by leaving MANUAL
+        strategy = getattr(link, "autopilot", None)
+        attempt("release overrides", lambda: (strategy.release(None) if strategy is not None else link.release(None)))
         if parameters:
             kept = {n for name in keep for n in self.natives_of.get(name, ())}
             for name, value in self.native.items():
