@@ -84,25 +84,13 @@ ARDUSUB_VEHICLE: dict = {}
 ARDUSUB_SIM_ARGS = ("--depth", "2")
 
 
-#: the native gain ranges the cascade design keeps to on ArduSub (AC_AttitudeControl_Sub's documented
-#: ATC_ANG_YAW_P 0–6 and ATC_RAT_YAW_I 0–0.05). ATC_RAT_YAW_FF: 0, because ArduSub 4.7 computes the
-#: rate feed-forward but never applies it (AC_AttitudeControl_Sub::rate_controller_run sends
-#: update_all(), P+I+D, to the motors; measured: FF 6.3 left the yaw output at P+I). ATC_RAT_YAW_P
-#: keeps the Rover bound 0–2: ArduSub documents 0–0.5, made for ROVs with 10–20× this AUV's yaw
-#: authority per unit of output (0.35 rad of equivalent rudder), and with P ≤ 0.5 a 20° step takes
-#: over 20 s (measured).
-ARDUSUB_CASCADE_RANGES = {"angle_p_range": (0.0, 6.0), "rate_p_range": (0.0, 2.0), "rate_i_range": (0.0, 0.05),
-                          "rate_ff_range": (0.0, 0.0)}
-
-
 def ardusub_campaign(campaign: CampaignConfig) -> CampaignConfig:
     """The campaign a rehearsal flies on ArduSub unless told otherwise: yaw only (no pitch actuator
-    on the vectored frame), at thrusts and doublet amplitudes that keep the motors out of saturation,
-    with ArduSub's gain ranges (``ARDUSUB_CASCADE_RANGES``)."""
+    on the vectored frame), at thrusts and doublet amplitudes that keep the motors out of saturation
+    (ArduSub's gain ranges come with its profile: ``companion.link.autopilots.ardusub.GAIN_RANGES``)."""
     training, validation = ARDUSUB_DOUBLETS
     return replace(campaign, thrusts=ARDUSUB_THRUSTS, axes=("yaw",),
-                   yaw=replace(campaign.yaw, training_amplitude=training, validation_amplitude=validation),
-                   cascade=replace(campaign.cascade, **ARDUSUB_CASCADE_RANGES))
+                   yaw=replace(campaign.yaw, training_amplitude=training, validation_amplitude=validation))
 
 
 def preset_vehicle(preset: str) -> dict:

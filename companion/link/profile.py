@@ -67,6 +67,9 @@ class AutopilotProfile:
     # ArduPilot's low-noise attitude eq. 3.39 holds 0.8 s after the doublet, and a22/b2 then depend
     # on the few samples around its switches (measured: −2…−7 % against −1…−6 % on the full window)
     train_full_window: bool = False
+    # the autopilot's documented ranges of its native heading gains, as CascadeRules fields
+    # (e.g. {"rate_ff_range": (0.0, 0.0)}); empty: ArduRover's ranges, the design's defaults
+    gain_ranges: dict = field(default_factory=dict)
     angle_full_scale_rad: float = 0.5236  # fin angle at pwm_center ± pwm_half_range
     pwm_center: int = 1500
     pwm_half_range: int = 500

@@ -89,7 +89,8 @@ class CampaignConfig:
         heading = getattr(profile, "heading_schedule", "heading")
         schedules = tuple(heading if name == "heading" else name for name in self.schedules)
         config = replace(self, schedules=schedules,
-                         cascade=replace(self.cascade, full_scale=profile.angle_full_scale_rad))
+                         cascade=replace(self.cascade, full_scale=profile.angle_full_scale_rad,
+                                         **getattr(profile, "gain_ranges", {})))
         if not getattr(profile, "depth_setpoint", True):
             config = replace(config, depth=None)
         # a modelled servo deflection is continuous (first-order hold); a raw loop output is held (zero-order)

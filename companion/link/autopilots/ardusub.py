@@ -50,6 +50,16 @@ from companion.link.autopilots.base import AutopilotStrategy, yaw_quaternion
 from companion.link.overrides import OverrideTable
 from companion.link.profile import AutopilotProfile
 
+#: the native gain ranges the cascade design keeps to on ArduSub (AC_AttitudeControl_Sub's documented
+#: ATC_ANG_YAW_P 0–6 and ATC_RAT_YAW_I 0–0.05). ATC_RAT_YAW_FF: 0, because ArduSub 4.7 computes the
+#: rate feed-forward but never applies it (AC_AttitudeControl_Sub::rate_controller_run sends
+#: update_all(), P+I+D, to the motors; measured: FF 6.3 left the yaw output at P+I). ATC_RAT_YAW_P
+#: keeps the Rover bound 0–2: ArduSub documents 0–0.5, made for ROVs with 10–20× this AUV's yaw
+#: authority per unit of output (0.35 rad of equivalent rudder), and with P ≤ 0.5 a 20° step takes
+#: over 20 s (measured).
+GAIN_RANGES = {"angle_p_range": (0.0, 6.0), "rate_p_range": (0.0, 2.0), "rate_i_range": (0.0, 0.05),
+               "rate_ff_range": (0.0, 0.0)}
+
 PROFILE = AutopilotProfile(
     name="ardusub",
     modes={"manual": 19, "hold": 2, "guided": 4, "stabilize": 0, "poshold": 16},  # hold = ALT_HOLD
@@ -77,6 +87,7 @@ PROFILE = AutopilotProfile(
     servo_follows_attitude=True,
     actuator_hold="zoh",
     train_full_window=True,
+    gain_ranges=GAIN_RANGES,
 )
 
 #: the base streams, GLOBAL_POSITION_INT (depth) and HOME_POSITION (the surface, see Strategy.depth)
