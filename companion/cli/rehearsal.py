@@ -106,14 +106,10 @@ def preset_vehicle(preset: str) -> dict:
         return {}
 
 
-def arm_when_ready(link, patience_s: float) -> None:
-    """Arm. A real autopilot refuses while it is still initialising (EKF, GPS), and ArduRover takes
-    GUIDED while disarmed but not once armed until its EKF uses GPS: so retry arming, then entering
-    the holding mode (and back to the mode found), for ``patience_s`` seconds of vehicle time;
-    raise with the vehicle's last words when it never becomes ready."""
+def _retrier(link, start: float, patience_s: float):
+    """``retry(action)``: call ``action`` until the vehicle accepts it, trying about every 2 s of
+    vehicle time until ``patience_s`` after ``start``; then raise with the vehicle's last words."""
     from companion.link.errors import CommandFailed, ModeChangeFailed
-
-    start = link.next_telemetry(timeout_s=30.0).time_s  # the vehicle clock runs before anything is timed
 
     def retry(action) -> None:
         while True:
@@ -124,8 +120,21 @@ def arm_when_ready(link, patience_s: float) -> None:
                 if not link.vehicle_time_s - start < patience_s:
                     texts = [t for _, _, t in list(link.statustexts)[-3:]]
                     raise type(exc)(f"{exc}; the vehicle said: {texts}") from exc
-                for _ in range(40):  # about 2 s of vehicle time between tries
+                for _ in range(40):
                     link.next_telemetry()
+
+    return retry
+
+
+def arm_when_ready(link, patience_s: float) -> None:
+    """Arm. A real autopilot refuses while it is still initialising (EKF, GPS), and ArduRover takes
+    GUIDED while disarmed but not once armed until its EKF uses GPS: so retry arming, then entering
+    the holding mode (and back to the mode found), for ``patience_s`` seconds of vehicle time;
+    raise with the vehicle's last words when it never becomes ready."""
+
+    start = link.next_telemetry(timeout_s=30.0).time_s  # the vehicle clock runs before anything is timed
+
+    retry = _retrier(link, start, patience_s)
 
     retry(lambda: link.arm(True))
     if patience_s > 0:
@@ -143,21 +152,10 @@ def arm_ardusub_when_ready(link, patience_s: float) -> None:
     Disarmed, because armed before its EKF uses GPS ArduSub dead-reckons a vehicle at rest into
     2 m/s of ground speed and a heading 15° off (measured). The simulated AUV waits in its launch
     cradle until the thrusters run (sim.ardupilot_json.SubVectoredDecoder)."""
-    from companion.link.errors import CommandFailed, ModeChangeFailed
 
     start = link.next_telemetry(timeout_s=30.0).time_s
 
-    def retry(action) -> None:
-        while True:
-            try:
-                action()
-                return
-            except (CommandFailed, ModeChangeFailed) as exc:
-                if not link.vehicle_time_s - start < patience_s:
-                    texts = [t for _, _, t in list(link.statustexts)[-3:]]
-                    raise type(exc)(f"{exc}; the vehicle said: {texts}") from exc
-                for _ in range(40):  # about 2 s of vehicle time between tries
-                    link.next_telemetry()
+    retry = _retrier(link, start, patience_s)
 
     retry(lambda: link.set_mode("poshold"))
     link.set_mode("hold")
