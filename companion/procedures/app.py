@@ -171,7 +171,8 @@ def run_campaign(
             current = campaign.current_step
             console.update(fraction, f"t={telemetry.time_s:7.1f}s {current.name if current else ''}")
 
-    outcome = run_procedure(link, campaign, limits=limits, abort_requested=abort, on_step=on_step)
+    # one capture: the original gains of the step checks are the restore point's own values
+    outcome = run_procedure(link, campaign, limits=limits, abort_requested=abort, on_step=on_step, restore=original)
     try:
         drain_campaign_events(store, campaign_id, campaign)
     finally:

@@ -280,14 +280,16 @@ def run_procedure(
     abort_requested: Callable[[], str | None] = lambda: None,
     on_step: Callable[[Telemetry, Behavior], None] | None = None,
     telemetry_timeout_s: float = 5.0,
+    restore: RestorePoint | None = None,
 ) -> RunOutcome:
-    """Run one procedure (a behaviour, usually a sequence) under one restore point.
+    """Run one procedure (a behaviour, usually a sequence) under one restore point (``restore``
+    when the caller already took it from the procedure's footprint).
 
     The restore point is derived from the procedure's declared footprint and taken before its first
     step. Afterwards the vehicle is put back as found: always after an abort or a failure (the mode
     too, unless the pilot took the vehicle), and after success too except for the parameters the
     procedure keeps on purpose (``kept_parameters``, e.g. a campaign's verified final gains)."""
-    restore = RestorePoint.capture(link, footprint_of(procedure))
+    restore = restore or RestorePoint.capture(link, footprint_of(procedure))
     outcome = run_behavior(link, procedure, limits=limits, abort_requested=abort_requested, on_step=on_step,
                            restore=None, telemetry_timeout_s=telemetry_timeout_s)
     outcome.restore = restore
