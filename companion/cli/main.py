@@ -12,6 +12,8 @@ import logging
 import os
 import sys
 
+from companion.errors import UserError
+
 #: subcommand modules, in the order ``companion --help`` lists them
 SUBCOMMANDS = (
     "rehearse",
@@ -70,6 +72,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args) or 0)
+    except UserError as exc:  # bad input or an unusable file: its one sentence, no traceback
+        print(f"companion {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

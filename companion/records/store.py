@@ -8,17 +8,31 @@ leaves every completed write on disk and no half-written row; a campaign that ne
 
 Schema changes go in ``MIGRATIONS`` (one SQL script per version, applied in order, tracked by
 ``PRAGMA user_version``); never edit a released migration.
+
+Opening is careful with files that are not ours (issue 9, item 6). Our stores carry
+``PRAGMA application_id`` = :data:`APPLICATION_ID` (a store written before the mark existed is
+recognised by its tables and marked on its next writable open). Before anything is written the
+file is inspected: a directory, a non-SQLite or corrupt file, a read-only file (for writing), an
+SQLite file of another application and a store of a newer schema each raise :class:`StoreError`
+with one sentence and stay byte-for-byte untouched. Creation and migration run inside
+``BEGIN IMMEDIATE`` with a busy timeout and re-check the version under that lock, so several
+processes creating one fresh store at once all succeed. ``Store(path, read_only=True)`` opens a
+``file:…?mode=ro`` URI: it never switches the journal mode, creates a table or sets a pragma.
 """
 from __future__ import annotations
 
 import json
 import logging
+import os
 import sqlite3
+import stat
+import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from companion.errors import UserError
 from companion.records.serialise import from_json, json_ready, to_json
 
 if TYPE_CHECKING:
@@ -95,6 +109,96 @@ MIGRATIONS: tuple[str, ...] = (
 )
 
 
+#: ``PRAGMA application_id`` of a companion store ("MCmp"): tells our files from other SQLite files
+APPLICATION_ID = 0x4D436D70
+#: the tables of schema version 1: an unmarked file holding all of them is a store written before
+#: the application id existed
+_V1_TABLES = frozenset({"vehicles", "campaigns", "runs", "models", "gains", "behavior_results"})
+#: how long a writer waits for another process's lock (creation, migration, writes), s
+BUSY_TIMEOUT_S = 30.0
+
+
+class StoreError(UserError, RuntimeError):
+    """The file cannot be used as a store; the message says why in one sentence. Nothing was written."""
+
+
+@dataclass(frozen=True)
+class _FileState:
+    """What an SQLite file holds, read before anything is written."""
+
+    application_id: int
+    user_version: int
+    tables: frozenset[str]
+
+    @property
+    def empty(self) -> bool:
+        """A fresh database (SQLite's state of a new or zero-byte file): no tables, no marks."""
+        return not self.tables and self.application_id == 0 and self.user_version == 0
+
+    @property
+    def ours(self) -> bool:
+        return self.application_id == APPLICATION_ID or (self.application_id == 0 and _V1_TABLES <= self.tables)
+
+
+def _read_state(db: sqlite3.Connection, path: Path) -> _FileState:
+    """The marks and tables of the open file; StoreError when it is not a readable SQLite database."""
+    try:
+        tables = frozenset(row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type='table'"))
+        application_id = int(db.execute("PRAGMA application_id").fetchone()[0])
+        user_version = int(db.execute("PRAGMA user_version").fetchone()[0])
+    except sqlite3.DatabaseError as exc:  # "file is not a database", "database disk image is malformed"
+        raise StoreError(f"{path} is not a companion store: it is not a readable SQLite database ({exc})") from None
+    return _FileState(application_id, user_version, tables)
+
+
+def _check_state(state: _FileState, path: Path, read_only: bool) -> None:
+    """Refuse (StoreError) a file that is not ours, is newer, or (read-only) holds nothing."""
+    if state.empty:
+        if read_only:
+            raise StoreError(f"{path} is an empty database, not a companion store")
+        return
+    if not state.ours:
+        owner = f"application id {state.application_id:#010x}" if state.application_id else "tables " + \
+            ", ".join(sorted(state.tables)[:6])
+        raise StoreError(f"{path} is an SQLite file of another application ({owner}), not a companion store; "
+                         "pass another --store")
+    if state.user_version > len(MIGRATIONS):
+        raise StoreError(f"{path} was written by a newer version (schema {state.user_version}, this companion "
+                         f"knows {len(MIGRATIONS)}); upgrade the companion")
+    if read_only and state.user_version < len(MIGRATIONS):
+        raise StoreError(f"{path} has an older schema ({state.user_version}); open it once with a writing command "
+                         "(identify, run) to upgrade it")
+
+
+def _check_path(path: Path, read_only: bool) -> None:
+    """Refuse a directory, a missing file (read-only) and a read-only file (for writing) before SQLite opens it."""
+    if path.is_dir():
+        raise StoreError(f"{path} is a directory, not a store file")
+    if not path.exists():
+        if read_only:
+            raise StoreError(f"no store at {path}")
+        return
+    if not path.is_file():
+        raise StoreError(f"{path} is not a regular file")
+    if not read_only and (not os.access(path, os.W_OK) or not path.stat().st_mode & (stat.S_IWUSR | stat.S_IWGRP
+                                                                                       | stat.S_IWOTH)):
+        raise StoreError(f"{path} is read-only; make it writable or pass another --store")
+
+
+def _statements(script: str) -> list[str]:
+    """The SQL statements of a migration script, one by one (so they run inside our own transaction;
+    ``executescript`` would commit it first)."""
+    out, current = [], ""
+    for line in script.splitlines(keepends=True):
+        current += line
+        if sqlite3.complete_statement(current):
+            out.append(current.strip())
+            current = ""
+    if current.strip():
+        out.append(current.strip())
+    return out
+
+
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -119,26 +223,88 @@ class StoredModel:
 
 
 class Store:
-    """A handle on one SQLite file. Cheap to open; safe to use from one thread."""
+    """A handle on one SQLite file. Cheap to open; safe to use from one thread.
 
-    def __init__(self, path: str | Path) -> None:
+    ``read_only=True`` (what ``companion results`` uses) opens the file with ``mode=ro`` and never
+    writes to it; the writing methods then fail with ``sqlite3.OperationalError``. Either way an
+    unusable file raises :class:`StoreError` before anything is written.
+    """
+
+    def __init__(self, path: str | Path, read_only: bool = False) -> None:
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._db = sqlite3.connect(str(self.path), isolation_level=None)  # autocommit; explicit transactions
-        self._db.row_factory = sqlite3.Row
-        self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA synchronous=FULL")
-        self._db.execute("PRAGMA foreign_keys=ON")
-        self._migrate()
+        self.read_only = read_only
+        _check_path(self.path, read_only)
+        if not read_only:
+            try:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise StoreError(f"cannot create the folder of {self.path} ({exc.strerror or exc})") from None
+        self._db = self._connect()
+        try:
+            _check_state(_read_state(self._db, self.path), self.path, read_only)
+            if not read_only:
+                self._prepare_for_writing()
+        except BaseException:
+            self._db.close()
+            raise
 
     # ------------------------------------------------------------------ plumbing
+    def _connect(self) -> sqlite3.Connection:
+        """The connection (autocommit; explicit transactions), with a busy timeout for other processes' locks."""
+        try:
+            if self.read_only:
+                db = sqlite3.connect(f"{self.path.resolve().as_uri()}?mode=ro", uri=True, isolation_level=None,
+                                     timeout=BUSY_TIMEOUT_S)
+            else:
+                db = sqlite3.connect(str(self.path), isolation_level=None, timeout=BUSY_TIMEOUT_S)
+        except sqlite3.Error as exc:
+            raise StoreError(f"cannot open {self.path} as a store ({exc})") from None
+        db.row_factory = sqlite3.Row
+        return db
+
+    def _prepare_for_writing(self) -> None:
+        """WAL, durability and foreign keys, then the schema; the file was checked to be ours or empty."""
+        try:
+            self._use_wal()
+            self._db.execute("PRAGMA synchronous=FULL")
+            self._db.execute("PRAGMA foreign_keys=ON")
+            self._migrate()
+        except sqlite3.OperationalError as exc:  # e.g. a read-only directory, a disk full, a lock held too long
+            raise StoreError(f"cannot prepare {self.path} for writing ({exc})") from None
+
+    def _use_wal(self) -> None:
+        """Switch the file to WAL (persistent: once per file). SQLite answers a journal-mode switch
+        that meets another process's lock with "database is locked" at once, without its busy
+        handler, so the switch is retried for up to :data:`BUSY_TIMEOUT_S` (a process-level wait)."""
+        deadline = time.monotonic() + BUSY_TIMEOUT_S
+        delay = 0.002
+        while True:
+            try:
+                if self._db.execute("PRAGMA journal_mode").fetchone()[0].lower() != "wal":
+                    self._db.execute("PRAGMA journal_mode=WAL")
+                return
+            except sqlite3.OperationalError as exc:
+                if "locked" not in str(exc) or time.monotonic() > deadline:
+                    raise
+            time.sleep(delay)
+            delay = min(2 * delay, 0.1)
+
     def _migrate(self) -> None:
-        version = self._db.execute("PRAGMA user_version").fetchone()[0]
-        if version > len(MIGRATIONS):
-            raise RuntimeError(f"{self.path} was written by a newer version (schema {version}); upgrade the companion")
-        for number, script in enumerate(MIGRATIONS[version:], start=version + 1):
-            # one script, one transaction: a killed migration leaves the previous version intact
-            self._db.executescript(f"BEGIN;{script};PRAGMA user_version={number};COMMIT;")
+        """Bring the schema to the current version, race-free: the version is re-read under the
+        write lock, so of several processes creating one store only the first creates it."""
+        state = _read_state(self._db, self.path)
+        if state.user_version == len(MIGRATIONS) and state.application_id == APPLICATION_ID:
+            return
+        with self._transaction():
+            state = _read_state(self._db, self.path)  # under the lock: another process may have done it
+            _check_state(state, self.path, read_only=False)
+            for number, script in enumerate(MIGRATIONS[state.user_version:], start=state.user_version + 1):
+                log.info("%s: migrating the store to schema %d", self.path, number)
+                for statement in _statements(script):
+                    self._db.execute(statement)
+                self._db.execute(f"PRAGMA user_version={number}")
+            if state.application_id != APPLICATION_ID:
+                self._db.execute(f"PRAGMA application_id={APPLICATION_ID}")
 
     def _transaction(self):
         return _Transaction(self._db)

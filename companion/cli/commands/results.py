@@ -25,7 +25,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"error: no store at {args.store} (run `companion rehearse` or `companion identify`, or pass --store)",
               file=sys.stderr)
         return 1
-    with Store(args.store) as store:
+    with Store(args.store, read_only=True) as store:  # a reading command never writes to the file
         campaign_id = args.campaign
         if args.report:
             from companion.records.report import write_report
