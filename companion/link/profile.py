@@ -63,6 +63,11 @@ class AutopilotProfile:
     # commanded output (ArduPilot), the snapshot carries the deflection a servo of this rate makes of
     # it; None: the commanded output as is
     actuator_rate_rad_s: float | None = None
+    # how long before the first snapshot that shows a new output it took effect, on average: an
+    # override lands at whichever control loop follows its arrival, and where the outputs are
+    # sampled every n-th loop it may be any of the n loops since the previous sample; the mean lead
+    # is (sample period − loop period)/2 (ArduRover: 25 Hz samples of a 50 Hz loop → 10 ms)
+    output_lead_s: float = 0.0
     # train on the whole window (10.5 s after the doublet) instead of stopping at convergence: with
     # ArduPilot's low-noise attitude eq. 3.39 holds 0.8 s after the doublet, and a22/b2 then depend
     # on the few samples around its switches (measured: −2…−7 % against −1…−6 % on the full window)

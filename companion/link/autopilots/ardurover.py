@@ -22,11 +22,14 @@ sensor; a current biases it). Rover refuses to arm with the throttle off neutral
 """
 from __future__ import annotations
 
+import logging
 import math
 
 from companion.interface import Telemetry
 from companion.link.autopilots.base import AutopilotStrategy, yaw_quaternion
 from companion.link.profile import AutopilotProfile, NativeScale
+
+log = logging.getLogger(__name__)
 
 PROFILE = AutopilotProfile(
     name="ardurover",
@@ -58,6 +61,7 @@ PROFILE = AutopilotProfile(
     depth_setpoint=False,
     servo_follows_attitude=True,
     actuator_hold="zoh",
+    output_lead_s=0.010,  # 25 Hz snapshots of the 50 Hz rover loop (STREAMS below)
     train_full_window=True,
 )
 
@@ -81,6 +85,8 @@ class Strategy(AutopilotStrategy):
         self.speed_fraction = math.nan
         self._sent_at = -math.inf
         self._excitation: dict | None = None
+        #: learnt override corrections (actuator -> offset in its units), kept between excitations
+        self._override_bias: dict[str, float] = {}
 
     def _in_guided(self) -> bool:
         return self.link.custom_mode == self.profile.modes["guided"]
@@ -116,16 +122,18 @@ class Strategy(AutopilotStrategy):
             steering = latest.rudder if latest is not None and math.isfinite(latest.rudder) else 0.0
             if throttle is None:
                 raise self._cannot("throttle read-back (SERVO3): the speed cannot be held open loop")
-            self._excitation = {"mode": self.link.mode, "throttle": throttle, "steering": steering}
-            self.link.override("thrust", throttle)  # before the switch: MANUAL never sees a stopped stick
+            self._excitation = {"mode": self.link.mode, "steering": steering, "held": {}}
+            self._hold("thrust", throttle)  # before the switch: MANUAL never sees a stopped stick
             self.link.override(actuator, value)
             self.link.set_mode("manual")
             return
+        if self._excitation is not None:
+            self._excitation["held"].pop(actuator, None)  # a doublet value: its read-back is what counts
         self.link.override(actuator, value)
 
     def release(self, actuator: str | None) -> None:
         if self._excitation is not None and actuator == "rudder":
-            self.link.override("rudder", self._excitation["steering"])  # open loop at the found steering
+            self._hold("rudder", self._excitation["steering"])  # open loop at the found steering
             return
         if self._excitation is not None and actuator is None:
             self.link.set_mode(self._excitation["mode"])  # mode_changed ends the excitation, re-sends targets
@@ -139,7 +147,48 @@ class Strategy(AutopilotStrategy):
             self.link.release(None)
         self._send()
 
+    # ------------------------------------------------------------------ held outputs
+    def _hold(self, actuator: str, target: float) -> None:
+        """Override ``actuator`` so that its *output* (read back) stays at ``target``.
+
+        MANUAL does not pass a stick straight to the servo: measured on ArduRover 4.7 SITL, a
+        throttle override of 1801 µs (the 0.602 the speed loop had output) came out at 0.570, and a
+        steering override of 1519 µs came out at 0 — the speed then sagged 5 % within the
+        identification record and biased a22 and b2. So a held output is trimmed on its read-back
+        (:meth:`_trim_held`), and the correction learnt is kept for the next excitation."""
+        command = target + self._override_bias.get(actuator, 0.0)
+        self._excitation["held"][actuator] = {"target": target, "command": command, "sent_s": self.link.vehicle_time_s,
+                                              "last_read": math.nan}
+        self.link.override(actuator, command)
+
+    #: a read-back within this of its target is held as it is (about one PWM step of either channel)
+    HOLD_TOLERANCE = {"thrust": 0.0025, "rudder": 0.0015}
+    #: vehicle seconds after a correction before the read-back is trusted again (throttle slew)
+    HOLD_SETTLE_S = 0.08
+
+    def _trim_held(self, telemetry: Telemetry) -> None:
+        """Integral trim of each held override on its read-back, once the output has stopped moving
+        (two equal read-backs) — the outputs are exact PWM read-backs, so one or two corrections do."""
+        if self._excitation is None or self.link.custom_mode != self.profile.modes["manual"]:
+            return
+        readings = {"thrust": telemetry.thrust_ratio, "rudder": telemetry.rudder}
+        for actuator, held in self._excitation["held"].items():
+            read = readings[actuator]
+            steady = math.isfinite(read) and read == held["last_read"]
+            held["last_read"] = read
+            if not steady or telemetry.time_s - held["sent_s"] < self.HOLD_SETTLE_S:
+                continue
+            error = held["target"] - read
+            if abs(error) <= self.HOLD_TOLERANCE[actuator]:
+                continue
+            held["command"] += error
+            held["sent_s"] = telemetry.time_s
+            self._override_bias[actuator] = held["command"] - held["target"]
+            log.debug("%s held at %.4f reads %.4f: override now %.4f", actuator, held["target"], read, held["command"])
+            self.link.override(actuator, held["command"])
+
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
         if self._excitation is None and self._in_guided() and telemetry.time_s - self._sent_at >= self.refresh_s:
             self._send()
+        self._trim_held(telemetry)
         return self.servo_model(telemetry)
