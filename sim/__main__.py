@@ -52,6 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="folder of the ArduPilot SITL binaries (build/sitl/bin); default $ARDUPILOT_SITL_BIN")
     run.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                      help="extra ArduPilot parameter for SITL's defaults file (repeatable)")
+    run.add_argument("--truth-log", metavar="CSV", default=None,
+                     help="with --autopilot ardurover/ardusub: write the physics' own speed every 0.1 s of "
+                          "vehicle time (the autopilot's estimate of it is not the truth)")
     run.set_defaults(func=_run)
 
     lin = sub.add_parser("linearize", help="the preset's linearised yaw parameters (truth)")
@@ -89,7 +92,8 @@ def _run_ardupilot(args: argparse.Namespace) -> int:
     preset = None if args.preset == "starfish" and args.autopilot == "ardurover" else args.preset
     config = SitlConfig(autopilot=args.autopilot, bin_dir=Path(bin_dir), preset=preset,
                         speedup=args.speedup if args.speedup > 0 else 1.0, seed=args.seed, current=args.current,
-                        depth=0.0 if args.autopilot == "ardurover" else args.depth, params=params)
+                        depth=0.0 if args.autopilot == "ardurover" else args.depth, params=params,
+                        truth_log=Path(args.truth_log) if args.truth_log else None)
     try:
         sitl = ArduPilotSitl(config, on_ready=lambda endpoint: print(f"READY {endpoint}", flush=True))
     except (ValueError, RuntimeError) as exc:

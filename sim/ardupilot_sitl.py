@@ -56,6 +56,7 @@ class SitlConfig:
     home: str = DEFAULT_HOME
     params: dict[str, float] = field(default_factory=dict)
     workdir: Path | None = None  # None: a temporary folder (SITL writes eeprom.bin and logs there)
+    truth_log: Path | None = None  # CSV of the physics' own speed over vehicle time (for scoring)
 
 
 def find_binary(config: SitlConfig) -> Path:
@@ -116,7 +117,8 @@ class ArduPilotSitl:
             setattr(self.vehicle.limits, name, value)
         factory = DECODERS[config.autopilot]
         decoder = factory.for_preset(preset) if hasattr(factory, "for_preset") else factory()
-        self.bridge = JsonBridge(JsonPhysics(self.vehicle, decoder))
+        self._truth_file = open(config.truth_log, "w", encoding="utf-8") if config.truth_log else None  # noqa: SIM115
+        self.bridge = JsonBridge(JsonPhysics(self.vehicle, decoder, truth_log=self._truth_file))
         self.instance = free_instance()
         self.port = MAVLINK_BASE_PORT + 10 * self.instance
         self._tmp = None
@@ -195,5 +197,7 @@ class ArduPilotSitl:
         if getattr(self, "_log_file", None) is not None:
             self._log_file.close()
         self.bridge.close()
+        if self._truth_file is not None:
+            self._truth_file.close()
         if self._tmp is not None:
             self._tmp.cleanup()

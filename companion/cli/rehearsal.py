@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from companion.cli.launcher import SimulatorError, SimulatorProcess  # noqa: F401 - re-exported
+from companion.cli.reproducibility import reproducibility_record
 from companion.procedures.app import AbortFlag, ConsoleProgress, finite_or_none, run_campaign, vehicle_record
 from companion.procedures.campaign import CampaignConfig
 from companion.records.report import write_report
@@ -36,6 +37,29 @@ def simulator_truth(preset: str, speed: float) -> dict | None:
     except (subprocess.SubprocessError, json.JSONDecodeError) as exc:
         log.warning("no simulator truth at %.3f m/s: %s", speed, exc)
         return None
+
+
+def true_speed(truth_log: Path, attempt) -> float | None:
+    """The physics' own mean speed over an attempt's training record, from the simulator's truth
+    log (``python -m sim run --truth-log``, written where a real autopilot flies our physics): the
+    truth is scored at the speed the vehicle really had, not at the autopilot's estimate of it
+    (measured: ArduRover's EKF reads 0.02 m/s low, ArduSub's ~3.5 % low). None without a log."""
+    times = (attempt.training or {}).get("time") or []
+    if not times or not truth_log.is_file():
+        return None
+    start, end = times[0], times[-1]
+    speeds = []
+    with truth_log.open(encoding="utf-8") as rows:
+        next(rows, None)
+        for row in rows:
+            fields = row.split(",")
+            try:
+                time_s, speed = float(fields[0]), float(fields[1])
+            except (ValueError, IndexError):
+                continue
+            if start <= time_s <= end and math.isfinite(speed):
+                speeds.append(speed)
+    return sum(speeds) / len(speeds) if speeds else None
 
 
 @dataclass(frozen=True)
@@ -162,7 +186,7 @@ def arm_ardusub_when_ready(link, patience_s: float) -> None:
     retry(lambda: link.arm(True))
 
 
-def _run_rows(campaign, truth: dict) -> list[dict]:
+def _run_rows(campaign, truth: dict, speeds: dict | None = None) -> list[dict]:
     design = campaign.heading_design
     own_gains = {point.thrust: point.own for point in (design.points if design else [])}
     rows = []
@@ -175,6 +199,7 @@ def _run_rows(campaign, truth: dict) -> list[dict]:
         rows.append({
             "thrust": attempt.thrust,
             "speed": finite_or_none(attempt.speed),
+            "true_speed": (speeds or {}).get(f"{attempt.thrust:.2f}"),
             "a22": model.a22, "b2": model.b2, "delta0": model.delta0,
             "r2": finite_or_none(attempt.r2),
             "converged_s": finite_or_none(attempt.converged_s) if attempt.converged_s is not None else None,
@@ -198,7 +223,8 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                                  log_path=out / "simulator.log", autopilot=config.autopilot,
                                  ardupilot_bin=config.ardupilot_bin, lockstep=config.autopilot == "builtin",
                                  ready_timeout_s=120.0,
-                                 extra_args=list(ARDUSUB_SIM_ARGS) if config.autopilot == "ardusub" else [])
+                                 extra_args=([*ARDUSUB_SIM_ARGS] if config.autopilot == "ardusub" else [])
+                                 + (["--truth-log", str(out / "truth.csv")] if config.autopilot != "builtin" else []))
     summary["autopilot"] = config.autopilot
     with Store(store_path) as store, simulator as sim:
         link = VehicleLink.connect(sim.endpoint, lockstep=sim.lockstep,
@@ -222,12 +248,16 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
             if outcome.status == "completed" and config.steady_state:
                 extra["steady_state"] = _run_steady_state(link, store, config, campaign_id, abort, summary)
         finally:
+            snapshots_dropped = link.snapshots_dropped
             link.close()
-        truth = {}
+        truth, speeds = {}, {}
         for attempt in campaign.accepted:
             if attempt.axis == "yaw":
-                truth[f"{attempt.thrust:.2f}"] = simulator_truth(config.preset, attempt.speed)
-        summary["runs"] = _run_rows(campaign, truth)
+                # our autopilot's speed sensor is the physics' (noise only); a real one's is an estimate
+                speed = true_speed(out / "truth.csv", attempt) if sim.real_autopilot else None
+                speeds[f"{attempt.thrust:.2f}"] = speed
+                truth[f"{attempt.thrust:.2f}"] = simulator_truth(config.preset, speed if speed else attempt.speed)
+        summary["runs"] = _run_rows(campaign, truth, speeds if sim.real_autopilot else None)
         summary["design"] = campaign.design_summary()
         summary["heading_steps"] = [{"thrust": s["thrust"], "label": s["label"],
                                      "max_overshoot_pct": finite_or_none(s["max_overshoot_pct"]),
@@ -242,6 +272,11 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                      summary={k: v for k, v in summary.items() if k != "design"},
                      delta_max=config.campaign.yaw.training_amplitude)
         summary["wall_time_s"] = round(time.monotonic() - started, 2)
+    # after the simulator stopped: its exit report says whether lockstep held (issue 12)
+    summary["reproducibility"] = reproducibility_record(config.autopilot, simulator.lockstep, simulator.stats,
+                                                        snapshots_dropped)
+    if not summary["reproducibility"]["exact"]:
+        log.warning("this rehearsal may not be reproducible: %s", "; ".join(summary["reproducibility"]["varied"]))
     (out / "summary.json").write_text(json.dumps(json_safe(summary), indent=1, allow_nan=False))
     return summary
 

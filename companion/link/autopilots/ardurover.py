@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import ClassVar
 
 from companion.interface import Telemetry
 from companion.link.autopilots.base import AutopilotStrategy, yaw_quaternion
@@ -162,7 +163,7 @@ class Strategy(AutopilotStrategy):
         self.link.override(actuator, command)
 
     #: a read-back within this of its target is held as it is (about one PWM step of either channel)
-    HOLD_TOLERANCE = {"thrust": 0.0025, "rudder": 0.0015}
+    HOLD_TOLERANCE: ClassVar[dict[str, float]] = {"thrust": 0.0025, "rudder": 0.0015}
     #: vehicle seconds after a correction before the read-back is trusted again (throttle slew)
     HOLD_SETTLE_S = 0.08
 
