@@ -3,10 +3,13 @@ from __future__ import annotations
 
 import argparse
 import json
-from contextlib import contextmanager
+import math
 import os
+from contextlib import contextmanager
 import sys
 from pathlib import Path
+
+from companion.cli.endpoints import endpoint_argument
 
 DEFAULT_STORE = "companion.sqlite"
 
@@ -17,12 +20,12 @@ def add_store_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def add_connect_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--connect", required=True, metavar="ENDPOINT",
+    parser.add_argument("--connect", required=True, metavar="ENDPOINT", type=endpoint_argument,
                         help="pymavlink connection string, e.g. udpin:0.0.0.0:14551, udpout:127.0.0.1:14550, "
                              "tcp:127.0.0.1:5760, /dev/ttyUSB0,57600")
     parser.add_argument("--profile", choices=("sim", "ardusub", "ardurover"), default=None,
                         help="autopilot profile (default: detected from the parameter names)")
-    parser.add_argument("--signing-key", metavar="HEX", default=None,
+    parser.add_argument("--signing-key", metavar="HEX", default=None, type=signing_key_argument,
                         help="MAVLink 2 signing key as 64 hex characters (32 bytes)")
     vehicle = parser.add_argument_group("vehicle properties (over the profile's defaults)")
     vehicle.add_argument("--rudder-full-scale", type=_positive, default=None, metavar="RAD",
@@ -32,14 +35,26 @@ def add_connect_arguments(parser: argparse.ArgumentParser) -> None:
                               "the identifier uses the deflection such a servo makes of it")
 
 
-def _positive(text: str) -> float:
+def finite_float(text: str) -> float:
+    """A finite number (argparse type): nan and inf are refused."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, not {text!r}") from None
-    if not (value > 0 and value < float("inf")):
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, not {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0 (argparse type)."""
+    value = finite_float(text)
+    if not value > 0:
         raise argparse.ArgumentTypeError(f"expected a positive finite number, not {text!r}")
     return value
+
+
+_positive = positive_float  # the name the vehicle options were written with
 
 
 def vehicle_properties(args: argparse.Namespace) -> dict:
@@ -52,16 +67,38 @@ def vehicle_properties(args: argparse.Namespace) -> dict:
     return out
 
 
+def parse_signing_key(text: str) -> bytes:
+    """The 32-byte MAVLink 2 signing key written as 64 hex characters; ValueError otherwise (an
+    empty key too: it must never mean "run unsigned")."""
+    if not text.strip():
+        raise ValueError("the key is empty: give its 64 hex characters, or leave the option out to run unsigned")
+    try:
+        key = bytes.fromhex(text.strip())
+    except ValueError:
+        raise ValueError("the key must be hexadecimal") from None
+    if len(key) != 32:
+        raise ValueError(f"the key must be 32 bytes (64 hex characters), not {len(key)}")
+    return key
+
+
+def signing_key_argument(text: str) -> str:
+    """:func:`parse_signing_key` as an argparse type (checked at parse time; the text is kept)."""
+    try:
+        parse_signing_key(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def signing_key(args: argparse.Namespace) -> bytes | None:
-    if not getattr(args, "signing_key", None):
+    """The key of ``--signing-key``, or None when the option was not given."""
+    text = getattr(args, "signing_key", None)
+    if text is None:
         return None
     try:
-        key = bytes.fromhex(args.signing_key)
-    except ValueError:
-        raise SystemExit("--signing-key must be hexadecimal") from None
-    if len(key) != 32:
-        raise SystemExit("--signing-key must be 32 bytes (64 hex characters)")
-    return key
+        return parse_signing_key(text)
+    except ValueError as exc:
+        raise SystemExit(f"--signing-key: {exc}") from None
 
 
 def thrust_list(text: str) -> tuple[float, ...]:
