@@ -40,6 +40,7 @@ __all__ = [
     "time_constant",
     "sine_excitation",
     "fit_inertia",
+    "scaled_condition_number",
 ]
 
 #: model name → (has quadratic drag, has bias) (eq. 4.19–4.22)
@@ -289,4 +290,15 @@ def fit_inertia(
         offset=float(fit.theta[1]),
         bias=float(fit.theta[2]),
         fit=fit,
+        extra={"scaled_condition_number": scaled_condition_number(h)},
     )
+
+
+def scaled_condition_number(h: np.ndarray) -> float:
+    """cond(H) after scaling each column to unit norm: large (≳ 10⁶) when the regressors are nearly
+    collinear whatever their units, e.g. a velocity that never varies against the bias column (inf
+    for a zero column)."""
+    norms = np.linalg.norm(h, axis=0)
+    if not np.all(norms > 0):
+        return math.inf
+    return float(np.linalg.cond(h / norms))

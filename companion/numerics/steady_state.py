@@ -5,7 +5,8 @@ Two least-squares formulations from the HUGIN 4500 paper (seed ``000_*``):
 * **Straight legs** (square patterns), eq. 5, 7, 8: the body velocity over ground is
   ``z = v_b = R_mbᵀ·[vc_n, vc_e, 0] + v_wb = [c1 c2]·[vc_n, vc_e] + v_wb`` with c1, c2 the first two
   columns of ``R_m^b = R_mbᵀ``; stacking all samples gives the linear problem ``Z = H·θ`` with
-  ``θ = (v_wb (3), vc_n, vc_e)``, solved with :func:`numpy.linalg.lstsq`.
+  ``θ = (v_wb (3), vc_n, vc_e)``, solved with :func:`numpy.linalg.lstsq` (on the triangle of a
+  block-wise QR of ``H``: the same solution, in memory bounded by one block).
 * **Steady turns**, eq. 9, 10: ``p(t) = r0 + vc·t + R·[cos(ωt − φ0), sin(ωt − φ0)]`` fitted to the
   horizontal positions with :func:`scipy.optimize.least_squares`.
 
@@ -233,27 +234,51 @@ def fit_straight_legs(roll, pitch, yaw, vel_body) -> StraightLegFit:
     n = z.shape[0]
     if n < 3:
         raise ValueError(f"need at least 3 samples for the straight-leg fit, got {n}")
-    r_bm = np.transpose(body_to_ned_matrices(roll, pitch, yaw), (0, 2, 1))  # R_m^b = R_mbᵀ
-    h = np.zeros((n, 3, 5))
-    h[:, :, :3] = np.eye(3)
-    h[:, :, 3] = r_bm[:, :, 0]  # c1
-    h[:, :, 4] = r_bm[:, :, 1]  # c2
-    h = h.reshape(3 * n, 5)
-    zz = z.reshape(3 * n)
-    theta, *_ = np.linalg.lstsq(h, zz, rcond=None)
-    residuals = zz - h @ theta
+    roll, pitch, yaw = (np.asarray(a, float) for a in (roll, pitch, yaw))
+    # H is 3N×5: reduce it block by block to the 6×6 triangle of [H z] (a tall-skinny QR), so a
+    # long log needs memory for one block, not for H; the solution is lstsq's on the full H.
+    triangle = np.zeros((0, 6))
+    for block in _blocks(n):
+        triangle = np.linalg.qr(np.vstack([triangle, _straight_leg_rows(roll[block], pitch[block], yaw[block],
+                                                                           z[block])]), mode="r")
+    r, qtz = triangle[:5, :5], triangle[:5, 5]
+    theta, *_ = np.linalg.lstsq(r, qtz, rcond=None)
+    residuals = np.empty_like(z)
+    for block in _blocks(n):
+        rows = _straight_leg_rows(roll[block], pitch[block], yaw[block], z[block])
+        residuals[block] = (rows[:, 5] - rows[:, :5] @ theta).reshape(-1, 3)
     dof = 3 * n - 5
-    variance = float(residuals @ residuals) / dof
-    covariance = variance * np.linalg.inv(h.T @ h)
+    variance = float(np.sum(residuals * residuals)) / dof
+    covariance = variance * np.linalg.inv(r.T @ r)  # (HᵀH)⁻¹ = (RᵀR)⁻¹
     return StraightLegFit(
         velocity_water=theta[:3].copy(),
         current=theta[3:].copy(),
         covariance=covariance,
-        condition_number=float(np.linalg.cond(h)),
+        condition_number=float(np.linalg.cond(r)),  # H = QR: the same singular values
         residual_std=math.sqrt(variance),
-        residuals=residuals.reshape(n, 3),
+        residuals=residuals,
         samples=n,
     )
+
+
+#: samples per block of the straight-leg fit (its memory: ~1 kB per sample of a block)
+_BLOCK = 65536
+
+
+def _blocks(n: int) -> list[slice]:
+    return [slice(start, min(start + _BLOCK, n)) for start in range(0, n, _BLOCK)]
+
+
+def _straight_leg_rows(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Rows ``[H | z]`` of eq. 8 for some samples, shape (3·N, 6): identity for v_wb, c1, c2 for the current."""
+    m = z.shape[0]
+    r_bm = np.transpose(body_to_ned_matrices(roll, pitch, yaw), (0, 2, 1))  # R_m^b = R_mbᵀ
+    rows = np.zeros((m, 3, 6))
+    rows[:, :, :3] = np.eye(3)
+    rows[:, :, 3] = r_bm[:, :, 0]  # c1
+    rows[:, :, 4] = r_bm[:, :, 1]  # c2
+    rows[:, :, 5] = z
+    return rows.reshape(3 * m, 6)
 
 
 # --------------------------------------------------------------------------- steady turns

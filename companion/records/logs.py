@@ -25,17 +25,19 @@ import csv
 import logging
 import math
 import os
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from companion.link.profiles import SIM, AutopilotProfile, get_profile
 from companion.numerics.angles import wrap_pi
-from companion.numerics.steady_state import ned_to_body
+from companion.numerics.steady_state import heading_rate, ned_to_body
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LogError", "NavLog", "read_csv", "read_table_csv", "read_tlog", "read_log", "REQUIRED_COLUMNS"]
+__all__ = ["LogError", "NavLog", "read_csv", "read_table_csv", "read_tlog", "read_log", "REQUIRED_COLUMNS",
+           "check_navigation_units"]
 
 REQUIRED_COLUMNS = ("t", "north", "east", "down", "roll", "pitch", "yaw", "u", "v", "w")
 OPTIONAL_COLUMNS = ("rudder", "thrust", "force")
@@ -87,50 +89,105 @@ class NavLog:
 def _check_file(path: str) -> None:
     if not os.path.exists(path):
         raise LogError(f"{path}: no such file")
+    if os.path.isdir(path):
+        raise LogError(f"{path}: is a directory, not a log file")
+    if not os.path.isfile(path):
+        raise LogError(f"{path}: not a regular file")
     if os.path.getsize(path) == 0:
         raise LogError(f"{path}: the file is empty")
 
 
+#: text encoding of CSV files: UTF-8, with the byte-order mark Excel writes skipped when present
+CSV_ENCODING = "utf-8-sig"
+
+
 def read_table_csv(path: str, required: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
     """Read a CSV with a header row into ``{column: float array}``; every ``required`` column must
-    be present and every value numeric and finite."""
+    be present and every value numeric and finite.
+
+    UTF-8 with or without a byte-order mark (an Excel export). Memory: the values are parsed
+    straight into one float64 array (numpy's C reader, no per-row Python objects), so the peak
+    is about 8 bytes per value plus the reader's growth margin, below twice the file's size for
+    usual number widths (``bench/bench_csv_memory.py``). The columns returned are views of that
+    one array. A file the fast reader refuses is read again line by line for the exact message.
+    """
     _check_file(path)
-    try:
-        with open(path, newline="") as handle:
-            reader = csv.reader(handle)
-            header = next(reader, None)
-            if not header:
-                raise LogError(f"{path}: the file is empty (no header row)")
-            header = [name.strip() for name in header]
-            rows = [row for row in reader if row and any(cell.strip() for cell in row)]
-    except UnicodeDecodeError as exc:
-        raise LogError(f"{path}: not a text CSV file ({exc})") from exc
+    header = _csv_header(path)
     missing = [name for name in required if name not in header]
     if missing:
         raise LogError(f"{path}: missing column(s) {', '.join(missing)} (header: {', '.join(header)})")
-    if not rows:
+    try:
+        with open(path, encoding=CSV_ENCODING, newline="") as handle, warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "input contained no data": said below, in our words
+            data = np.loadtxt(handle, delimiter=",", skiprows=1, ndmin=2, comments=None, quotechar='"',
+                              dtype=np.float64)
+    except ValueError:  # a malformed line, a blank-but-not-empty line: the slow reader says which or copes
+        data = _read_rows_slowly(path, len(header))
+    except UnicodeDecodeError as exc:
+        raise LogError(f"{path}: not a UTF-8 text CSV file ({exc.reason} at byte {exc.start})") from None
+    if data.shape[0] == 0:
         raise LogError(f"{path}: no data rows after the header")
-    data = np.empty((len(rows), len(header)))
-    for line, row in enumerate(rows, start=2):
-        if len(row) != len(header):
-            raise LogError(f"{path}: line {line} has {len(row)} fields, the header has {len(header)}")
-        for col, cell in enumerate(row):
-            try:
-                data[line - 2, col] = float(cell)
-            except ValueError:
-                raise LogError(f"{path}: line {line}, column {header[col]!r}: {cell!r} is not a number") from None
-    if not np.all(np.isfinite(data)):
-        raise LogError(f"{path}: non-finite value (nan/inf) in the data")
-    return {name: data[:, i].copy() for i, name in enumerate(header)}
+    if data.shape[1] != len(header):
+        raise LogError(f"{path}: line 2 has {data.shape[1]} fields, the header has {len(header)}")
+    bad = ~np.isfinite(data)
+    if bad.any():
+        row, col = (int(i) for i in np.argwhere(bad)[0])
+        raise LogError(f"{path}: non-finite value (nan/inf) in column {header[col]!r} of data row {row + 1}")
+    return {name: data[:, i] for i, name in enumerate(header)}
+
+
+def _csv_header(path: str) -> list[str]:
+    """The header row's column names (stripped); LogError when the file has none or is not text."""
+    try:
+        with open(path, encoding=CSV_ENCODING, newline="") as handle:
+            header = next(csv.reader(handle), None)
+    except UnicodeDecodeError as exc:
+        raise LogError(f"{path}: not a UTF-8 text CSV file ({exc.reason} at byte {exc.start})") from None
+    if not header or not any(name.strip() for name in header):
+        raise LogError(f"{path}: the file is empty (no header row)")
+    names = [name.strip() for name in header]
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise LogError(f"{path}: column(s) {', '.join(map(repr, repeated))} appear more than once in the header")
+    return names
+
+
+def _read_rows_slowly(path: str, width: int, chunk_rows: int = 65536) -> np.ndarray:
+    """The data rows parsed line by line (blank lines skipped), in chunks of ``chunk_rows`` rows so the
+    memory stays bounded; LogError naming the line and column of the first bad field."""
+    chunks: list[np.ndarray] = []
+    buffer = np.empty((chunk_rows, width))
+    filled = 0
+    with open(path, encoding=CSV_ENCODING, newline="") as handle:
+        reader = csv.reader(handle)
+        header = [name.strip() for name in next(reader)]
+        for row in reader:
+            if not row or not any(cell.strip() for cell in row):
+                continue
+            line = reader.line_num
+            if len(row) != width:
+                raise LogError(f"{path}: line {line} has {len(row)} fields, the header has {width}")
+            for col, cell in enumerate(row):
+                try:
+                    buffer[filled, col] = float(cell)
+                except ValueError:
+                    raise LogError(f"{path}: line {line}, column {header[col]!r}: {cell!r} is not a number") from None
+            filled += 1
+            if filled == chunk_rows:
+                chunks.append(buffer)
+                buffer, filled = np.empty((chunk_rows, width)), 0
+    chunks.append(buffer[:filled])
+    return chunks[0] if len(chunks) == 1 else np.concatenate(chunks)
 
 
 def read_csv(path: str) -> NavLog:
     """Read a navigation CSV (columns: see the module docstring), sorted by time."""
     table = read_table_csv(path, REQUIRED_COLUMNS)
-    order = np.argsort(table["t"], kind="stable")
-    table = {k: v[order] for k, v in table.items()}
-    if np.any(np.diff(table["t"]) <= 0):
-        raise LogError(f"{path}: repeated time stamps in column 't'")
+    if not np.all(table["t"][1:] > table["t"][:-1]):  # a log out of order is sorted (a copy); in order, not
+        order = np.argsort(table["t"], kind="stable")
+        table = {k: v[order] for k, v in table.items()}
+        if np.any(np.diff(table["t"]) <= 0):
+            raise LogError(f"{path}: repeated time stamps in column 't'")
     known = set(REQUIRED_COLUMNS) | set(OPTIONAL_COLUMNS)
     return NavLog(
         **{name: table[name] for name in REQUIRED_COLUMNS},
@@ -223,3 +280,66 @@ def read_log(path: str, profile: AutopilotProfile | str = SIM) -> NavLog:
     if path.lower().endswith(".csv"):
         return read_csv(path)
     return read_tlog(path, profile)
+
+
+# --------------------------------------------------------------------------- plausibility of units
+#: the largest heading rate (5 s smoothed) accepted from a marine vehicle's log, rad/s; a yaw column
+#: in degrees read as radians turns 57× too fast and lands far above it
+MAX_HEADING_RATE = math.radians(60.0)
+#: the largest body velocity component accepted, m/s (≈ 50 kn); cm/s or mm/s land far above it
+MAX_SPEED = 25.0
+#: positions and body velocities must agree on the distance travelled within this factor
+DISTANCE_RATIO_LIMIT = 2.0
+
+
+def check_navigation_units(nav: NavLog) -> None:
+    """Refuse (LogError, one sentence) a log whose numbers cannot be in the documented units: roll
+    beyond ±π or pitch beyond ±π/2 rad, a yaw that starts beyond ±2π or jumps there (degrees), a
+    heading rate above 60°/s, a velocity above 25 m/s, positions and velocities that disagree on the
+    distance travelled by more than a factor 2 (one of them in other units)."""
+    where = nav.source or "the log"
+    for name, limit, text in (("roll", math.pi, "±π"), ("pitch", math.pi / 2, "±π/2")):
+        worst = float(np.max(np.abs(getattr(nav, name))))
+        if worst > limit + 1e-3:
+            raise LogError(f"{where}: {name} reaches {worst:.4g}, beyond {text} rad: the column looks like degrees "
+                           "(convert to radians)")
+    _check_yaw(nav, where)
+    for name in ("u", "v", "w"):
+        worst = float(np.max(np.abs(getattr(nav, name))))
+        if worst > MAX_SPEED:
+            raise LogError(f"{where}: {name} reaches {worst:.4g}, beyond {MAX_SPEED:g} m/s: the velocities look like "
+                           "another unit (cm/s, mm/s…); convert to m/s")
+    _check_distance(nav, where)
+
+
+def _check_yaw(nav: NavLog, where: str) -> None:
+    """Yaw in radians: wrapped within ±2π, or unwrapped (continuous) from a start within ±2π; the heading
+    rate within :data:`MAX_HEADING_RATE`."""
+    yaw = nav.yaw
+    worst = float(np.max(np.abs(yaw)))
+    continuous = bool(np.all(np.abs(np.diff(yaw)) < math.pi)) if len(nav) > 1 else True
+    if abs(float(yaw[0])) > 2 * math.pi + 1e-3 or (worst > 2 * math.pi + 1e-3 and not continuous):
+        raise LogError(f"{where}: yaw reaches {worst:.4g}, beyond ±2π rad: the column looks like degrees "
+                       "(convert to radians)")
+    if len(nav) >= 3:
+        rate = float(np.max(np.abs(heading_rate(nav.t, yaw))))
+        if rate > MAX_HEADING_RATE:
+            raise LogError(f"{where}: the heading turns at up to {math.degrees(rate):.0f}°/s, beyond "
+                           f"{math.degrees(MAX_HEADING_RATE):.0f}°/s: is yaw in degrees (convert to radians)?")
+
+
+def _check_distance(nav: NavLog, where: str, baseline_s: float = 10.0) -> None:
+    """Distance along the track from the positions (chords ≥ ``baseline_s`` apart, so position noise
+    does not add up) against the integral of the horizontal body speed; skipped below 10 m."""
+    if len(nav) < 3:
+        return
+    by_speed = float(np.sum(np.hypot(nav.u, nav.v)[1:] * np.diff(nav.t)))
+    picks = np.searchsorted(nav.t, np.arange(nav.t[0], nav.t[-1], baseline_s))
+    picks = np.unique(np.append(picks, len(nav) - 1))
+    by_position = float(np.sum(np.hypot(np.diff(nav.north[picks]), np.diff(nav.east[picks]))))
+    if max(by_speed, by_position) < 10.0:
+        return
+    ratio = by_position / by_speed if by_speed > 0 else math.inf
+    if not 1 / DISTANCE_RATIO_LIMIT <= ratio <= DISTANCE_RATIO_LIMIT:
+        raise LogError(f"{where}: the positions travel {by_position:.4g} m and the velocities {by_speed:.4g} m "
+                       f"(ratio {ratio:.3g}): north/east and u/v must be in m and m/s")

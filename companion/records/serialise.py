@@ -42,6 +42,23 @@ def json_ready(value: Any) -> Any:
     return value
 
 
+def null_reasons(value: Any, reason: str, prefix: str = "") -> dict[str, str]:
+    """``{dotted.path: reason}`` for every NaN or infinity in ``value`` (dicts, lists, numpy values),
+    i.e. every number :func:`json_ready` writes as null: output that says *why* a number is null."""
+    out: dict[str, str] = {}
+    if isinstance(value, dict):
+        for key, item in value.items():
+            out.update(null_reasons(item, reason, f"{prefix}.{key}" if prefix else str(key)))
+    elif isinstance(value, (list, tuple)):
+        for index, item in enumerate(value):
+            out.update(null_reasons(item, reason, f"{prefix}[{index}]"))
+    elif hasattr(value, "tolist") and not isinstance(value, float):  # numpy arrays and scalars
+        out.update(null_reasons(value.tolist(), reason, prefix))
+    elif isinstance(value, float) and not math.isfinite(value):
+        out[prefix or "value"] = reason
+    return out
+
+
 def to_json(record: Any) -> dict:
     """A registered dataclass as a JSON-ready dict with its ``"type"`` tag."""
     cls = type(record)

@@ -29,15 +29,16 @@ For ``inertia``: columns ``t``, the ``--axis`` position column, ``force`` and op
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import sys
 
 import numpy as np
 
+from companion.cli.commands._common import finite_float, positive_float, print_json
 from companion.link.profiles import PROFILES
-from companion.records.logs import LogError, NavLog, read_log, read_table_csv
+from companion.records.logs import MAX_SPEED, LogError, NavLog, check_navigation_units, read_log, read_table_csv
+from companion.records.serialise import null_reasons
 from companion.numerics import lumped
 from companion.numerics.steady_state import (
     fit_steady_turn,
@@ -65,25 +66,63 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                              "servo PWM into rudder/thrust (default: %(default)s)")
     parser.add_argument("--json", action="store_true", help="machine-readable JSON on stdout")
     parser.add_argument("--plot", metavar="FILE.png", help="write a figure (matplotlib, Agg)")
-    parser.add_argument("--t-start", type=float, default=None, help="ignore samples before this time (s)")
-    parser.add_argument("--t-end", type=float, default=None, help="ignore samples after this time (s)")
+    parser.add_argument("--t-start", type=finite_float, default=None, help="ignore samples before this time (s)")
+    parser.add_argument("--t-end", type=finite_float, default=None, help="ignore samples after this time (s)")
     parser.add_argument("--no-cut", action="store_true", help="squares/turns: do not cut transients")
-    parser.add_argument("--rate-tol-deg", type=float, default=None,
+    parser.add_argument("--rate-tol-deg", type=positive_float, default=None,
                         help="transient cutting: heading-rate tolerance, deg/s (squares 0.5, turns 0.3)")
-    parser.add_argument("--speed-tol", type=float, default=0.02, help="squares: velocity settling tolerance, m/s")
+    parser.add_argument("--speed-tol", type=positive_float, default=0.02, help="squares: velocity settling tolerance, m/s")
     parser.add_argument("--axis", default=None, help="eta/inertia: position column (default: position, else north)")
-    parser.add_argument("--settle", type=float, default=0.3,
+    parser.add_argument("--settle", type=_fraction, default=0.3,
                         help="eta (raw record): fraction of each constant-force run discarded as transient")
-    parser.add_argument("--k", type=float, default=None, help="inertia: linear drag k (known)")
-    parser.add_argument("--kq", type=float, default=0.0, help="inertia: quadratic drag k_q (known)")
-    parser.add_argument("--efficiency", type=float, default=1.0, help="inertia: thruster efficiency η of the mapping")
-    parser.add_argument("--savgol-window", type=int, default=21, help="inertia: Savitzky–Golay window (samples)")
+    parser.add_argument("--k", type=_non_negative, default=None, help="inertia: linear drag k (known)")
+    parser.add_argument("--kq", type=_non_negative, default=0.0, help="inertia: quadratic drag k_q (known)")
+    parser.add_argument("--efficiency", type=positive_float, default=1.0, help="inertia: thruster efficiency η of the mapping")
+    parser.add_argument("--savgol-window", type=_savgol_window, default=21, help="inertia: Savitzky–Golay window (samples)")
     parser.set_defaults(func=run)
     return parser
 
 
+def _fraction(text: str) -> float:
+    """A number in [0, 1) (argparse type)."""
+    value = finite_float(text)
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1), not {text!r}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    """A finite number ≥ 0 (argparse type): a drag coefficient."""
+    value = finite_float(text)
+    if value < 0.0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, not {text!r}")
+    return value
+
+
+def _savgol_window(text: str) -> int:
+    """An odd whole number of samples ≥ 5 (argparse type): the Savitzky–Golay window of order 4."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, not {text!r}") from None
+    if value < 5 or value % 2 == 0:
+        raise argparse.ArgumentTypeError(f"the window must be odd and at least 5 samples, not {text!r}")
+    return value
+
+
 # --------------------------------------------------------------------------- analyses
+#: the heading a turn fit needs: the current separates from the circle only over a full turn (with
+#: less, bench figures: 240° of steady turn leaves a 6 mm/s current error, 420° 3.5 mm/s)
+MIN_TURN_SWEEP = 2 * math.pi
+#: above this condition number of H the straight legs do not separate the current from the velocity
+MAX_SQUARES_CONDITION = 1e3
+#: above this scaled condition number the inertia regressors (velocity, 1, t) are collinear
+MAX_INERTIA_CONDITION = 1e6
+
+
 def _window(nav: NavLog, t_start: float | None, t_end: float | None) -> NavLog:
+    if t_start is None and t_end is None:
+        return nav  # the whole log: no copy
     mask = np.ones(len(nav), bool)
     if t_start is not None:
         mask &= nav.t >= t_start
@@ -99,13 +138,19 @@ def analyze_squares(nav: NavLog, cut: bool = True, rate_tol: float = math.radian
     """Straight-leg LS (eq. 7–8) on a log; returns (result dict, mask of the samples used)."""
     if len(nav) < 10:
         raise ValueError(f"too few samples ({len(nav)})")
+    check_navigation_units(nav)
     if cut:
         mask = steady_straight_mask(nav.t, nav.yaw, nav.vel_body, rate_tol, speed_tol)
         if mask.sum() < 10:
             raise ValueError("no steady straight leg found (try --no-cut or a larger --rate-tol-deg)")
+        used = nav.select(mask)
     else:
-        mask = np.ones(len(nav), bool)
-    fit = fit_straight_legs(nav.roll[mask], nav.pitch[mask], nav.yaw[mask], nav.vel_body[mask])
+        mask, used = np.ones(len(nav), bool), nav
+    fit = fit_straight_legs(used.roll, used.pitch, used.yaw, used.vel_body)
+    if not fit.condition_number <= MAX_SQUARES_CONDITION:
+        raise ValueError(f"the legs' headings do not separate the current from the vehicle's velocity (cond(H) "
+                         f"{fit.condition_number:.3g} > {MAX_SQUARES_CONDITION:g}): fly legs on at least two headings, "
+                         "ideally a square")
     result = {**fit.as_dict(), "samples_used": int(mask.sum()), "samples_total": len(nav)}
     return result, mask
 
@@ -114,11 +159,48 @@ def analyze_turns(nav: NavLog, cut: bool = True, rate_tol: float = math.radians(
     """Steady-turn LS (eq. 9–10) on a log; returns (result dict, mask, TurnFit)."""
     if len(nav) < 20:
         raise ValueError(f"too few samples ({len(nav)})")
+    check_navigation_units(nav)
     mask = steady_turn_mask(nav.t, nav.yaw, rate_tol) if cut else np.ones(len(nav), bool)
     if mask.sum() < 20:
         raise ValueError("the turn never settles to a steady rate (try --no-cut or a larger --rate-tol-deg)")
+    _require_turning(nav.yaw[mask])
+    _require_track_follows_heading(nav.t[mask], nav.north[mask], nav.east[mask], nav.yaw[mask])
     fit = fit_steady_turn(nav.t[mask], nav.north[mask], nav.east[mask], nav.yaw[mask])
-    return {**fit.as_dict(), "samples_used": int(mask.sum()), "samples_total": len(nav)}, mask, fit
+    if not abs(fit.rate) * fit.radius <= MAX_SPEED:
+        raise ValueError(f"the fitted turn (R {fit.radius:.4g} m at {math.degrees(fit.rate):.3g}°/s) moves at "
+                         f"{abs(fit.rate) * fit.radius:.3g} m/s, beyond {MAX_SPEED:g} m/s: not a turn of this vehicle")
+    result = {**fit.as_dict(), "samples_used": int(mask.sum()), "samples_total": len(nav)}
+    return result, mask, fit
+
+
+def _require_turning(yaw: np.ndarray) -> None:
+    """ValueError unless the steady part of the log turns through :data:`MIN_TURN_SWEEP` (a near-straight
+    run would otherwise be fitted as a turn kilometres wide)."""
+    heading = np.unwrap(yaw)
+    sweep = float(abs(heading[-1] - heading[0]))
+    if sweep < MIN_TURN_SWEEP:
+        raise ValueError(f"the steady part of the log turns through {math.degrees(sweep):.0f}°, less than the "
+                         f"{math.degrees(MIN_TURN_SWEEP):.0f}° a turn fit needs to separate the current from the "
+                         "circle: record at least one full steady turn")
+
+
+def _require_track_follows_heading(t: np.ndarray, north: np.ndarray, east: np.ndarray, yaw: np.ndarray,
+                                   chord_s: float = 2.0) -> None:
+    """ValueError unless the track (course over ground from position chords ``chord_s`` apart) turns
+    through the same angle as the heading, within a factor 2 and in the same direction: a yaw in
+    degrees turns 57× too far, a yaw counted anticlockwise (ENU) turns the other way."""
+    picks = np.unique(np.append(np.searchsorted(t, np.arange(t[0], t[-1], chord_s)), t.size - 1))
+    if picks.size < 3:
+        return
+    course = np.unwrap(np.arctan2(np.diff(east[picks]), np.diff(north[picks])))
+    heading = np.unwrap(yaw)[picks]
+    track_sweep, heading_sweep = float(course[-1] - course[0]), float(heading[-1] - heading[0])
+    ratio = heading_sweep / track_sweep if track_sweep else math.inf
+    if not 0.5 <= ratio <= 2.0:
+        why = ("yaw must increase clockwise from north (NED)" if ratio < 0
+               else "is yaw in degrees (convert to radians)?")
+        raise ValueError(f"the heading turns through {math.degrees(heading_sweep):.0f}° while the track turns through "
+                         f"{math.degrees(track_sweep):.0f}°: {why}")
 
 
 def _position_column(table: dict[str, np.ndarray], axis: str | None, path: str) -> np.ndarray:
@@ -150,8 +232,19 @@ def regime_points_from_record(table: dict[str, np.ndarray], axis: str | None, se
     return points
 
 
+def _check_mapping(table: dict[str, np.ndarray], path: str) -> None:
+    """The ``mapping`` column names a mapping: 0 (reference) or 1 (the one whose η is identified), nothing else."""
+    mapping = table["mapping"]
+    bad = np.flatnonzero((mapping != 0) & (mapping != 1))
+    if bad.size:
+        raise LogError(f"{path}: mapping {mapping[bad[0]]:g} in data row {bad[0] + 1}: the mapping column must be "
+                       "0 (reference) or 1 (the mapping whose efficiency η is identified)")
+
+
 def analyze_eta(path: str, axis: str | None = None, settle: float = 0.3) -> dict:
     table = read_table_csv(path)
+    if "mapping" in table:
+        _check_mapping(table, path)
     if {"velocity", "force", "mapping"} <= set(table):
         points = [{"force": float(f), "mapping": int(m), "velocity": float(v)}
                   for v, f, m in zip(table["velocity"], table["force"], table["mapping"])]
@@ -179,10 +272,16 @@ def analyze_inertia(path: str, k_lin: float, k_quad: float, efficiency: float = 
     position = _position_column(table, axis, path)
     fit = lumped.fit_inertia(table["t"], position, table["force"], k_lin, k_quad, efficiency,
                              velocity=table.get("velocity"), savgol_window=savgol_window)
+    condition = fit.extra.get("scaled_condition_number", 0.0)
+    if not condition <= MAX_INERTIA_CONDITION:
+        raise ValueError(f"the velocity hardly varies, so the inertia cannot be told from the drag and bias "
+                         f"(scaled cond(H) {condition:.3g}): excite with a varying force, e.g. a sine (eq. 4.40)")
+    if not fit.mass > 0:
+        raise ValueError(f"the estimated inertia is not positive ({fit.mass:.4g} ± {fit.mass_sigma:.2g}): the data do "
+                         "not determine it (check --k, --kq, the force sign and the position column)")
     mean_speed = float(np.mean(np.gradient(position, table["t"])))
     out = fit.as_dict()
-    if fit.mass > 0:
-        out["omega_opt_rad_s"] = lumped.d_optimal_frequency(fit.mass, k_lin, k_quad, mean_speed)
+    out["omega_opt_rad_s"] = lumped.d_optimal_frequency(fit.mass, k_lin, k_quad, mean_speed)
     return out, fit, table
 
 
@@ -276,6 +375,15 @@ def _plot(kind: str, path: str, **data) -> None:
     plt.close(fig)
 
 
+#: why a number of each analysis can be non-finite (it is then null in JSON, with this reason)
+NULL_REASONS = {
+    "squares": "not determined by the data (singular covariance)",
+    "turns": "not determined by the data (singular covariance of the turn fit)",
+    "eta": "not determined by the data (an estimate of zero, or a singular covariance)",
+    "inertia": "not determined by the data (singular covariance or no degrees of freedom)",
+}
+
+
 def run(args: argparse.Namespace) -> int:
     kind = args.kind
     try:
@@ -305,8 +413,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"companion analyze {kind}: error: {exc}", file=sys.stderr)
         return 1
     result = {"kind": kind, "input": args.input, **result}
+    reasons = null_reasons(result, NULL_REASONS[kind])
+    if reasons:  # an estimate the data leave undetermined is null in JSON, with the reason beside it
+        result["null_reasons"] = reasons
     if args.json:
-        print(json.dumps(result, indent=2, default=float))
+        print_json(result)
     else:
         _print_human(kind, result)
         if args.plot:
