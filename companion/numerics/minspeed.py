@@ -81,6 +81,16 @@ _ALIASES: dict[str, str] = {
 
 #: sections of a preset file in which the dive-plane parameters may be nested
 _SECTIONS = ("dive_plane", "diveplane", "dive", "minspeed", "min_speed")
+#: the same, public (the vehicle-file schema of companion.records.vehicle_files reads them)
+DIVE_PLANE_SECTIONS = _SECTIONS
+
+
+def dive_plane_field(key: str) -> str | None:
+    """The :class:`DivePlaneVehicle` field a file key names (field name, preset name or thesis
+    symbol, case-insensitive), or None for a key that names none."""
+    name = str(key).lower()
+    known = {f for f in DivePlaneVehicle.__dataclass_fields__}
+    return name if name in known else _ALIASES.get(name)
 
 
 @dataclass(frozen=True)

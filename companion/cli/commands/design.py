@@ -8,13 +8,17 @@ radius (turning.py, eq. 3.47–3.50). Without ``--speed`` the radius is not prin
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
+
+from companion.cli.commands._common import print_json
 
 from companion.numerics.gains import GainBounds, design_heading_gains
 from companion.numerics.identification import YawModel
 from companion.numerics.turning import DEFAULT_DELTA_MAX, turning_performance
+
+#: the largest rudder limit accepted, rad: a deflection beyond 90° is not a rudder angle (degrees?)
+MAX_RUDDER = math.pi / 2
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -49,8 +53,18 @@ def _validate(args) -> str | None:
         return f"--a22 must be negative (a stable yaw damping), got {args.a22}"
     if args.b2 <= 0.0:
         return f"--b2 must be positive (rudder authority), got {args.b2}"
+    if not 0.0 < args.delta_max <= MAX_RUDDER:
+        return f"--delta-max must be a rudder limit in (0, π/2] rad, got {args.delta_max}"
     if args.delta_max <= args.delta0:
         return f"--delta-max ({args.delta_max}) must exceed --delta0 ({args.delta0})"
+    return None
+
+
+def _non_finite(result: dict) -> str | None:
+    """The first output the inputs drove beyond floating point (overflow), or None."""
+    for name, value in result.items():
+        if isinstance(value, float) and not math.isfinite(value):
+            return name
     return None
 
 
@@ -73,8 +87,13 @@ def run(args) -> int:
         "turning_radius_m": turning.turning_radius_m if args.speed is not None else None,
         "speed": args.speed,
     }
+    overflow = _non_finite(result)
+    if overflow:
+        print(f"companion design: error: the model gives a non-finite {overflow} (a22 {args.a22:g}, b2 {args.b2:g}, "
+              f"speed {args.speed}): the inputs are outside any vehicle's range", file=sys.stderr)
+        return 2
     if args.json:
-        print(json.dumps(result))
+        print_json(result)
         return 0
     rows = [
         ("kp", f"{gains.kp:.4f}", "rad rudder / rad heading error"),

@@ -12,9 +12,12 @@ either option the Table 5.1 vehicle (the dataclass defaults) is used.
 from __future__ import annotations
 
 import argparse
-import json
+import math
 import sys
 
+import numpy as np
+
+from companion.cli.commands._common import finite_float, print_json
 from companion.numerics.minspeed import minimum_speed
 from companion.records.vehicle_files import load_vehicle, preset_path  # noqa: F401 - part of this command's API
 
@@ -28,22 +31,33 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--preset", help="simulator preset name (sim/presets/NAME.json, read as data)")
     source.add_argument("--vehicle", metavar="FILE.json", help="vehicle parameters as JSON")
-    parser.add_argument("--delta-max", type=float, default=None, help="elevator limit δmax in rad (default: the vehicle's)")
+    parser.add_argument("--delta-max", type=_elevator_limit, default=None,
+                        help="elevator limit δmax in rad, in (0, π/2] (default: the vehicle's)")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
     parser.set_defaults(func=run)
 
 
+def _elevator_limit(text: str) -> float:
+    """δmax in (0, π/2] rad (argparse type): nan, inf, zero, negative and degrees refused."""
+    value = finite_float(text)
+    if not 0.0 < value <= math.pi / 2:
+        raise argparse.ArgumentTypeError(f"the elevator limit must be in (0, π/2] rad, not {text!r}")
+    return value
+
+
 def run(args: argparse.Namespace) -> int:
     try:
-        vehicle, source = load_vehicle(args.preset, args.vehicle)
-    except (OSError, ValueError) as exc:
-        print(f"minspeed: {exc}", file=sys.stderr)
+        vehicle, source = load_vehicle(args.preset, args.vehicle, args.delta_max)
+        result = minimum_speed(vehicle)
+    except (OSError, ValueError, np.linalg.LinAlgError) as exc:
+        print(f"companion minspeed: error: {exc}", file=sys.stderr)
         return 2
-    result = minimum_speed(vehicle, args.delta_max)
-    delta_max = vehicle.delta_max if args.delta_max is None else args.delta_max
+    delta_max = vehicle.delta_max
     out = {**result.as_json(), "delta_max": delta_max, "source": source}
+    if not result.exists:
+        out["reason"] = "the required and achievable pitch curves never meet: no minimum speed for this δmax"
     if args.json:
-        print(json.dumps(out))
+        print_json(out)
     elif result.exists:
         print(
             f"{source}: δmax {delta_max:.3f} rad → Vmin {result.v_min:.3f} m/s, θ* {result.theta_star_deg:.2f}°, "
