@@ -2,7 +2,9 @@
 
 ``run`` prints exactly one line ``READY <endpoint>`` on stdout once the endpoint is listening, so a
 parent process can wait for it (with the port actually bound: ``--listen udpin:127.0.0.1:0`` lets
-the OS choose a free one); SIGINT/SIGTERM end it cleanly (exit code 0).
+the OS choose a free one); SIGINT/SIGTERM end it cleanly (exit code 0). With ``--lockstep`` one last
+line ``STATS <json>`` follows at exit (counters and the lockstep record, ``SimServer.summary``: a
+parent learns whether the run was exact).
 """
 from __future__ import annotations
 
@@ -22,6 +24,27 @@ def _current(text: str) -> tuple[float, float]:
     return north, east
 
 
+#: the --listen forms the simulator serves, and what to write instead of the client forms
+LISTEN_FORMS = ("udpin", "tcpin", "udpout")
+CLIENT_FORMS = {"tcp": "tcpin", "udp": "udpin"}
+
+
+def listen_endpoint(text: str) -> str:
+    """``--listen``: a listening endpoint (issue 9 item 7: ``tcp:HOST:PORT`` connected out, with a
+    traceback). Client forms get the listening form to write instead; anything else, the forms."""
+    kind, _, address = text.partition(":")
+    host, _, port = address.rpartition(":")
+    if kind in CLIENT_FORMS:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is how a client connects; for the simulator to listen there write "
+            f"{CLIENT_FORMS[kind]}:{address or 'HOST:PORT'}")
+    if kind not in LISTEN_FORMS or not host or not port.isdigit() or int(port) > 65535:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected udpin:HOST:PORT or tcpin:HOST:PORT (listen, port 0 = any free port), "
+            "or udpout:HOST:PORT (send to a client listening there)")
+    return text
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m sim", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging on stderr")
@@ -31,8 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--preset", default="starfish", help="vehicle preset (see `presets`)")
     run.add_argument("--speedup", type=float, default=1.0,
                      help="vehicle time / wall time (0 = as fast as possible)")
-    run.add_argument("--listen", default="udpin:127.0.0.1:14550",
-                     help="pymavlink endpoint: udpin:HOST:PORT, tcpin:HOST:PORT or udpout:HOST:PORT")
+    run.add_argument("--listen", default="udpin:127.0.0.1:14550", type=listen_endpoint,
+                     help="where clients reach the simulator: udpin:HOST:PORT or tcpin:HOST:PORT (listen), "
+                          "or udpout:HOST:PORT (send to a client listening there)")
     run.add_argument("--seed", type=int, default=0, help="noise / disturbance seed")
     run.add_argument("--current", type=_current, default=(0.0, 0.0), metavar="VN,VE",
                      help="water current north,east in m/s")
@@ -146,7 +170,11 @@ def _run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    return server.run()
+    try:
+        return server.run()
+    finally:
+        if config.lockstep:  # whether the run was exact, for the parent (the rehearsal records it)
+            print(f"STATS {json.dumps(server.summary())}", flush=True)
 
 
 def _linearize(args: argparse.Namespace) -> int:

@@ -8,17 +8,21 @@ it can, drops the backlog instead of bursting, and logs the achieved ratio.
 
 Transports are pymavlink's (``udpin:``, ``udpout:``, ``tcpin:``). ``udpin:`` serves every client
 that has sent at least one datagram (pymavlink's multi-client UDP server) and routes messages
-between them like an autopilot; ``tcpin:`` serves one client at a time, accepts a new one after a
-disconnect, and is lossless: vehicle time waits for a client that falls behind. All messages of a
-tick go out in one datagram/write (the hot loop's largest saving). docs/PROTOCOL.md, "Transport".
+between them like an autopilot; ``tcpin:`` serves several clients at once the same way
+(sim/tcp_clients.py) and is lossless: vehicle time waits for a client that falls behind. A new
+client hears a HEARTBEAT at once (even while vehicle time waits for a lockstep companion). All
+messages of a tick go out in one datagram/write (the hot loop's largest saving). docs/PROTOCOL.md,
+"Transport". With ``--lockstep`` input is read only when the physics has reached the last tick the
+companion allows (sim/lockstep.py), so every message acts at a vehicle time fixed by the
+companion's own stream, never by scheduling.
 """
 from __future__ import annotations
 
 import logging
 import math
 import os
+import collections
 import select
-import socket
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -35,8 +39,10 @@ from sim.autopilot import (  # noqa: E402
     pwm_from_thrust,
     wrap_pi,
 )
+from sim.lockstep import Lockstep  # noqa: E402
 from sim.params import ParamTable  # noqa: E402
 from sim.preset import load_preset  # noqa: E402
+from sim.tcp_clients import TcpClient, TcpClients  # noqa: E402
 from sim.vehicle import Vehicle  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -51,9 +57,7 @@ ORIGIN_LAT_DEG, ORIGIN_LON_DEG = 63.4400, 10.3900  # fixed local origin (Trondhe
 EARTH_RADIUS_M = 6378137.0
 UDP_CLIENT_TIMEOUT_S = 30.0  # wall seconds: a silent UDP client is dropped if others remain
 MAX_TICKS_PER_POLL = 10  # physics steps between two polls of the socket
-TCP_KERNEL_BUFFER = 32 * 1024  # SO_SNDBUF of an accepted TCP client
-TCP_HIGH_WATER = 16 * 1024  # bytes queued for a TCP client before the physics waits for it
-TCP_MAX_QUEUE = 4 * 1024 * 1024  # never queue more (replies beyond it are dropped whole)
+TCP_LISTEN_BACKLOG = 8  # connections the kernel queues before the simulator accepts them
 MAX_BACKLOG_S = 0.25  # wall seconds behind schedule before the pacing drops the backlog
 REPORT_EVERY_S = 10.0  # wall seconds between achieved-ratio log lines
 
@@ -140,12 +144,15 @@ class SimServer:
         self._measure_tick = -1
         self._after_ack: list = []  # replies a command asked for, sent after its COMMAND_ACK
         self._batch: bytearray | None = None  # frames collected during one tick's emission
-        self._tcp_out = bytearray()  # whole frames not yet accepted by the TCP socket
         self.conn: mavutil.mavfile | None = None
-        self._tcp = config.listen.startswith("tcpin:")
+        self._tcp_mode = config.listen.startswith("tcpin:")
+        self._tcp: TcpClients | None = None  # the accepted TCP clients (tcpin: only)
         self.stats = {"ticks": 0, "sent": 0, "received": 0, "bad": 0, "dropped": 0, "wall_s": 0.0}
-        self._lockstep_acked_s: float | None = None  # vehicle time the companion acknowledged
-        self._lockstep_wall = 0.0  # wall time of that acknowledgement
+        self.lockstep = Lockstep(config.lockstep, config.dt)
+        # parsed input not yet applied, with where it came from (UDP address or TcpClient): under
+        # lockstep what follows the acknowledgement that moves the limit waits for the next limit
+        self._inbox: collections.deque[tuple[object, object]] = collections.deque()
+        self._origin: object = None  # where the message being handled came from
         for name in ("SR_ATT_HZ", "SR_POS_HZ"):
             self._apply_stream_param(name)
         for msg_id in ONE_HZ_STREAMS:
@@ -172,13 +179,24 @@ class SimServer:
         if self.config.signing_key is not None:
             # as an autopilot with signing enabled: outgoing frames signed, unsigned input dropped
             self.conn.setup_signing(self.config.signing_key, sign_outgoing=True)
+        if self._tcp_mode:
+            self.conn.listen.listen(TCP_LISTEN_BACKLOG)  # pymavlink listens with a backlog of 1
+            self._tcp = TcpClients(self.conn.listen, self._client_parser, on_drop=self.lockstep.client_left)
+
+    def _client_parser(self):
+        """A MAVLink parser of one TCP client's bytes, sharing the endpoint's signing state."""
+        mav = self.conn.mav
+        parser = type(mav)(None, srcSystem=mav.srcSystem, srcComponent=mav.srcComponent)
+        parser.robust_parsing = True
+        parser.signing = mav.signing
+        return parser
 
     def bound_endpoint(self) -> str:
         """The listen endpoint with the port actually bound (``…:0`` asks the OS for a free one)."""
         listen = self.config.listen
         sock = None
         if self.conn is not None:
-            sock = self.conn.listen if self._tcp else getattr(self.conn, "port", None)
+            sock = self.conn.listen if self._tcp_mode else getattr(self.conn, "port", None)
         if sock is None or not listen.startswith(("udpin:", "tcpin:")):
             return listen
         try:
@@ -188,6 +206,8 @@ class SimServer:
         return f"{listen.split(':', 1)[0]}:{host}:{port}"
 
     def close(self) -> None:
+        if self._tcp is not None:
+            self._tcp.close()
         if self.conn is not None:
             try:
                 self.conn.close()
@@ -218,6 +238,7 @@ class SimServer:
         base_wall, base_tick = wall_start, 0
         report_wall, report_tick = wall_start, 0
         step = self._step_once
+        lockstep = self.lockstep
         while not self._stop:
             now = time.monotonic()
             if paced:
@@ -231,19 +252,24 @@ class SimServer:
             batch_end = min(due, self.tick + MAX_TICKS_PER_POLL)
             if end_tick is not None:
                 batch_end = min(batch_end, end_tick)
-            if self.config.lockstep:
-                limit = self._lockstep_limit(now)
-                if limit is not None and limit < batch_end:
-                    batch_end = max(self.tick, limit)
-                    if batch_end == self.tick:
-                        self._wait_readable(0.002)  # the companion has not caught up: wait for its ack
+            limit = lockstep.limit(self.tick, self._lead_ticks(), now)
+            if limit is not None:
+                batch_end = min(batch_end, max(self.tick, limit))
             if self._tcp_backlogged():
-                # The TCP client is behind: vehicle time waits for it (lossless, flow-controlled).
+                # A TCP client is behind: vehicle time waits for it (lossless, flow-controlled).
                 self._wait_writable(0.005)
                 batch_end = self.tick
+            first = self.tick
             while self.tick < batch_end:
                 step()
-            self._poll()
+            if limit is None:
+                lockstep.count_free(self.tick - first)
+                self._poll()
+            elif self.tick >= limit:
+                # Lockstep: input is applied only here, at the last tick the companion allows.
+                if not self._poll_at_limit():
+                    self._wait_readable(0.05)  # the companion has not acknowledged yet: wait for it
+                    continue
             if end_tick is not None and self.tick >= end_tick:
                 break
             if now - report_wall >= REPORT_EVERY_S:
@@ -252,37 +278,54 @@ class SimServer:
             if paced and self.tick >= due:
                 wait = base_wall + (self.tick + 1 - base_tick) * self.dt / speedup - time.monotonic()
                 if wait > 0:
-                    self._wait_readable(min(wait, 0.05))
+                    if limit is None:
+                        self._wait_readable(min(wait, 0.05))
+                    else:
+                        time.sleep(min(wait, 0.05))  # input waits for the limit anyway
         self.stats["ticks"] = self.tick
         self.stats["wall_s"] = time.monotonic() - wall_start
 
-    # ------------------------------------------------------------------ lockstep
-    LOCKSTEP_COMPONENT = 191  # MAV_COMP_ID_ONBOARD_COMPUTER: the companion
-    LOCKSTEP_SILENCE_S = 1.0  # wall seconds without an ack before the simulator free-runs again
+    # ------------------------------------------------------------------ lockstep (sim/lockstep.py)
+    def _lead_ticks(self) -> int:
+        """How far past the acknowledged sample the physics may run: one ATTITUDE period (the
+        stream's own, which the companion may have set), else 1/SR_ATT_HZ."""
+        period = self._streams[mavlink.MAVLINK_MSG_ID_ATTITUDE].period
+        if period > 0:
+            return period
+        return self._period_ticks(max(self.params["SR_ATT_HZ"], 1.0))
 
-    def _lockstep_limit(self, now: float) -> int | None:
-        """Last tick the physics may reach: one attitude period past the vehicle time the companion
-        acknowledged, so its commands act at the same vehicle time whatever the speed-up (at 50x,
-        1 ms of companion latency would otherwise be 50 ms of vehicle time inside its loops).
-        None (free-run) before the first acknowledgement and after LOCKSTEP_SILENCE_S of silence."""
-        acked = self._lockstep_acked_s
-        if acked is None or now - self._lockstep_wall > self.LOCKSTEP_SILENCE_S:
-            return None
-        lead = 1.0 / max(self.params["SR_ATT_HZ"], 1.0)
-        return int(math.floor((acked + lead) / self.dt + 1e-9))
+    def _poll_at_limit(self) -> bool:
+        """Apply input in arrival order until an acknowledgement lets the physics move on; the rest
+        waits in the inbox for the next limit. True when the physics may move on."""
+        for _ in range(64):  # bounded: the loop comes back here at once if it may not move
+            while self._inbox:
+                self._dispatch(self._inbox.popleft())
+                if self._may_advance():
+                    return True
+            if not self._receive():
+                return self._may_advance()
+        return self._may_advance()
+
+    def _may_advance(self) -> bool:
+        limit = self.lockstep.limit(self.tick, self._lead_ticks(), time.monotonic())
+        return limit is None or limit > self.tick
 
     def _handle_system_time(self, msg) -> None:
         """SYSTEM_TIME from the companion: its acknowledgement of a processed sample (lockstep)."""
-        if not self.config.lockstep or msg.get_srcComponent() != self.LOCKSTEP_COMPONENT:
+        if msg.get_srcComponent() != self.LOCKSTEP_COMPONENT:
             return
-        acked = msg.time_boot_ms / 1000.0
-        if not math.isfinite(acked):
-            return
-        previous = self._lockstep_acked_s
-        if previous is None:
-            log.info("lockstep engaged at t=%.2f", acked)
-        self._lockstep_acked_s = acked if previous is None else max(previous, acked)
-        self._lockstep_wall = time.monotonic()
+        self.lockstep.acknowledge(msg.time_boot_ms, self.tick, time.monotonic(),
+                                  client=self._origin if isinstance(self._origin, TcpClient) else None)
+
+    LOCKSTEP_COMPONENT = 191  # MAV_COMP_ID_ONBOARD_COMPUTER: the companion
+
+    def summary(self) -> dict:
+        """What the run did, for the ``STATS`` line on exit: counters and the lockstep record (an
+        exact run has ``free_ticks`` 0 and ``releases`` 0)."""
+        return {"vehicle_s": round(self.tick * self.dt, 6), "sent": self.stats["sent"],
+                "received": self.stats["received"], "bad": self.stats["bad"],
+                "dropped": self.stats["dropped"] + (self._tcp.dropped if self._tcp is not None else 0),
+                "lockstep": dict(self.lockstep.stats) if self.lockstep.enabled else None}
 
     def _log_ratio(self, label: str, wall_s: float, sim_s: float) -> None:
         if wall_s <= 0:
@@ -294,7 +337,10 @@ class SimServer:
                 wall_s, ratio, f"{target:g}x" if target > 0 else "as fast as possible")
 
     def _wait_readable(self, timeout: float) -> None:
-        fds = [self.conn.fd] if self.conn is not None and self.conn.fd is not None else []
+        if self._tcp is not None:
+            fds = self._tcp.fds()
+        else:
+            fds = [self.conn.fd] if self.conn is not None and self.conn.fd is not None else []
         try:
             if fds:
                 select.select(fds, [], [], timeout)
@@ -304,10 +350,10 @@ class SimServer:
             time.sleep(timeout)
 
     def _wait_writable(self, timeout: float) -> None:
-        port = self.conn.port if self.conn is not None else None
+        fds = self._tcp.writable_fds() if self._tcp is not None else []
         try:
-            if port is not None:
-                select.select([], [port], [], timeout)
+            if fds:
+                select.select([], fds, [], timeout)
         except (OSError, ValueError):
             pass
 
@@ -363,56 +409,30 @@ class SimServer:
     def _write(self, data: bytes) -> None:
         if not data or self.conn is None:
             return
-        if self._tcp:
-            self._tcp_write(data)
+        if self._tcp is not None:
+            self._tcp.send(data)  # every client; lossless, flow-controlled (sim/tcp_clients.py)
             return
         try:
             self.conn.write(data)  # pymavlink: sendto every known UDP client
         except (OSError, ValueError) as exc:
             log.debug("write failed: %s", exc)
 
-    # TCP is lossless and flow-controlled: frames are queued whole (a partial send would corrupt
-    # the stream), and the main loop pauses the physics while the client is TCP_HIGH_WATER behind.
-    def _tcp_write(self, data: bytes) -> None:
-        if self.conn is None or self.conn.port is None:
-            return  # no client connected: nothing to send to
-        if len(self._tcp_out) + len(data) > TCP_MAX_QUEUE:
-            self.stats["dropped"] += 1
-            return
-        self._tcp_out += data
-        self._tcp_flush()
-
-    def _tcp_flush(self) -> None:
-        port = self.conn.port if self.conn is not None else None
-        if port is None:
-            self._tcp_out.clear()
-            return
-        while self._tcp_out:
-            try:
-                sent = port.send(self._tcp_out)
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError:
-                self._tcp_disconnected()
-                return
-            del self._tcp_out[:sent]
-
     def _tcp_backlogged(self) -> bool:
-        if not self._tcp or len(self._tcp_out) <= TCP_HIGH_WATER:
-            return False
-        self._tcp_flush()
-        return len(self._tcp_out) > TCP_HIGH_WATER
+        return self._tcp is not None and self._tcp.backlogged()
 
-    def _tcp_disconnected(self) -> None:
-        conn = self.conn
-        log.info("TCP client disconnected")
+    def _greet(self, client: object) -> None:
+        """A HEARTBEAT for a client just heard from, at once: it learns the vehicle is there even
+        while vehicle time waits for a lockstep companion (no tick, no stream, would send one)."""
+        frame = self._frame(self._heartbeat())
+        if frame is None:
+            return
+        if isinstance(client, TcpClient):
+            self._tcp.send(frame, only=client)
+            return
         try:
-            conn.port.close()
-        except OSError:
-            pass
-        conn.port = None
-        conn.fd = conn.listen.fileno()
-        self._tcp_out.clear()
+            self.conn.port.sendto(frame, client)
+        except OSError as exc:
+            log.debug("heartbeat to %s failed: %s", client, exc)
 
     def _measurements(self):
         if self._measure_tick != self.tick:
@@ -420,18 +440,24 @@ class SimServer:
             self._measure_tick = self.tick
         return self._measure
 
-    def _send(self, msg) -> None:
-        conn = self.conn
-        if conn is None:
-            return
-        encoder = conn.mav  # what MAVLink.send does, minus the write: pack and sequence number
+    def _frame(self, msg) -> bytes | None:
+        """One packed frame (what MAVLink.send does, minus the write: pack and sequence number)."""
+        if self.conn is None:
+            return None
+        encoder = self.conn.mav
         try:
             frame = msg.pack(encoder)
         except Exception as exc:  # a value out of a field's range must not stop the simulator
             log.warning("cannot pack %s: %s", msg.get_type(), exc)
-            return
+            return None
         encoder.seq = (encoder.seq + 1) % 256
         self.stats["sent"] += 1
+        return frame
+
+    def _send(self, msg) -> None:
+        frame = self._frame(msg)
+        if frame is None:
+            return
         if self._batch is not None:
             self._batch += frame
         else:
@@ -519,92 +545,98 @@ class SimServer:
         self._send(mavlink.MAVLink_statustext_message(severity, text.encode("ascii", "replace")[:50]))
 
     # ------------------------------------------------------------------ incoming
-    def _read_bytes(self) -> tuple[bytes, tuple | None]:
-        """One UDP datagram (with its sender) or what the TCP stream has; b"" when nothing."""
+    def _receive(self) -> bool:
+        """Read what has arrived, parse it and queue the messages in the inbox with their origin
+        (UDP address or TcpClient); False when nothing arrived. New clients are greeted."""
         conn = self.conn
         if conn is None:
-            return b"", None
-        if not self._tcp:
-            try:
-                data, sender = conn.port.recvfrom(65535)
-            except (BlockingIOError, InterruptedError):
-                return b"", None
-            except OSError as exc:  # e.g. ECONNREFUSED reported for an earlier datagram
-                log.debug("recv failed: %s", exc)
-                return b"", None
-            if getattr(conn, "udp_server", False):  # pymavlink's client list, used by conn.write
-                conn.clients.add(sender)
-                conn.clients_last_alive[sender] = time.time()
-            return data, sender
-        # tcpin: pymavlink keeps a closed peer forever; accept and detect EOF here.
-        if conn.port is None:
-            try:
-                sock, addr = conn.listen.accept()
-            except OSError:
-                return b"", None
-            sock.setsockopt(socket.SOL_TCP, socket.TCP_NODELAY, 1)
-            # A small kernel buffer bounds how far a slow client lags behind vehicle time.
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, TCP_KERNEL_BUFFER)
-            sock.setblocking(False)
-            conn.port = sock
-            conn.fd = sock.fileno()
-            self._tcp_out.clear()
-            log.info("TCP client connected from %s:%d", *addr)
+            return False
+        if self._tcp is not None:
+            for client in self._tcp.accept():
+                self._greet(client)
+            received = self._tcp.receive()
+            for client, data in received:
+                self._parse(client.parser, data, client)
+            return bool(received)
         try:
-            data = conn.port.recv(65536)
+            data, sender = conn.port.recvfrom(65535)
         except (BlockingIOError, InterruptedError):
-            return b"", None
-        except OSError:
-            data = b""
-        if not data:
-            self._tcp_disconnected()
-        return data, None
+            return False
+        except OSError as exc:  # e.g. ECONNREFUSED reported for an earlier datagram
+            log.debug("recv failed: %s", exc)
+            return False
+        if getattr(conn, "udp_server", False):  # pymavlink's client list, used by conn.write
+            new = sender not in conn.clients
+            conn.clients.add(sender)
+            conn.clients_last_alive[sender] = time.time()
+            if new:
+                self._greet(sender)
+        self._parse(conn.mav, data, sender)
+        # A frame never spans UDP datagrams: drop a partial tail so that garbage from one client
+        # cannot swallow the next datagram (of any client).
+        conn.mav.buf = bytearray()
+        conn.mav.buf_index = 0
+        return True
+
+    def _parse(self, parser, data: bytes, origin: object) -> None:
+        try:
+            messages = parser.parse_buffer(data) or []
+        except Exception as exc:  # malformed input must never stop the simulator
+            self.stats["bad"] += 1
+            log.debug("unparseable input (%s)", exc)
+            messages = []
+        self._inbox.extend((msg, origin) for msg in messages)
 
     def _poll(self) -> None:
-        for _ in range(64):  # bounded: never starve the physics
-            data, sender = self._read_bytes()
-            if not data:
-                return
-            parser = self.conn.mav
-            try:
-                messages = parser.parse_buffer(data) or []
-            except Exception as exc:  # malformed input must never stop the simulator
-                self.stats["bad"] += 1
-                log.debug("unparseable input (%s)", exc)
-                messages = []
-            if sender is not None:
-                # A frame never spans UDP datagrams: drop a partial tail so that garbage from one
-                # client cannot swallow the next datagram (of any client).
-                parser.buf = bytearray()
-                parser.buf_index = 0
-            for msg in messages:
-                self.stats["received"] += 1
-                try:
-                    self.handle(msg)
-                    if sender is not None:
-                        self._route(msg, sender)
-                except Exception:  # a handler bug on odd input is logged, never fatal
-                    self.stats["bad"] += 1
-                    log.exception("error handling %s", msg.get_type())
+        """Free-running: apply everything that has arrived (bounded: never starve the physics)."""
+        for _ in range(64):
+            while self._inbox:
+                self._dispatch(self._inbox.popleft())
+            if not self._receive():
+                break
+        while self._inbox:
+            self._dispatch(self._inbox.popleft())
 
-    def _route(self, msg, sender: tuple) -> None:
-        """Forward a UDP client's message to the other clients unless it was for the autopilot only.
+    def _dispatch(self, item: tuple[object, object]) -> None:
+        msg, origin = item
+        self.stats["received"] += 1
+        self._origin = origin
+        try:
+            self.handle(msg)
+            self._route(msg, origin)
+        except Exception:  # a handler bug on odd input is logged, never fatal
+            self.stats["bad"] += 1
+            log.exception("error handling %s", msg.get_type())
+        finally:
+            self._origin = None
+
+    def _route(self, msg, origin: object) -> None:
+        """Forward a client's message to the other clients unless it was for the autopilot only.
 
         This is what an autopilot's MAVLink routing does for a GCS and a companion computer on
         different links: the companion's STATUSTEXT/NAMED_VALUE_FLOAT reach the GCS, and a GCS's
         COMMAND_LONG to component 191 reaches the companion.
         """
-        clients = getattr(self.conn, "clients", None)
-        if not clients or len(clients) < 2 or msg.get_type() == "BAD_DATA":
+        if msg.get_type() == "BAD_DATA":
             return
+        if self._tcp is not None:
+            if len(self._tcp.clients) < 2:
+                return
+        else:
+            clients = getattr(self.conn, "clients", None)
+            if not clients or len(clients) < 2 or origin is None:
+                return
         target_system = getattr(msg, "target_system", 0)
         target_component = getattr(msg, "target_component", 0)
         if target_system == int(self.params["SYSID_THISMAV"]) and \
                 target_component == mavlink.MAV_COMP_ID_AUTOPILOT1:
             return
         frame = msg.get_msgbuf()
+        if self._tcp is not None:
+            self._tcp.send(bytes(frame), exclude=origin)
+            return
         for client in list(clients):
-            if client != sender:
+            if client != origin:
                 try:
                     self.conn.port.sendto(frame, client)
                 except OSError as exc:

@@ -54,8 +54,17 @@ def start(gcs, command: int, param1: float = 0.0, timeout_s: float = 30.0) -> li
     return []
 
 
-def arm(gcs) -> None:
+def arm(gcs, timeout_s: float = 20.0) -> None:
+    """Arm, and wait for the vehicle's HEARTBEAT to show it, as a ground station does before it
+    starts anything: the companion hears the same heartbeat before the command routed after it
+    (a start sent at once raced the companion's view of the armed flag)."""
     gcs.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # MAV_CMD_COMPONENT_ARM_DISARM
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        msg = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
+        if msg is not None and msg.get_srcComponent() == 1 and msg.base_mode & 128:  # SAFETY_ARMED
+            return
+    raise AssertionError("the vehicle's heartbeat never showed it armed")
 
 
 def wait_for_companion(gcs, timeout_s: float = 20.0) -> None:

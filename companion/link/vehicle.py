@@ -298,8 +298,10 @@ class VehicleLink:
         wall_start = time.monotonic()
         wall_deadline = wall_start + (self.timeouts.wall_guard_s if wall_guard_s is None else wall_guard_s)
         while not done():
+            # in lockstep the companion never lags the stream (the simulator waits for it), so the
+            # wall-clock minimum would only let the vehicle run on for a machine-dependent time (issue 12)
             if (math.isfinite(start_vehicle) and self.vehicle_time_s - start_vehicle >= vehicle_timeout_s
-                    and time.monotonic() - wall_start >= self.timeouts.min_try_wall_s):
+                    and (self.lockstep or time.monotonic() - wall_start >= self.timeouts.min_try_wall_s)):
                 return False
             if not math.isfinite(start_vehicle) and math.isfinite(self.vehicle_time_s):
                 start_vehicle = self.vehicle_time_s  # vehicle clock appeared while waiting
@@ -307,9 +309,10 @@ class VehicleLink:
             if remaining <= 0.0:
                 return False
             self._pump(min(remaining, 0.1))
-            if self.lockstep and self._last_attitude_ms is not None:
-                # blocked on an answer: let the simulator run on (a real vehicle would)
-                self._acknowledge(int(self._last_attitude_ms))
+            if self.lockstep:
+                # blocked on an answer: let the simulator run on (a real vehicle would); 0 before any
+                # sample starts a simulator that waits at t = 0 for its companion
+                self._acknowledge(int(self._last_attitude_ms) if self._last_attitude_ms is not None else 0)
         return True
 
     def _acknowledge(self, time_ms: int) -> None:
@@ -328,8 +331,8 @@ class VehicleLink:
         queued user commands are handed to the callback before returning. Raises LinkLost after
         ``timeout_s`` of wall clock without a snapshot, VehicleRebooted when time_boot_ms jumps back.
         """
-        if self.lockstep and self._returned_ms is not None:
-            self._acknowledge(self._returned_ms)  # everything the last snapshot asked for is sent
+        if self.lockstep:  # everything the last snapshot asked for is sent (0: start the waiting simulator)
+            self._acknowledge(self._returned_ms if self._returned_ms is not None else 0)
         deadline = time.monotonic() + timeout_s
         while not self._unread_snapshots:
             remaining = deadline - time.monotonic()
