@@ -16,8 +16,9 @@ the machine's load or the scheduling of the two processes:
 
 The one wall-clock rule left: a companion silent for ``SILENCE_S`` (it crashed, or a UDP client
 left; a TCP companion's disconnection is seen at once) releases the vehicle, which then free-runs
-until a companion acknowledges again. ``stats`` counts such releases and the ticks run free after
-the first acknowledgement, so a run can say whether it was exact.
+until a companion acknowledges again. ``stats`` counts the *interruptions* — a release a companion
+came back from — and the ticks they ran free, so a run can say whether it was exact (the release
+when the companion finally disconnects is not one: nothing of the run follows it).
 """
 from __future__ import annotations
 
@@ -41,7 +42,9 @@ class Lockstep:
         self.released = False  # a companion was engaged and left: free-run until the next one
         self.last_ack_wall = 0.0
         self.client: object | None = None  # the TCP client the acknowledgements come from
-        self.stats: dict[str, float | int | None] = {"engaged_at_s": None, "acks": 0, "releases": 0, "free_ticks": 0}
+        self.stats: dict[str, float | int | None] = {"engaged_at_s": None, "acks": 0, "interruptions": 0,
+                                                     "free_ticks": 0}
+        self._free_since_release = 0  # ticks run free since the last release (counted if a companion returns)
 
     def limit(self, tick: int, lead_ticks: int, now: float) -> int | None:
         """The last tick the physics may reach now; None to free-run."""
@@ -66,6 +69,10 @@ class Lockstep:
             # vehicle already is when it was released
             self.acked_tick = max(acked, tick)
             self.engaged = True
+            if self.released:  # a companion acknowledges again after the vehicle ran free
+                self.stats["interruptions"] += 1
+                self.stats["free_ticks"] += self._free_since_release
+                self._free_since_release = 0
             self.released = False
             if self.stats["engaged_at_s"] is None:
                 self.stats["engaged_at_s"] = round(self.acked_tick * self.dt, 6)
@@ -84,7 +91,6 @@ class Lockstep:
         self.engaged = False
         self.released = True
         self.client = None
-        self.stats["releases"] += 1
         log.warning("lockstep released (%s): vehicle time runs free until a companion acknowledges again", why)
 
     def client_left(self, client: object) -> None:
@@ -93,6 +99,6 @@ class Lockstep:
             self.release("the companion disconnected")
 
     def count_free(self, ticks: int) -> None:
-        """Ticks stepped without lockstep after it first engaged (0 in an exact run)."""
-        if self.enabled and self.stats["engaged_at_s"] is not None and not self.engaged:
-            self.stats["free_ticks"] += ticks
+        """Ticks stepped without lockstep after a release (counted when a companion comes back)."""
+        if self.enabled and self.released:
+            self._free_since_release += ticks

@@ -321,7 +321,7 @@ class SimServer:
 
     def summary(self) -> dict:
         """What the run did, for the ``STATS`` line on exit: counters and the lockstep record (an
-        exact run has ``free_ticks`` 0 and ``releases`` 0)."""
+        exact run has ``interruptions`` 0)."""
         return {"vehicle_s": round(self.tick * self.dt, 6), "sent": self.stats["sent"],
                 "received": self.stats["received"], "bad": self.stats["bad"],
                 "dropped": self.stats["dropped"] + (self._tcp.dropped if self._tcp is not None else 0),

@@ -8,6 +8,7 @@ nowhere else.
 """
 from __future__ import annotations
 
+import json
 import logging
 import os
 import select
@@ -21,10 +22,24 @@ log = logging.getLogger(__name__)
 
 #: the simulator's start-up line (sim/__main__.py), e.g. ``READY tcpin:127.0.0.1:40892``
 READY_PREFIX = "READY "
+#: its last line at exit under ``--lockstep``: ``STATS {json}`` (counters and the lockstep record)
+STATS_PREFIX = "STATS "
 
 
 class SimulatorError(RuntimeError):
     pass
+
+
+def parse_stats(text: str) -> dict | None:
+    """The ``STATS {json}`` line among the simulator's last stdout lines (None without one)."""
+    for line in reversed(text.splitlines()):
+        if line.startswith(STATS_PREFIX):
+            try:
+                stats = json.loads(line[len(STATS_PREFIX):])
+            except ValueError:
+                return None
+            return stats if isinstance(stats, dict) else None
+    return None
 
 
 def parse_ready(line: str) -> tuple[str, str, int] | None:
@@ -67,6 +82,8 @@ class SimulatorProcess:
     ardupilot_bin: str | None = None
     process: subprocess.Popen | None = None
     port: int = 0
+    #: what the simulator reported at exit (``STATS`` line, lockstep only; None before or without)
+    stats: dict | None = None
 
     @property
     def endpoint(self) -> str:
@@ -146,6 +163,10 @@ class SimulatorProcess:
                 self.process.kill()
                 self.process.wait()
         if self.process.stdout is not None and not self.process.stdout.closed:
+            try:
+                self.stats = parse_stats(self.process.stdout.read()) or self.stats
+            except (OSError, ValueError):
+                pass
             self.process.stdout.close()
         return self.process.returncode
 

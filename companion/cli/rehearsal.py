@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from companion.cli.launcher import SimulatorError, SimulatorProcess  # noqa: F401 - re-exported
+from companion.cli.reproducibility import reproducibility_record
 from companion.procedures.app import AbortFlag, ConsoleProgress, finite_or_none, run_campaign, vehicle_record
 from companion.procedures.campaign import CampaignConfig
 from companion.records.report import write_report
@@ -247,6 +248,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
             if outcome.status == "completed" and config.steady_state:
                 extra["steady_state"] = _run_steady_state(link, store, config, campaign_id, abort, summary)
         finally:
+            snapshots_dropped = link.snapshots_dropped
             link.close()
         truth, speeds = {}, {}
         for attempt in campaign.accepted:
@@ -270,6 +272,11 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                      summary={k: v for k, v in summary.items() if k != "design"},
                      delta_max=config.campaign.yaw.training_amplitude)
         summary["wall_time_s"] = round(time.monotonic() - started, 2)
+    # after the simulator stopped: its exit report says whether lockstep held (issue 12)
+    summary["reproducibility"] = reproducibility_record(config.autopilot, simulator.lockstep, simulator.stats,
+                                                        snapshots_dropped)
+    if not summary["reproducibility"]["exact"]:
+        log.warning("this rehearsal may not be reproducible: %s", "; ".join(summary["reproducibility"]["varied"]))
     (out / "summary.json").write_text(json.dumps(json_safe(summary), indent=1, allow_nan=False))
     return summary
 
