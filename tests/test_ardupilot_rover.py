@@ -187,3 +187,42 @@ def test_rehearse_exits_zero_only_with_verified_gains_and_reports_math_free_json
     summary = json.loads(done.stdout, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
     assert (done.returncode == 0) == (summary["status"] == "completed" and summary["final_gains"] is not None)
     assert all(math.isfinite(r["r2"]) for r in summary["runs"])
+
+
+def test_steady_state_squares_and_turns_against_the_connected_firmware(tmp_path):
+    """``companion run-behavior steady-state --connect`` on ArduRover (issue 14): the turns (rudder and
+    throttle held in MANUAL) find a known current; the squares fly GUIDED, whose speed loop holds the
+    speed over ground, so their current estimate is only reported (README: a known limitation)."""
+    import json
+    import subprocess
+    import sys
+
+    from companion.link.vehicle import VehicleLink
+
+    current = (0.03, -0.025)  # 39 mm/s towards 320°
+    with SimulatorProcess("boat", 20.0, 2, current, autopilot="ardurover", ardupilot_bin=BIN, lockstep=False,
+                          ready_timeout_s=120.0) as sim:
+        link = VehicleLink.connect(sim.endpoint, heartbeat_timeout_s=60.0, vehicle=preset_vehicle("boat"))
+        try:
+            arm_when_ready(link, patience_s=120.0)  # a user arms the boat; the procedure never does
+            found = _found(link)
+        finally:
+            link.close()
+        done = subprocess.run([sys.executable, "-m", "companion", "run-behavior", "steady-state", "--connect",
+                               sim.endpoint, "--profile", "ardurover", "--rudder-rate", "5", "--duration", "60",
+                               "--thrust", "0.6", "--store", str(tmp_path / "s.sqlite"), "--json"],
+                              capture_output=True, text=True, timeout=300, check=False)
+        summary = json.loads(done.stdout)
+        assert done.returncode == 0 and summary["status"] == "completed", done.stderr[-2000:]
+        assert len(summary["turns"]) == 2
+        for turn in summary["turns"]:
+            assert abs(turn["rudder_deg"]) == pytest.approx(12.5, abs=0.2)
+            assert 5.0 < turn["radius_m"] < 20.0
+            assert math.hypot(turn["current_speed"] * math.cos(math.radians(turn["current_dir_deg"])) - current[0],
+                              turn["current_speed"] * math.sin(math.radians(turn["current_dir_deg"])) - current[1]) < 0.005
+        assert summary["squares"]["surge_water"] == pytest.approx(1.5, abs=0.1)
+        link = VehicleLink.connect(sim.endpoint, heartbeat_timeout_s=60.0, vehicle=preset_vehicle("boat"))
+        try:
+            _assert_as_found(link, found)
+        finally:
+            link.close()

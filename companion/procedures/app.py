@@ -231,8 +231,8 @@ def _tell(link, text: str, severity: int) -> None:
 
 def run_named_behavior(name: str, link, store: Store, *, vehicle_id: int, campaign_id: int | None, abort,
                        preset: str | None = None, simulator: bool = True, roll_config=None,
-                       min_speed_config=None) -> dict:
-    """:func:`run_named_procedure` for ``roll`` / ``min_speed`` with their configurations."""
+                       min_speed_config=None, steady_config=None) -> dict:
+    """:func:`run_named_procedure` for ``roll`` / ``min_speed`` / ``steady_state`` with their configurations."""
     from dataclasses import replace as _replace
 
     from companion.procedures.registry import ProcedureContext
@@ -242,5 +242,7 @@ def run_named_behavior(name: str, link, store: Store, *, vehicle_id: int, campai
         context = _replace(context, roll=roll_config)
     if min_speed_config is not None:
         context = _replace(context, min_speed=min_speed_config)
+    if steady_config is not None:
+        context = _replace(context, steady_state=steady_config)
     return run_named_procedure(name, link, store, vehicle_id=vehicle_id, campaign_id=campaign_id, abort=abort,
                                context=context)

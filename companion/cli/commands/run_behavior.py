@@ -1,4 +1,5 @@
-"""``companion run-behavior roll|min-speed``: one closed-loop behaviour against any vehicle (SPEC C6, C7)."""
+"""``companion run-behavior roll|min-speed|steady-state``: one closed-loop procedure against any
+vehicle (SPEC C6, C7, C8)."""
 from __future__ import annotations
 
 import argparse
@@ -11,17 +12,23 @@ from companion.cli.commands._common import (ConnectFailed, add_connect_arguments
 
 def add_parser(subparsers) -> None:
     parser = subparsers.add_parser(
-        "run-behavior", help="run roll stabilisation or minimum-speed seeking on a vehicle",
+        "run-behavior", help="run roll stabilisation, minimum-speed seeking or the steady-state squares and turns",
         description="roll: records roll with the rolling mass centred, then stabilises it for --duration s "
                     "(vehicle time). min-speed: settles at the nominal thrust in the heading-and-depth hold "
                     "mode, then lowers the thrust to the least that still holds depth for --duration s. "
-                    "Ctrl-C aborts: mass centred / nominal thrust, mode and gains restored.")
-    parser.add_argument("behavior", choices=("roll", "min-speed"))
+                    "steady-state: a square of four legs of --duration s at --thrust, then steady turns with "
+                    "the rudder held at +-12.5 deg for --duration s each; prints the water-relative speed, the "
+                    "current and the turning radius. Ctrl-C aborts: mass centred / thrust, rudder, mode and "
+                    "gains restored.")
+    parser.add_argument("behavior", choices=("roll", "min-speed", "steady-state"))
     add_connect_arguments(parser)
     add_store_argument(parser)
     parser.add_argument("--duration", type=float, default=None,
-                        help="vehicle seconds of closed-loop operation (default: roll 60, min-speed 200)")
-    parser.add_argument("--thrust", type=float, default=0.70, help="cruise / nominal thrust ratio (default: %(default)s)")
+                        help="vehicle seconds of closed-loop operation (default: roll 60, min-speed 200); "
+                             "steady-state: per leg and per turn (default 120 and 150)")
+    parser.add_argument("--thrust", type=float, default=None,
+                        help="cruise / nominal thrust ratio (default: 0.7; steady-state 0.6 on the legs, 0.5 in "
+                             "the turns); on ArduRover a fraction of WP_SPEED")
     parser.add_argument("--period", type=float, default=None, help="min-speed: decision period Ts in s (default: 1)")
     parser.add_argument("--preset", default=None,
                         help="min-speed: simulator preset whose vehicle data give the analytic TR* and Vmin")
@@ -36,22 +43,33 @@ def run(args: argparse.Namespace) -> int:
     from companion.procedures.app import run_named_behavior
     from companion.procedures.min_speed import MinSpeedProcedureConfig
     from companion.procedures.roll import RollProcedureConfig
+    from companion.procedures.steady_state import SteadyStateConfig
     from companion.records.store import Store
 
     name = args.behavior.replace("-", "_")
-    roll = RollProcedureConfig(thrust=args.thrust)
-    min_speed = MinSpeedProcedureConfig(nominal_thrust=args.thrust, period_s=args.period)
+    if args.thrust is not None and not (0.0 < args.thrust <= 1.0):
+        print(f"--thrust must be in (0, 1], not {args.thrust!r}", file=sys.stderr)
+        return 2
+    thrust = 0.70 if args.thrust is None else args.thrust
+    roll = RollProcedureConfig(thrust=thrust)
+    min_speed = MinSpeedProcedureConfig(nominal_thrust=thrust, period_s=args.period)
+    steady = SteadyStateConfig()
+    if args.thrust is not None:
+        steady = replace(steady, squares=replace(steady.squares, thrust_ratio=args.thrust),
+                         turns=replace(steady.turns, thrust_ratio=args.thrust))
     if args.duration is not None:
-        if args.duration <= 0:
+        if not args.duration > 0:  # also refuses NaN
             print("--duration must be positive", file=sys.stderr)
             return 2
         roll = replace(roll, closed_s=args.duration)
         min_speed = replace(min_speed, duration_s=args.duration)
+        steady = replace(steady, squares=replace(steady.squares, leg_s=args.duration),
+                         turns=replace(steady.turns, turn_s=args.duration))
     try:
         with connected_vehicle(args) as (link, abort), Store(args.store) as store:
             outcome = run_named_behavior(name, link, store, vehicle_id=vehicle_record(store, link), campaign_id=None,
                                          abort=abort, preset=args.preset, simulator=args.simulator_hooks,
-                                         roll_config=roll, min_speed_config=min_speed)
+                                         roll_config=roll, min_speed_config=min_speed, steady_config=steady)
     except ConnectFailed as exc:
         print(exc, file=sys.stderr)
         return 1
