@@ -8,7 +8,8 @@ Two least-squares formulations from the HUGIN 4500 paper (seed ``000_*``):
   ``θ = (v_wb (3), vc_n, vc_e)``, solved with :func:`numpy.linalg.lstsq` (on the triangle of a
   block-wise QR of ``H``: the same solution, in memory bounded by one block).
 * **Steady turns**, eq. 9, 10: ``p(t) = r0 + vc·t + R·[cos(ωt − φ0), sin(ωt − φ0)]`` fitted to the
-  horizontal positions with :func:`scipy.optimize.least_squares`.
+  horizontal positions by Levenberg–Marquardt, each step from a block-wise QR of the Jacobian
+  (memory of one block, however long the log).
 
 Conventions (NED, the paper's {m} frame): x north, y east, z down; angles in radians.
 **Current direction**: ``current_dir_deg`` is the direction the current flows **towards**, in
@@ -23,7 +24,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
 
@@ -221,32 +221,41 @@ class StraightLegFit:
         }
 
 
-def fit_straight_legs(roll, pitch, yaw, vel_body) -> StraightLegFit:
+def fit_straight_legs(roll, pitch, yaw, vel_body, mask: np.ndarray | None = None) -> StraightLegFit:
     """Stacked linear least squares of eq. 7–8 for θ = (v_wb, vc_n, vc_e) (SPEC C8).
 
     ``vel_body`` (N, 3) is the body velocity over ground z = v_mb^b; roll/pitch/yaw give R_mb. The
     samples should come from several headings (a square), otherwise the current is unobservable
-    (a large ``condition_number`` tells). Raises ValueError on too few samples.
+    (a large ``condition_number`` tells). ``mask`` (boolean, one per sample) fits only the samples
+    it selects, without copying the others out first. Raises ValueError on too few samples.
     """
     z = np.asarray(vel_body, float)
     if z.ndim != 2 or z.shape[1] != 3:
         raise ValueError("vel_body must have shape (N, 3)")
-    n = z.shape[0]
+    chosen = np.ones(z.shape[0], bool) if mask is None else np.asarray(mask, bool)
+    n = int(chosen.sum())
     if n < 3:
         raise ValueError(f"need at least 3 samples for the straight-leg fit, got {n}")
     roll, pitch, yaw = (np.asarray(a, float) for a in (roll, pitch, yaw))
+
+    def rows(block: slice) -> np.ndarray:
+        pick = chosen[block]
+        return _straight_leg_rows(roll[block][pick], pitch[block][pick], yaw[block][pick], z[block][pick])
+
     # H is 3N×5: reduce it block by block to the 6×6 triangle of [H z] (a tall-skinny QR), so a
     # long log needs memory for one block, not for H; the solution is lstsq's on the full H.
     triangle = np.zeros((0, 6))
-    for block in _blocks(n):
-        triangle = np.linalg.qr(np.vstack([triangle, _straight_leg_rows(roll[block], pitch[block], yaw[block],
-                                                                           z[block])]), mode="r")
+    for block in _blocks(z.shape[0]):
+        triangle = np.linalg.qr(np.vstack([triangle, rows(block)]), mode="r")
     r, qtz = triangle[:5, :5], triangle[:5, 5]
     theta, *_ = np.linalg.lstsq(r, qtz, rcond=None)
-    residuals = np.empty_like(z)
-    for block in _blocks(n):
-        rows = _straight_leg_rows(roll[block], pitch[block], yaw[block], z[block])
-        residuals[block] = (rows[:, 5] - rows[:, :5] @ theta).reshape(-1, 3)
+    residuals = np.empty((n, 3))
+    filled = 0
+    for block in _blocks(z.shape[0]):
+        block_rows = rows(block)
+        count = block_rows.shape[0] // 3
+        residuals[filled:filled + count] = (block_rows[:, 5] - block_rows[:, :5] @ theta).reshape(-1, 3)
+        filled += count
     dof = 3 * n - 5
     variance = float(np.sum(residuals * residuals)) / dof
     covariance = variance * np.linalg.inv(r.T @ r)  # (HᵀH)⁻¹ = (RᵀR)⁻¹
@@ -355,18 +364,93 @@ class TurnFit:
         }
 
 
-def _linear_given_rate(tau: np.ndarray, pos: np.ndarray, rate: float) -> tuple[np.ndarray, float]:
-    """For a fixed ω eq. 9 is linear in (r0, vc, R·cosφ0, R·sinφ0): solve it, return (coefs, SSR)."""
+def _reduce(rows_of, n: int, width: int) -> np.ndarray:
+    """The ``width``×``width`` triangle R of a QR of the tall matrix whose rows ``rows_of(block)``
+    gives for consecutive blocks of the ``n`` samples (tall-skinny QR: memory of one block)."""
+    triangle = np.zeros((0, width))
+    for block in _blocks(n):
+        triangle = np.linalg.qr(np.vstack([triangle, rows_of(block)]), mode="r")
+    if triangle.shape[0] < width:  # fewer rows than columns: pad (R's missing rows are zero)
+        triangle = np.vstack([triangle, np.zeros((width - triangle.shape[0], width))])
+    return triangle
+
+
+def _solve_triangle(triangle: np.ndarray) -> tuple[np.ndarray, float]:
+    """(x, SSR) of min ‖A·x − b‖² from the triangle of a QR of [A b] (the last column is b)."""
+    r, qtb = triangle[:-1, :-1], triangle[:-1, -1]
+    x, *_ = np.linalg.lstsq(r, qtb, rcond=None)
+    return x, float(np.sum((r @ x - qtb) ** 2) + triangle[-1, -1] ** 2)
+
+
+def _linear_rows(tau: np.ndarray, pos: np.ndarray, rate: float) -> np.ndarray:
+    """Rows [H y] of eq. 9 at a fixed ω, linear in (r0, vc, R·cosφ0, R·sinφ0), shape (2m, 7)."""
     c, s = np.cos(rate * tau), np.sin(rate * tau)
     ones, zeros = np.ones_like(tau), np.zeros_like(tau)
     # x = r0x + vcx·t + a·cos + b·sin ;  y = r0y + vcy·t + a·sin − b·cos   (a = R cosφ0, b = R sinφ0)
-    hx = np.column_stack([ones, zeros, tau, zeros, c, s])
-    hy = np.column_stack([zeros, ones, zeros, tau, s, -c])
-    h = np.vstack([hx, hy])
-    y = np.concatenate([pos[:, 0], pos[:, 1]])
-    coef, *_ = np.linalg.lstsq(h, y, rcond=None)
-    r = y - h @ coef
-    return coef, float(r @ r)
+    hx = np.column_stack([ones, zeros, tau, zeros, c, s, pos[:, 0]])
+    hy = np.column_stack([zeros, ones, zeros, tau, s, -c, pos[:, 1]])
+    return np.vstack([hx, hy])
+
+
+def _linear_given_rate(tau: np.ndarray, pos: np.ndarray, rate: float) -> tuple[np.ndarray, float]:
+    """For a fixed ω eq. 9 is linear in (r0, vc, R·cosφ0, R·sinφ0): solve it, return (coefs, SSR)."""
+    return _solve_triangle(_reduce(lambda b: _linear_rows(tau[b], pos[b], rate), tau.size, 7))
+
+
+def _turn_model(phi: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(x, y, cos, sin) of eq. 9 at Φ for times τ."""
+    angle = phi[4] * tau - phi[5]
+    c, s = np.cos(angle), np.sin(angle)
+    return phi[0] + phi[2] * tau + phi[6] * c, phi[1] + phi[3] * tau + phi[6] * s, c, s
+
+
+def _turn_rows(phi: np.ndarray, tau: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """Rows [J r] of the turn fit at Φ: the model's Jacobian (∂h/∂Φ, eq. 9) and the residual
+    r = p − h(Φ), x rows then y rows, shape (2m, 8)."""
+    x, y, c, s = _turn_model(phi, tau)
+    ones, zeros = np.ones_like(tau), np.zeros_like(tau)
+    radius = phi[6]
+    jx = np.column_stack([ones, zeros, tau, zeros, -radius * s * tau, radius * s, c, pos[:, 0] - x])
+    jy = np.column_stack([zeros, ones, zeros, tau, radius * c * tau, -radius * c, s, pos[:, 1] - y])
+    return np.vstack([jx, jy])
+
+
+def _turn_ssr(phi: np.ndarray, tau: np.ndarray, pos: np.ndarray) -> float:
+    total = 0.0
+    for block in _blocks(tau.size):
+        x, y, _, _ = _turn_model(phi, tau[block])
+        total += float(np.sum((pos[block, 0] - x) ** 2) + np.sum((pos[block, 1] - y) ** 2))
+    return total
+
+
+def _levenberg_marquardt(phi: np.ndarray, tau: np.ndarray, pos: np.ndarray,
+                         max_evaluations: int = 200) -> tuple[np.ndarray, np.ndarray, int]:
+    """Levenberg–Marquardt on eq. 9 from Φ (scaled by the Jacobian's column norms, as MINPACK's
+    ``lm``), each step from the 8×8 triangle of a block-wise QR of [J r]: memory of one block
+    whatever the log's length. Returns (Φ, triangle R of J at Φ, evaluations)."""
+    ssr = _turn_ssr(phi, tau, pos)
+    damping, evaluations = 1e-3, 1
+    while evaluations < max_evaluations:
+        triangle = _reduce(lambda b: _turn_rows(phi, tau[b], pos[b]), tau.size, 8)
+        r, qtr = triangle[:7, :7], triangle[:7, 7]
+        scale = np.maximum(np.linalg.norm(r, axis=0), 1e-300)
+        while evaluations < max_evaluations:
+            augmented = np.vstack([r, math.sqrt(damping) * np.diag(scale)])
+            step, *_ = np.linalg.lstsq(augmented, np.concatenate([qtr, np.zeros(7)]), rcond=None)
+            trial = phi + step
+            trial_ssr = _turn_ssr(trial, tau, pos)
+            evaluations += 1
+            if trial_ssr <= ssr:
+                break
+            damping *= 10.0
+            if damping > 1e12:
+                return phi, r, evaluations
+        converged = ssr - trial_ssr <= 1e-12 * ssr or np.all(np.abs(step * scale) <= 1e-10 * (np.abs(phi * scale) + 1e-10))
+        phi, ssr, damping = trial, trial_ssr, max(damping / 10.0, 1e-12)
+        if converged:
+            break
+    triangle = _reduce(lambda b: _turn_rows(phi, tau[b], pos[b]), tau.size, 8)
+    return phi, triangle[:7, :7], evaluations
 
 
 def _rate_from_positions(tau: np.ndarray, pos: np.ndarray) -> float:
@@ -390,7 +474,9 @@ def fit_steady_turn(t, north, east, yaw=None) -> TurnFit:
     when ``yaw`` is given (in a steady turn the heading rate equals ω), otherwise from the
     periodogram of the detrended path; then a 1-D scan of ω over ±30 % around ω0 where, for each ω,
     eq. 9 is linear in the other six parameters and is solved exactly; the best scan point seeds
-    :func:`scipy.optimize.least_squares` on all seven. Raises ValueError on too few samples.
+    a Levenberg–Marquardt refinement of all seven (:func:`_levenberg_marquardt`, the scaling of
+    MINPACK's ``lm``; each step from the triangle of a block-wise QR of [J r], so memory stays that
+    of one block). Raises ValueError on too few samples.
     """
     t = np.asarray(t, float)
     pos = np.column_stack([np.asarray(north, float), np.asarray(east, float)])
@@ -415,26 +501,20 @@ def fit_steady_turn(t, north, east, yaw=None) -> TurnFit:
     radius0, phase0 = math.hypot(a, b), math.atan2(b, a)
     x0 = np.array([coef[0], coef[1], coef[2], coef[3], rate_init, phase0, radius0])
 
-    def residual(phi: np.ndarray) -> np.ndarray:
-        angle = phi[4] * tau - phi[5]
-        model_x = phi[0] + phi[2] * tau + phi[6] * np.cos(angle)
-        model_y = phi[1] + phi[3] * tau + phi[6] * np.sin(angle)
-        return np.concatenate([pos[:, 0] - model_x, pos[:, 1] - model_y])
-
-    sol = least_squares(residual, x0, method="lm", x_scale="jac")
-    phi = sol.x.copy()
+    phi, r, evaluations = _levenberg_marquardt(x0, tau, pos)
     if phi[6] < 0:  # (R, φ0) and (−R, φ0 + π) describe the same path: keep R > 0
         phi[6], phi[5] = -phi[6], phi[5] + math.pi
     phi[5] = math.atan2(math.sin(phi[5]), math.cos(phi[5]))
-    res = residual(phi)
-    dof = res.size - 7
-    variance = float(res @ res) / dof
-    jac = sol.jac
+    r = _reduce(lambda b: _turn_rows(phi, tau[b], pos[b]), tau.size, 8)[:7, :7]  # J at the Φ reported
+    x, y, _, _ = _turn_model(phi, tau)
+    residuals = np.column_stack([pos[:, 0] - x, pos[:, 1] - y])
+    m = t.size
+    ssr = float(np.sum(residuals * residuals))
+    variance = ssr / (2 * m - 7)
     try:
-        covariance = variance * np.linalg.inv(jac.T @ jac)
+        covariance = variance * np.linalg.inv(r.T @ r)  # JᵀJ = RᵀR
     except np.linalg.LinAlgError:
         covariance = np.full((7, 7), np.nan)
-    m = t.size
     return TurnFit(
         center=phi[:2],
         current=phi[2:4],
@@ -443,10 +523,10 @@ def fit_steady_turn(t, north, east, yaw=None) -> TurnFit:
         radius=float(phi[6]),
         t0=t0,
         covariance=covariance,
-        residual_std=math.sqrt(float(res @ res) / max(1, 2 * m - 7)),
-        residuals=np.column_stack([res[:m], res[m:]]),
+        residual_std=math.sqrt(ssr / max(1, 2 * m - 7)),
+        residuals=residuals,
         samples=m,
-        iterations=int(sol.nfev),
+        iterations=evaluations,
         initial_guess={"rate_source": source, "rate0": rate0, "rate_scan": rate_init, "radius0": radius0},
     )
 

@@ -143,10 +143,9 @@ def analyze_squares(nav: NavLog, cut: bool = True, rate_tol: float = math.radian
         mask = steady_straight_mask(nav.t, nav.yaw, nav.vel_body, rate_tol, speed_tol)
         if mask.sum() < 10:
             raise ValueError("no steady straight leg found (try --no-cut or a larger --rate-tol-deg)")
-        used = nav.select(mask)
     else:
-        mask, used = np.ones(len(nav), bool), nav
-    fit = fit_straight_legs(used.roll, used.pitch, used.yaw, used.vel_body)
+        mask = np.ones(len(nav), bool)
+    fit = fit_straight_legs(nav.roll, nav.pitch, nav.yaw, nav.vel_body, mask=mask)  # selects block by block
     if not fit.condition_number <= MAX_SQUARES_CONDITION:
         raise ValueError(f"the legs' headings do not separate the current from the vehicle's velocity (cond(H) "
                          f"{fit.condition_number:.3g} > {MAX_SQUARES_CONDITION:g}): fly legs on at least two headings, "
