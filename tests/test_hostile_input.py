@@ -188,8 +188,10 @@ def test_a_store_written_before_the_application_id_stays_openable(tmp_path):
     db = sqlite3.connect(path)
     db.execute("PRAGMA application_id=0")  # as every store was before the mark existed
     db.close()
+    before = digest(path)
     with Store(path, read_only=True) as store:
         assert store.schema_version == len(MIGRATIONS)
+    assert digest(path) == before  # reading does not mark it
     with Store(path) as store:  # a writing open adopts it
         assert store._db.execute("PRAGMA application_id").fetchone()[0] == APPLICATION_ID
         assert len(store._db.execute("SELECT * FROM vehicles").fetchall()) == 1
