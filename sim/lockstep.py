@@ -14,11 +14,12 @@ the machine's load or the scheduling of the two processes:
   simulator happened to read it". The server stops applying input at the acknowledgement that
   raises the limit; what follows waits for the next limit.
 
-The one wall-clock rule left: a companion silent for ``SILENCE_S`` (it crashed, or a UDP client
-left; a TCP companion's disconnection is seen at once) releases the vehicle, which then free-runs
-until a companion acknowledges again. ``stats`` counts the *interruptions* — a release a companion
-came back from — and the ticks they ran free, so a run can say whether it was exact (the release
-when the companion finally disconnects is not one: nothing of the run follows it).
+When a TCP companion disconnects, vehicle time waits again, as at the start, for the next one
+(whose first acknowledgement engages from where the vehicle is). The one wall-clock rule left: a
+companion silent for ``SILENCE_S`` (it hung, or a UDP client left) releases the vehicle, which then
+free-runs so that other clients keep a live vehicle, until a companion acknowledges again.
+``stats`` counts such *interruptions* that a companion came back from, and the ticks they ran
+free, so a run can say whether it was exact.
 """
 from __future__ import annotations
 
@@ -94,9 +95,13 @@ class Lockstep:
         log.warning("lockstep released (%s): vehicle time runs free until a companion acknowledges again", why)
 
     def client_left(self, client: object) -> None:
-        """A TCP client disconnected: if it was the acknowledging companion, release."""
+        """A TCP client disconnected: if it was the acknowledging companion, vehicle time waits for
+        the next companion where it is (nothing runs free, nothing burns the CPU meanwhile)."""
         if self.engaged and client is not None and client is self.client:
-            self.release("the companion disconnected")
+            self.engaged = False
+            self.client = None
+            log.info("the lockstep companion disconnected: vehicle time waits for the next one at t=%.2f",
+                     self.acked_tick * self.dt)
 
     def count_free(self, ticks: int) -> None:
         """Ticks stepped without lockstep after a release (counted when a companion comes back)."""

@@ -361,6 +361,54 @@ def test_two_udp_clients_both_served(shared_sim, mav_client):
     assert recv_until(b, lambda m: m.get_type() == "ATTITUDE") is not None
 
 
+def test_several_tcp_clients_are_served_at_once(sim_factory, mav_client):
+    """Issue 9 item 7: a second TCP client (the first one idle, not closed) hears the vehicle at
+    once and gets the whole stream, as from ArduPilot's serial ports or MAVProxy's outputs; what
+    one client sends to another component is routed to the others."""
+    sim = sim_factory(transport="tcp", speedup=30)
+    first = mav_client(sim.endpoint)
+    started = time.monotonic()
+    second = mav_client(sim.endpoint, source_system=1, source_component=191)  # while the first idles
+    assert time.monotonic() - started < 5.0
+    for conn in (first, second):
+        assert recv_until(conn, lambda m: m.get_type() == "ATTITUDE") is not None
+    assert param_read(second, "HDG_P") is not None
+    second.mav.named_value_float_send(0, b"a22", -1.1)
+    got = recv_until(first, lambda m: m.get_type() == "NAMED_VALUE_FLOAT", 5.0)
+    assert got is not None and got.name == "a22" and got.get_srcComponent() == 191
+
+
+def test_an_idle_tcp_client_does_not_freeze_the_others(sim_factory, mav_client):
+    """Among several clients one that reads nothing (a hung viewer) loses its frames after a couple
+    of seconds instead of stopping vehicle time for everybody."""
+    sim = sim_factory(transport="tcp", speedup=100)
+    idle = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    idle.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    idle.connect(("127.0.0.1", sim.port))
+    try:
+        reader = mav_client(sim.endpoint)
+        msgs = collect(reader, 60.0, {"ATTITUDE"})  # ~45 s of traffic is more than the idle one buffers
+        assert msgs[-1].time_boot_ms - msgs[0].time_boot_ms >= 60_000
+        assert sim.alive()
+    finally:
+        idle.close()
+
+
+@pytest.mark.parametrize("cli", [["-m", "sim", "run"], ["-m", "companion", "sim"]])
+def test_listen_takes_listening_forms_and_says_what_to_write(cli):
+    """Issue 9 item 7: ``--listen tcp:HOST:PORT`` tried to connect out, with a traceback."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, *cli, "--listen", "tcp:127.0.0.1:5760"], capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 2
+    assert "tcpin:127.0.0.1:5760" in done.stderr and "Traceback" not in done.stderr
+    done = subprocess.run([sys.executable, *cli, "--listen", "/dev/ttyUSB0"], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 2 and "udpin:HOST:PORT or tcpin:HOST:PORT" in done.stderr
+
+
 def test_tcp_client_stall_loses_nothing(sim_factory):
     """TCP is flow-controlled: a client that stops reading delays vehicle time, never drops."""
     sim = sim_factory(transport="tcp", speedup=100)
