@@ -248,7 +248,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
             if outcome.status == "completed" and config.steady_state:
                 extra["steady_state"] = _run_steady_state(link, store, config, campaign_id, abort, summary)
         finally:
-            snapshots_dropped = link.snapshots_dropped
+            snapshots_dropped, wall_timeouts = link.snapshots_dropped, link.wall_timeouts
             link.close()
         truth, speeds = {}, {}
         for attempt in campaign.accepted:
@@ -274,7 +274,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
         summary["wall_time_s"] = round(time.monotonic() - started, 2)
     # after the simulator stopped: its exit report says whether lockstep held (issue 12)
     summary["reproducibility"] = reproducibility_record(config.autopilot, simulator.lockstep, simulator.stats,
-                                                        snapshots_dropped)
+                                                        snapshots_dropped, wall_timeouts)
     if not summary["reproducibility"]["exact"]:
         log.warning("this rehearsal may not be reproducible: %s", "; ".join(summary["reproducibility"]["varied"]))
     (out / "summary.json").write_text(json.dumps(json_safe(summary), indent=1, allow_nan=False))

@@ -19,7 +19,7 @@ ARDUPILOT_TIMING = ("ArduPilot runs its own scheduler: the vehicle time at which
 
 
 def reproducibility_record(autopilot: str, lockstep: bool, simulator_stats: dict | None,
-                           snapshots_dropped: int) -> dict:
+                           snapshots_dropped: int, wall_timeouts: int = 0) -> dict:
     """The summary's ``reproducibility``: ``exact`` (bool), ``varied`` (reasons, empty when exact)
     and the simulator's lockstep record (``engaged_at_s``, ``interruptions``, ``free_ticks``)."""
     if autopilot != "builtin":
@@ -44,6 +44,9 @@ def reproducibility_record(autopilot: str, lockstep: bool, simulator_stats: dict
         varied.append(f"the simulator dropped {dropped} frames for a client that fell behind")
     if snapshots_dropped:
         varied.append(f"the companion dropped {snapshots_dropped} unread telemetry snapshots")
+    if wall_timeouts:
+        varied.append(f"{wall_timeouts} of the companion's waits ended on their wall-clock guard (the vehicle "
+                      "clock stalled for seconds: an overloaded machine)")
     return {"exact": not varied, "varied": varied, "lockstep": record}
 
 

@@ -132,6 +132,7 @@ class VehicleLink:
         # bounded (SNAPSHOT_QUEUE_MAX, ~100 s at 20 Hz) so a caller that never reads cannot grow it forever
         self._unread_snapshots: collections.deque[Telemetry] = collections.deque(maxlen=SNAPSHOT_QUEUE_MAX)
         self.snapshots_dropped = 0
+        self.wall_timeouts = 0  # blocking waits ended by their wall-clock guard (the vehicle clock stalled)
         self._user_callback: Callable[[int, tuple[float, ...]], None] | None = None
         self._user_queue: collections.deque[UserCommand] = collections.deque()
         self.last_user_command: UserCommand | None = None
@@ -307,6 +308,7 @@ class VehicleLink:
                 start_vehicle = self.vehicle_time_s  # vehicle clock appeared while waiting
             remaining = wall_deadline - time.monotonic()
             if remaining <= 0.0:
+                self.wall_timeouts += 1  # a wall-clock decision: counted, so a run can say it was not exact
                 return False
             self._pump(min(remaining, 0.1))
             if self.lockstep:
