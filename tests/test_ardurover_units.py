@@ -118,3 +118,16 @@ def test_held_steering_passes_a_dead_zone_and_the_correction_is_kept_for_the_nex
     strategy.override("rudder", 0.26)
     strategy.release("rudder")
     assert link.commanded["rudder"] == pytest.approx(held)
+
+
+def test_the_profile_gives_a_campaign_its_thrusts_and_axes_unless_the_user_set_them():
+    from companion.link.profiles import get_profile
+    from companion.procedures.campaign import CampaignConfig
+
+    user = CampaignConfig(thrusts=(0.7,), axes=("yaw", "pitch"))
+    rover = user.with_profile_defaults(PROFILE)
+    assert rover.thrusts == (0.6, 0.8, 1.0) and rover.axes == ("yaw",)  # a boat has no dive plane
+    assert user.with_profile_defaults(PROFILE, keep=("thrusts",)).thrusts == (0.7,)
+    sub = CampaignConfig().with_profile_defaults(get_profile("ardusub"))
+    assert sub.thrusts == (0.45, 0.55, 0.65) and sub.yaw.training_amplitude == 0.10
+    assert CampaignConfig().with_profile_defaults(get_profile("sim")) == CampaignConfig()  # our simulator: as is

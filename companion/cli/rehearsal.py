@@ -18,6 +18,7 @@ from pathlib import Path
 from companion.cli.launcher import SimulatorError, SimulatorProcess  # noqa: F401 - re-exported
 from companion.cli.reproducibility import reproducibility_record
 from companion.procedures.app import AbortFlag, ConsoleProgress, finite_or_none, run_campaign, vehicle_record
+from companion.link.autopilots.ardusub import CAMPAIGN_DEFAULTS as ARDUSUB_CAMPAIGN
 from companion.procedures.campaign import CampaignConfig
 from companion.records.report import write_report
 from companion.procedures.runner import SafetyLimits
@@ -91,12 +92,9 @@ def preset_defaults(preset: str) -> dict:
     return {"behaviors": ("roll", "min_speed"), "steady_state": False, "current": (0.0, 0.0)}
 
 
-#: ArduSub (vectored frame) on the STARFISH physics: the forward thrust and the yaw share motors 1-4,
-#: each saturating at ±1, so forward + |yaw| must stay below 1 or both are clipped (forward 0.65
-#: leaves 0.35 of yaw, the 0.12 rad of equivalent rudder the heading loop and a 0.10 rad doublet
-#: need). Thrusts 0.45, 0.55, 0.65 run the AUV at about 0.7, 1.0 and 1.26 m/s.
-ARDUSUB_THRUSTS = (0.45, 0.55, 0.65)
-ARDUSUB_DOUBLETS = (0.10, 0.08)  # rad of equivalent rudder: training, validation (yaw 0.29, 0.23)
+#: ArduSub's campaign defaults (thrusts and doublets that keep its motors out of saturation) live in
+#: its profile: ``companion.link.autopilots.ardusub.CAMPAIGN_DEFAULTS``
+ARDUSUB_THRUSTS = ARDUSUB_CAMPAIGN["thrusts"]
 #: what the companion is told about the AUV under ArduSub: nothing beyond the profile; its equivalent
 #: rudder is the thrusters' yaw differential, no fin servo (sim.ardupilot_sitl.FRAME_LIMITS)
 ARDUSUB_VEHICLE: dict = {}
@@ -109,12 +107,12 @@ ARDUSUB_SIM_ARGS = ("--depth", "2")
 
 
 def ardusub_campaign(campaign: CampaignConfig) -> CampaignConfig:
-    """The campaign a rehearsal flies on ArduSub unless told otherwise: yaw only (no pitch actuator
-    on the vectored frame), at thrusts and doublet amplitudes that keep the motors out of saturation
-    (ArduSub's gain ranges come with its profile: ``companion.link.autopilots.ardusub.GAIN_RANGES``)."""
-    training, validation = ARDUSUB_DOUBLETS
-    return replace(campaign, thrusts=ARDUSUB_THRUSTS, axes=("yaw",),
-                   yaw=replace(campaign.yaw, training_amplitude=training, validation_amplitude=validation))
+    """The campaign a rehearsal flies on ArduSub unless told otherwise: the ArduSub profile's defaults
+    (yaw only, thrusts and doublets that keep the motors out of saturation), as ``identify --connect``
+    on a real sub gets them."""
+    from companion.link.autopilots.ardusub import PROFILE
+
+    return campaign.with_profile_defaults(PROFILE)
 
 
 def preset_vehicle(preset: str) -> dict:

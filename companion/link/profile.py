@@ -75,6 +75,10 @@ class AutopilotProfile:
     # the autopilot's documented ranges of its native heading gains, as CascadeRules fields
     # (e.g. {"rate_ff_range": (0.0, 0.0)}); empty: ArduRover's ranges, the design's defaults
     gain_ranges: dict = field(default_factory=dict)
+    # what a campaign on this autopilot flies unless the user says otherwise (CampaignConfig fields:
+    # thrusts, axes, training_amplitude, validation_amplitude): e.g. ArduSub's thrusts that keep
+    # its vectored motors out of saturation; applied by CampaignConfig.with_profile_defaults
+    campaign_defaults: dict = field(default_factory=dict)
     angle_full_scale_rad: float = 0.5236  # fin angle at pwm_center ± pwm_half_range
     pwm_center: int = 1500
     pwm_half_range: int = 500

@@ -79,6 +79,21 @@ class CampaignConfig:
         options = {"heading": self.bounds, "cascade": self.cascade}
         return [schedule_kind(name, options.get(name)) for name in self.schedules]
 
+    def with_profile_defaults(self, profile, *, keep: tuple[str, ...] = ()) -> "CampaignConfig":
+        """This configuration with the autopilot's campaign defaults (``profile.campaign_defaults``:
+        thrusts, axes and doublet amplitudes it can fly), except the fields named in ``keep`` (what
+        the user set explicitly). Without a profile, or with no defaults, unchanged."""
+        defaults = {k: v for k, v in (getattr(profile, "campaign_defaults", None) or {}).items() if k not in keep}
+        config = self
+        if "thrusts" in defaults:
+            config = replace(config, thrusts=tuple(defaults["thrusts"]))
+        if "axes" in defaults:
+            config = replace(config, axes=tuple(defaults["axes"]))
+        amplitudes = {k: defaults[k] for k in ("training_amplitude", "validation_amplitude") if k in defaults}
+        if amplitudes:
+            config = replace(config, yaw=replace(config.yaw, **amplitudes))
+        return config
+
     def resolved_for(self, profile) -> "CampaignConfig":
         """This configuration for one autopilot: "heading" names the profile's heading schedule
         (the PI on the simulator, the native cascade on ArduPilot, designed for its rudder full

@@ -17,9 +17,12 @@ def add_parser(subparsers) -> None:
                     "Ctrl-C (or MAV_CMD_USER_4 from the ground station) aborts and restores the autopilot.")
     add_connect_arguments(parser)
     add_store_argument(parser)
-    parser.add_argument("--thrusts", type=thrust_list, default=None, help="thrust settings (default: 60..100%%)")
+    parser.add_argument("--thrusts", type=thrust_list, default=None,
+                        help="thrust settings (default: the autopilot's: 60..100%% on our simulator and ArduRover, "
+                             "45..65%% on ArduSub)")
     parser.add_argument("--depth", type=float, default=None, help="campaign depth in m (default: 2)")
-    parser.add_argument("--axes", default="yaw,pitch", help="axes to identify (default: %(default)s)")
+    parser.add_argument("--axes", default=None,
+                        help="axes to identify: yaw and/or pitch (default: yaw,pitch; yaw on ArduPilot)")
     parser.add_argument("--no-steps", action="store_true", help="skip the heading-step checks")
     add_schedules_argument(parser)
     parser.add_argument("--thesis-estimator", action="store_true",
@@ -34,7 +37,12 @@ def add_parser(subparsers) -> None:
 def campaign_config(args: argparse.Namespace):
     from companion.procedures.campaign import CampaignConfig
 
-    config = CampaignConfig(axes=tuple(a.strip() for a in args.axes.split(",") if a.strip()), schedules=args.schedules)
+    config = CampaignConfig(schedules=args.schedules)
+    if args.axes is not None:
+        axes = tuple(a.strip() for a in args.axes.split(",") if a.strip())
+        if not axes or any(a not in ("yaw", "pitch") for a in axes):
+            raise ValueError("--axes takes yaw and/or pitch")
+        config = replace(config, axes=axes)
     if args.thrusts:
         config = replace(config, thrusts=args.thrusts)
     if args.depth is not None:
@@ -56,9 +64,16 @@ def run(args: argparse.Namespace) -> int:
     from companion.records.report import write_report
     from companion.records.store import Store
 
-    config = campaign_config(args)
+    try:
+        config = campaign_config(args)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     try:
         with connected_vehicle(args) as (link, abort), Store(args.store) as store:
+            # the autopilot's defaults (thrusts, axes, doublets it can fly) where the user set none
+            explicit = tuple(name for name, given in (("thrusts", args.thrusts), ("axes", args.axes)) if given)
+            config = config.with_profile_defaults(link.profile, keep=explicit)
             campaign, outcome, campaign_id = run_campaign(
                 link, store, config, vehicle_id=vehicle_record(store, link), abort=abort,
                 console=ConsoleProgress("identification", enabled=not args.json))

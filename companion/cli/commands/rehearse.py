@@ -20,7 +20,8 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--seed", type=int, default=1, help="simulator noise seed (default: %(default)s)")
     parser.add_argument("--out", default="rehearsal", help="output directory for the store and the report (default: %(default)s)")
     parser.add_argument("--thrusts", type=thrust_list, default=None, help="thrust settings, e.g. 0.6,0.7,0.8 (default: 60..100%%)")
-    parser.add_argument("--axes", default="yaw,pitch", help="axes to identify (default: %(default)s)")
+    parser.add_argument("--axes", default=None,
+                        help="axes to identify: yaw and/or pitch (default: yaw,pitch; yaw on ArduPilot)")
     parser.add_argument("--no-steps", action="store_true", help="skip the heading-step checks")
     add_schedules_argument(parser)
     parser.add_argument("--thesis-estimator", action="store_true",
@@ -46,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
     from companion.procedures.campaign import CampaignConfig
     from companion.cli.rehearsal import RehearsalConfig, SimulatorError, preset_defaults, rehearse
 
-    axes = tuple(a.strip() for a in args.axes.split(",") if a.strip())
+    args.axes_given = args.axes is not None
+    axes = tuple(a.strip() for a in (args.axes or "yaw,pitch").split(",") if a.strip())
     if not axes or any(a not in ("yaw", "pitch") for a in axes):
         print("--axes takes yaw and/or pitch", file=sys.stderr)
         return 2
@@ -67,12 +69,11 @@ def run(args: argparse.Namespace) -> int:
         print("--current takes VN,VE in m/s", file=sys.stderr)
         return 2
     campaign = CampaignConfig(axes=axes, schedules=args.schedules)
-    if args.autopilot == "ardurover":  # fractions of WP_SPEED (2.5 m/s on the boat): 1.5, 2.0, 2.5 m/s
-        campaign = replace(campaign, thrusts=(0.6, 0.8, 1.0), axes=("yaw",))
-    if args.autopilot == "ardusub":  # yaw at 0.45..0.65 thrust, smaller doublets (motor saturation)
-        from companion.cli.rehearsal import ardusub_campaign
+    if args.autopilot != "builtin":  # the profile's thrusts, axes and doublets (ArduRover: fractions of WP_SPEED)
+        from companion.link.profiles import get_profile
 
-        campaign = ardusub_campaign(campaign)
+        explicit = ("axes",) if args.axes_given else ()
+        campaign = campaign.with_profile_defaults(get_profile(args.autopilot), keep=explicit)
     if args.thrusts:
         campaign = replace(campaign, thrusts=args.thrusts)
     if args.no_steps:

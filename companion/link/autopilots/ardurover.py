@@ -63,6 +63,8 @@ PROFILE = AutopilotProfile(
     servo_follows_attitude=True,
     actuator_hold="zoh",
     output_lead_s=0.010,  # 25 Hz snapshots of the 50 Hz rover loop (STREAMS below)
+    # yaw only (a boat has no dive plane); thrusts are fractions of WP_SPEED: 60, 80, 100 %
+    campaign_defaults={"thrusts": (0.6, 0.8, 1.0), "axes": ("yaw",)},
     train_full_window=True,
 )
 

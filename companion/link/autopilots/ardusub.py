@@ -57,6 +57,12 @@ from companion.link.profile import AutopilotProfile
 #: keeps the Rover bound 0–2: ArduSub documents 0–0.5, made for ROVs with 10–20× this AUV's yaw
 #: authority per unit of output (0.35 rad of equivalent rudder), and with P ≤ 0.5 a 20° step takes
 #: over 20 s (measured).
+#: the vectored frame's forward thrust and yaw share motors 1-4, each saturating at ±1, so forward +
+#: |yaw| must stay below 1 or both are clipped (forward 0.65 leaves 0.35 of yaw, the 0.12 rad of
+#: equivalent rudder the heading loop and a 0.10 rad doublet need); yaw only (no pitch actuator).
+#: On the STARFISH physics 0.45, 0.55, 0.65 run at about 0.7, 1.0 and 1.26 m/s.
+CAMPAIGN_DEFAULTS = {"thrusts": (0.45, 0.55, 0.65), "axes": ("yaw",),
+                     "training_amplitude": 0.10, "validation_amplitude": 0.08}  # rad of equivalent rudder
 GAIN_RANGES = {"angle_p_range": (0.0, 6.0), "rate_p_range": (0.0, 2.0), "rate_i_range": (0.0, 0.05),
                "rate_ff_range": (0.0, 0.0)}
 
@@ -88,6 +94,7 @@ PROFILE = AutopilotProfile(
     actuator_hold="zoh",
     train_full_window=True,
     gain_ranges=GAIN_RANGES,
+    campaign_defaults=CAMPAIGN_DEFAULTS,
 )
 
 #: the base streams, GLOBAL_POSITION_INT (depth) and HOME_POSITION (the surface, see Strategy.depth)
