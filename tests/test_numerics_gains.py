@@ -159,3 +159,33 @@ def test_design_command_json_and_errors(capsys):
                 ["--a22", "-1", "--b2", "1", "--delta0", "0.3"]):
         assert cli_main(["design", *bad]) == 2
         assert "error" in capsys.readouterr().err
+
+
+def _cascade_heading_step_overshoot(a22: float, b: float, gains) -> float:
+    """Overshoot (%) of a heading step through the cascade without feed-forward: ψ̈ = a22·ψ̇ + b·s,
+    s = P·(r_d − r) + I·∫(r_d − r), r_d = ANG_P·(ψd − ψ) (python-control, linear)."""
+    plant = control.tf([b], [1.0, -a22])  # rate per output
+    rate_pi = control.tf([gains.rate_p, gains.rate_i], [1.0, 0.0])
+    rate_loop = control.feedback(rate_pi * plant, 1)
+    heading = control.feedback(gains.angle_p * rate_loop * control.tf([1.0], [1.0, 0.0]), 1)
+    t = np.linspace(0.0, 60.0, 6001)
+    _, y = control.step_response(heading, t)
+    return 100.0 * (float(np.max(y)) - 1.0)
+
+
+def test_without_feed_forward_a_fast_plant_still_gets_a_proportional_rate_gain():
+    """ArduSub (FF range (0, 0)) on its own SITL sub: a22 ≈ −15, b2 ≈ 200 per rad of equivalent rudder.
+    The FF rule's P = (ωr + a22)/b is 0 there; without FF the rate loop then had only I and the heading
+    steps overshot 78–124 % on the firmware. P now carries two thirds of the steady turn."""
+    from companion.numerics.cascade_gains import CascadeRules, design_cascade_gains
+
+    ardusub = CascadeRules(full_scale=0.5236, angle_p_range=(0.0, 6.0), rate_p_range=(0.0, 2.0),
+                           rate_i_range=(0.0, 0.05), rate_ff_range=(0.0, 0.0))
+    model = YawModel(a22=-15.0, b2=200.0, delta0=0.0)
+    gains = design_cascade_gains(model, ardusub)
+    b = 200.0 * 0.5236
+    assert gains.rate_ff == 0.0 and gains.rate_p == pytest.approx(2.0 * 15.0 / b)
+    assert b * gains.rate_p / (b * gains.rate_p + 15.0) == pytest.approx(2.0 / 3.0)
+    assert _cascade_heading_step_overshoot(-15.0, b, gains) < 10.0
+    # with a feed-forward the FF carries the turn and the plant is fast enough: P stays 0
+    assert design_cascade_gains(model, CascadeRules()).rate_p == 0.0

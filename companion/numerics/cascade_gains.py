@@ -8,6 +8,11 @@ The plant is the identified ṙ = a22·r + b2·δ = a22·r + b·s with b = b2·�
   with it the rate error obeys ė = (a22 − b·P)·e, whatever r_d does.
 * **P = (ωr + a22)/b** moves the rate-loop pole from a22 to −ωr, the stated rate bandwidth
   (``rate_bandwidth``, 3 rad/s by default); 0 when the plant is already that fast.
+* **Without a feed-forward** (an autopilot that does not apply it: ArduSub 4.7 computes
+  ``ATC_RAT_YAW_FF`` but never adds it, so its range is (0, 0)) the steady turn must come from P and
+  I: with P alone the rate settles at b·P/(b·P − a22) of the demand, so P is at least 2·|a22|/b
+  (two thirds of the demand from P, the rest from I). Measured on ArduSub's own SITL sub (a22 ≈ −15,
+  a plant faster than ωr): the rule above gave P = 0 and heading steps overshot 78–124 %.
 * **I = ωr_a/(N·b)** with N = 10: the integrator alone would close a loop a decade slower than the
   achieved bandwidth ωr_a = −a22 + b·P; it removes the trim δ0 and any model error.
 * **ANG_P = ωr_a/2**: with the rate loop as a first-order lag 1/(1 + s/ωr_a), the heading loop
@@ -72,7 +77,10 @@ def design_cascade_gains(model: YawModel, rules: CascadeRules = CascadeRules(), 
     b = b2 * rules.full_scale
     clamped: list[str] = []
     rate_ff = _clamp("rate_ff", -a22 / b, rules.rate_ff_range, clamped)
-    rate_p = _clamp("rate_p", max(0.0, (rules.rate_bandwidth + a22) / b), rules.rate_p_range, clamped)
+    rate_p = max(0.0, (rules.rate_bandwidth + a22) / b)
+    if rules.rate_ff_range[1] <= 0.0:  # no feed-forward: P carries the steady turn (docstring)
+        rate_p = max(rate_p, 2.0 * -a22 / b)
+    rate_p = _clamp("rate_p", rate_p, rules.rate_p_range, clamped)
     achieved = -a22 + b * rate_p
     rate_i = _clamp("rate_i", achieved / (rules.integral_ratio * b), rules.rate_i_range, clamped)
     angle_p = _clamp("angle_p", achieved / 2.0, rules.angle_p_range, clamped)
