@@ -268,6 +268,8 @@ class SimServer:
             elif self.tick >= limit:
                 # Lockstep: input is applied only here, at the last tick the companion allows.
                 if not self._poll_at_limit():
+                    if end_tick is not None and self.tick >= end_tick:
+                        break
                     self._wait_readable(0.05)  # the companion has not acknowledged yet: wait for it
                     continue
             if end_tick is not None and self.tick >= end_tick:
