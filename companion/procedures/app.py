@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import signal
 import sys
 from dataclasses import dataclass
@@ -20,7 +21,7 @@ from typing import Callable
 
 from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
 from companion.interface import Behavior, Telemetry
-from companion.procedures.runner import RestorePoint, RunOutcome, SafetyLimits, run_procedure
+from companion.procedures.runner import RestoreGuard, RestorePoint, RunOutcome, SafetyLimits, run_procedure
 from companion.records.store import Store
 
 log = logging.getLogger(__name__)
@@ -38,6 +39,7 @@ class AbortFlag:
 
     def __init__(self) -> None:
         self.reason: str | None = None
+        self.guard = RestoreGuard()  # what a signal may interrupt now, and what a restore has left
 
     def request(self, reason: str) -> None:
         if self.reason is None:
@@ -50,17 +52,43 @@ class AbortFlag:
         return self.reason
 
 
-def install_signal_handlers(flag: AbortFlag) -> Callable[[], None]:
+#: the signal that force-exits (1: the abort request, 2: break a blocking call or "restoring...")
+FORCE_EXIT_SIGNAL = 3
+
+
+def install_signal_handlers(flag: AbortFlag, stream=None) -> Callable[[], None]:
     """SIGINT/SIGTERM request an abort (the runner then restores the vehicle) instead of killing us
-    mid-procedure. A second SIGINT raises KeyboardInterrupt at once (for a procedure stuck in a
-    blocking call); the runner still aborts and restores, and a restore finishes every step even
-    if interrupted again. Returns an undo function."""
+    mid-procedure. A second SIGINT inside a procedure's step loop raises KeyboardInterrupt (for a
+    procedure stuck in a blocking call); the runner still aborts and restores. A restore is never
+    interrupted: a signal during it only says so, and the third signal exits at once (code 130)
+    after printing what is still unrestored. Messages go to ``stream`` (stderr). Returns an undo
+    function."""
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    received = [0]
+
+    def say(text: str) -> None:
+        out = stream or sys.stderr
+        out.write(text + "\n")
+        out.flush()
 
     def handler(signum, _frame):
-        if flag.reason is not None and signum == signal.SIGINT:
-            raise KeyboardInterrupt
+        received[0] += 1
+        guard = flag.guard
+        breakable = guard.interruptible or (guard.active == 0 and not guard.restoring)
+        if received[0] >= FORCE_EXIT_SIGNAL and not breakable:
+            if guard.restoring:
+                left = ", ".join(guard.pending) or "nothing left"
+            else:
+                left = "a procedure is ending; its restore had not started" if guard.active else "nothing to restore"
+            say(f"forced exit: NOT restored: {left}")
+            os._exit(130)
         flag.request(f"signal {signal.Signals(signum).name}")
+        if received[0] >= 2 and signum == signal.SIGINT and breakable:
+            raise KeyboardInterrupt
+        if received[0] >= 2:
+            doing = f"restoring the vehicle ({', '.join(guard.pending) or 'finishing'})" if guard.restoring \
+                else "ending the procedure and restoring the vehicle"
+            say(f"{doing}; signal {FORCE_EXIT_SIGNAL - received[0]} more time(s) to exit without restoring")
 
     for sig in previous:
         signal.signal(sig, handler)

@@ -78,6 +78,27 @@ class Link(Protocol):
 _SETPOINT_MODES = ("hold", "guided")
 
 
+class RestoreGuard:
+    """What a signal handler may do now (issue 9: a second Ctrl-C 0.01 s apart cut a parameter
+    write of the restore and left HDG_I at 0.00584).
+
+    ``interruptible`` is true only inside a procedure's step loop, where a second Ctrl-C may break a
+    blocking call (the runner then aborts and restores); while ``active`` (a procedure runs) and
+    outside that loop — its abort, its restore — nothing is interrupted; ``pending`` names what a restore under way
+    still has to put back (empty when none is), so a forced exit can say it. Shared by the abort
+    flag (``AbortFlag.guard``), the runner and the restore; no global state."""
+
+    def __init__(self) -> None:
+        self.interruptible = False  # inside a procedure's step loop
+        self.active = 0  # procedures running (nested); 0: nothing to protect, a Ctrl-C may break anything
+        self.restoring = False
+        self.pending: list[str] = []
+
+
+#: tries per restore item; a lost link is not retried (each try would wait out its timeout)
+RESTORE_TRIES = 3
+
+
 @dataclass
 class RestorePoint:
     """How the autopilot was found, for everything a procedure declares it may change.
@@ -124,40 +145,70 @@ class RestorePoint:
                    setpoints=setpoints, natives_of=natives_of)
 
     def restore(self, link, *, parameters: bool = True, mode: bool = True,
-                keep: Iterable[str] = ()) -> list[str]:
+                keep: Iterable[str] = (), guard: RestoreGuard | None = None) -> list[str]:
         """Release overrides, write back every parameter that changed (except the natives of the
         neutral names in ``keep``: verified results a procedure leaves on purpose), put the found
         set-points back, restore the mode.
 
-        Each step and each parameter is attempted even if another fails (and even on a second
-        Ctrl-C): a restore must never stop half-way. The failures are returned and logged."""
-        problems: list[str] = []
-
-        def attempt(what: str, action) -> None:
-            try:
-                action()
-            except BaseException as exc:  # noqa: BLE001 - every step must be tried, even after Ctrl-C
-                log.error("%s failed: %s", what, exc)
-                problems.append(f"{what}: {exc}")
-
-        # through the autopilot's strategy: ArduSub keeps a released override's last value unless the
-        # stick is centred first, and ArduRover's excitation ends by leaving MANUAL
+        Each item is tried up to :data:`RESTORE_TRIES` times and every item is tried even if another
+        fails: a restore never stops half-way. With a ``guard`` the signal handler knows a restore is
+        under way (it then never interrupts it) and what is still pending. The failures are
+        returned and logged."""
         strategy = getattr(link, "autopilot", None)
-        attempt("release overrides", lambda: (strategy.release(None) if strategy is not None else link.release(None)))
+        items: list[tuple[str, Callable[[], None]]] = [
+            # through the autopilot's strategy: ArduSub keeps a released override's last value unless
+            # the stick is centred first, and ArduRover's excitation ends by leaving MANUAL
+            ("release overrides", lambda: strategy.release(None) if strategy is not None else link.release(None))]
         if parameters:
             kept = {n for name in keep for n in self.natives_of.get(name, ())}
-            for name, value in self.native.items():
-                if name not in kept:
-                    attempt(f"restore {name}", lambda name=name, value=value: _write_if_changed(link, name, value))
+            items += [(f"restore {name}", lambda name=name, value=value: _write_if_changed(link, name, value))
+                      for name, value in self.native.items() if name not in kept]
         if self.mode in _SETPOINT_MODES and "thrust" in self.setpoints:
-            attempt("restore thrust", lambda: link.execute([SetThrust(self.setpoints["thrust"])]))
+            items.append(("restore thrust", lambda: link.execute([SetThrust(self.setpoints["thrust"])])))
         if self.mode in _SETPOINT_MODES and "heading" in self.setpoints:
-            attempt("restore heading", lambda: link.execute([SetHeading(self.setpoints["heading"])]))
+            items.append(("restore heading", lambda: link.execute([SetHeading(self.setpoints["heading"])])))
         if "rolling_mass" in self.setpoints:
-            attempt("restore rolling mass", lambda: link.execute([SetRollingMass(self.setpoints["rolling_mass"])]))
+            items.append(("restore rolling mass",
+                          lambda: link.execute([SetRollingMass(self.setpoints["rolling_mass"])])))
         if mode and self.mode:
-            attempt("restore mode", lambda: link.set_mode(self.mode))
+            items.append(("restore mode", lambda: link.set_mode(self.mode)))
+        guard = guard or RestoreGuard()
+        was_interruptible, guard.interruptible = guard.interruptible, False
+        guard.restoring, guard.pending = True, [what for what, _ in items]
+        problems: list[str] = []
+        try:
+            for what, action in items:
+                failure = _try_restore_item(what, action)
+                if failure is not None:
+                    problems.append(failure)
+                guard.pending.remove(what)
+        finally:
+            guard.restoring, guard.interruptible = False, was_interruptible
         return problems
+
+
+def _other_companion(link) -> str | None:
+    """The link's report of another companion flying the same vehicle (None where it cannot tell)."""
+    check = getattr(link, "other_companion", None)
+    return check() if callable(check) else None
+
+
+def _try_restore_item(what: str, action: Callable[[], None]) -> str | None:
+    """``action`` tried up to :data:`RESTORE_TRIES` times; None on success, else the last failure.
+    A lost link ends the tries at once (bounded: each attempt already waited out its timeout)."""
+    from companion.link.errors import LinkLost
+
+    failure = "not tried"
+    for attempt in range(1, RESTORE_TRIES + 1):
+        try:
+            action()
+            return None
+        except Exception as exc:  # noqa: BLE001 - every item is tried whatever went wrong
+            failure = f"{type(exc).__name__}: {exc}" if not str(exc) else str(exc)
+            log.error("%s failed (try %d of %d): %s", what, attempt, RESTORE_TRIES, failure)
+            if isinstance(exc, LinkLost):
+                break
+    return f"{what}: {failure}"
 
 
 def _write_if_changed(link, name: str, value: float) -> None:
@@ -200,11 +251,6 @@ def run_behavior(
     command line wires SIGINT/SIGTERM to it, the ground-station handler an abort command.
     ``on_step`` is called after each step (progress reports, store writes).
     """
-    samples = 0
-    first_time = last_time = math.nan
-    nan_run = 0
-    reason: str | None = None
-    pilot_has_it = False
     watchdog = _TakeoverWatchdog(limits, link)
     if hasattr(link, "commanded_mode"):
         link.commanded_mode = None  # only modes switched to during this run are the procedure's own
@@ -213,30 +259,55 @@ def run_behavior(
         # snapshots queued during earlier blocking calls (a restore, a mode change) predate this
         # procedure: it must start from the vehicle as it is now (within a run, none is skipped)
         skip_to_now()
+    guard = getattr(abort_requested, "guard", None)
+    if guard is not None:
+        guard.active += 1
     try:
-        while not behavior.done:
-            telemetry = link.next_telemetry(timeout_s=telemetry_timeout_s)
-            samples += 1
-            if math.isnan(first_time):
-                first_time = telemetry.time_s
-            last_time = telemetry.time_s
-            requested = abort_requested()
-            if requested:
-                raise AbortProcedure(requested)
-            nan_run = 0 if telemetry.finite("roll", "pitch", "yaw") else nan_run + 1
-            if nan_run > limits.max_nan_samples:
-                raise AbortProcedure(f"no valid attitude for {nan_run} samples")
-            violation = limits.violation(telemetry)
-            if violation:
-                raise AbortProcedure(f"safety limit: {violation}")
-            takeover = watchdog.check(telemetry)
-            if takeover:
-                raise AbortProcedure(takeover, pilot_has_it=True)
-            commands = behavior.step(telemetry)
-            link.execute(commands)
-            watchdog.commanded(commands)
-            if on_step is not None:
-                on_step(telemetry, behavior)
+        return _run_guarded(behavior, link, limits, abort_requested, on_step, restore, restore_on_success,
+                            telemetry_timeout_s, watchdog, guard)
+    finally:
+        if guard is not None:
+            guard.active -= 1
+
+
+def _run_guarded(behavior, link, limits, abort_requested, on_step, restore, restore_on_success,
+                 telemetry_timeout_s, watchdog, guard) -> RunOutcome:
+    """:func:`run_behavior`'s loop, abort and restore (``guard``: see :class:`RestoreGuard`)."""
+    samples = 0
+    first_time = last_time = math.nan
+    nan_run = 0
+    reason: str | None = None
+    pilot_has_it = False
+    try:
+        try:
+            if guard is not None:
+                guard.interruptible = True  # a second Ctrl-C may break a blocking call, here only
+            while not behavior.done:
+                telemetry = link.next_telemetry(timeout_s=telemetry_timeout_s)
+                samples += 1
+                if math.isnan(first_time):
+                    first_time = telemetry.time_s
+                last_time = telemetry.time_s
+                requested = abort_requested() or _other_companion(link)
+                if requested:
+                    raise AbortProcedure(requested)
+                nan_run = 0 if telemetry.finite("roll", "pitch", "yaw") else nan_run + 1
+                if nan_run > limits.max_nan_samples:
+                    raise AbortProcedure(f"no valid attitude for {nan_run} samples")
+                violation = limits.violation(telemetry)
+                if violation:
+                    raise AbortProcedure(f"safety limit: {violation}")
+                takeover = watchdog.check(telemetry)
+                if takeover:
+                    raise AbortProcedure(takeover, pilot_has_it=True)
+                commands = behavior.step(telemetry)
+                link.execute(commands)
+                watchdog.commanded(commands)
+                if on_step is not None:
+                    on_step(telemetry, behavior)
+        finally:
+            if guard is not None:
+                guard.interruptible = False  # from here on (abort, restore) no signal interrupts
     except AbortProcedure as exc:
         reason = str(exc)
         pilot_has_it = exc.pilot_has_it
@@ -254,10 +325,10 @@ def run_behavior(
         except Exception as exc:  # noqa: BLE001 - the restore below still runs
             problems.append(f"behaviour abort: {exc}")
         if restore is not None:
-            problems += restore.restore(link, mode=not pilot_has_it)
+            problems += restore.restore(link, mode=not pilot_has_it, guard=guard)
         _tell(link, f"aborted: {reason}", 4)
     elif restore is not None and restore_on_success:
-        problems += restore.restore(link)
+        problems += restore.restore(link, guard=guard)
     status = "aborted" if reason is not None else "completed"
     if reason is None and getattr(behavior, "status", None) is Status.FAILURE:
         status, reason = "failed", getattr(behavior, "reason", None) or "the procedure did not reach its goal"
@@ -289,13 +360,20 @@ def run_procedure(
     step. Afterwards the vehicle is put back as found: always after an abort or a failure (the mode
     too, unless the pilot took the vehicle), and after success too except for the parameters the
     procedure keeps on purpose (``kept_parameters``, e.g. a campaign's verified final gains)."""
-    restore = restore or RestorePoint.capture(link, footprint_of(procedure))
-    outcome = run_behavior(link, procedure, limits=limits, abort_requested=abort_requested, on_step=on_step,
-                           restore=None, telemetry_timeout_s=telemetry_timeout_s)
-    outcome.restore = restore
-    keep = getattr(procedure, "kept_parameters", frozenset()) if outcome.status == "completed" else frozenset()
-    outcome.restore_problems += restore.restore(link, mode=not outcome.pilot_has_it, keep=keep)
-    return outcome
+    guard = getattr(abort_requested, "guard", None)
+    if guard is not None:
+        guard.active += 1  # from here to the end of the restore only the step loop is interruptible
+    try:
+        restore = restore or RestorePoint.capture(link, footprint_of(procedure))
+        outcome = run_behavior(link, procedure, limits=limits, abort_requested=abort_requested, on_step=on_step,
+                               restore=None, telemetry_timeout_s=telemetry_timeout_s)
+        outcome.restore = restore
+        keep = getattr(procedure, "kept_parameters", frozenset()) if outcome.status == "completed" else frozenset()
+        outcome.restore_problems += restore.restore(link, mode=not outcome.pilot_has_it, keep=keep, guard=guard)
+        return outcome
+    finally:
+        if guard is not None:
+            guard.active -= 1
 
 
 class _TakeoverWatchdog:
