@@ -199,3 +199,42 @@ def test_a_procedure_that_does_not_apply_refuses_with_the_reason(name, why):
         assert out["result"]["status"] == "refused" and why in out["result"]["abort_reason"]
         assert out["summary"]["status"] == "refused"
         assert store.campaigns()[0]["status"] == "refused"
+
+
+def test_a_second_companion_on_the_vehicle_stops_the_procedure_and_the_vehicle_is_restored(sim_factory, mav_client,
+                                                                                          tmp_path):
+    """Issue 9 item 5: two companions flying one vehicle. Another onboard controller's HEARTBEAT on our
+    component id (191) aborts the procedure with that reason; everything is put back as found."""
+    import threading
+
+    from companion.link.vehicle import VehicleLink
+    from companion.procedures.registry import GAIN_SCHEDULES  # noqa: F401 - the campaign's schedules load
+    from pymavlink import mavutil
+
+    sim = sim_factory(speedup=20.0, seed=4)
+    link = VehicleLink.connect(sim.endpoint, heartbeat_timeout_s=10.0)
+    other = mav_client(sim.endpoint, source_system=1, source_component=191)
+    stop = threading.Event()
+
+    def second_companion() -> None:  # announces itself as a companion does, about every vehicle second
+        while not stop.wait(0.05):
+            other.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavutil.mavlink.MAV_AUTOPILOT_INVALID,
+                                     0, 0, mavutil.mavlink.MAV_STATE_ACTIVE)
+
+    try:
+        link.set_mode("hold")
+        link.arm(True)
+        found = link.get_params(["heading_p", "heading_i"]), link.mode
+        thread = threading.Thread(target=second_companion, daemon=True)
+        thread.start()
+        with Store(tmp_path / "s.sqlite") as store:
+            _campaign, outcome, _ = run_campaign(link, store, SHORT, vehicle_id=store.add_vehicle("v"),
+                                                 abort=AbortFlag())
+        assert outcome.status == "aborted"
+        assert "another companion (system 1, component 191)" in outcome.reason
+        assert outcome.restore_problems == []
+        assert link.get_params(["heading_p", "heading_i"]) == found[0]
+        assert link.mode == found[1] and not link.overrides.active
+    finally:
+        stop.set()
+        link.close()

@@ -111,6 +111,7 @@ class VehicleLink:
         self.param_types: dict[str, int] = {}
         self.statustexts: collections.deque[tuple[float, int, str]] = collections.deque(maxlen=64)
         self.rejected_commands: collections.deque[tuple[float, int, int]] = collections.deque(maxlen=64)
+        self._other_companion: tuple[int, int, float] | None = None  # (system, component, vehicle time)
         self.overrides = OverrideTable()
         self.autopilot = None  # the profile's strategy (companion.link.autopilots), set at connect
         self.commanded_mode: str | None = None  # the last mode the companion itself switched to
@@ -436,8 +437,12 @@ class VehicleLink:
             if snapshot is not None:
                 self._queue_snapshot(snapshot)
 
+    #: vehicle seconds a HEARTBEAT of another companion counts as "it is there"
+    OTHER_COMPANION_S = 5.0
+
     def _on_heartbeat(self, msg: Any) -> None:
         if not self._from_autopilot(msg):
+            self._note_other_companion(msg)
             return
         self.custom_mode = msg.custom_mode
         self.base_mode = msg.base_mode
@@ -445,6 +450,25 @@ class VehicleLink:
         self._heartbeat_count += 1
         if self.assembler is not None:
             self.assembler.on_message(msg)
+
+    def _note_other_companion(self, msg: Any) -> None:
+        """A HEARTBEAT from an onboard controller on our component id is another companion: a router
+        never hands us our own messages back, and two companions on one vehicle share its system id
+        (issue 9: two ``identify`` runs flew one vehicle at once and both wrote gains)."""
+        if msg.get_srcComponent() == self.component and getattr(msg, "type", None) == MAV_TYPE_ONBOARD_CONTROLLER:
+            self._other_companion = (msg.get_srcSystem(), msg.get_srcComponent(), self.vehicle_time_s)
+
+    def other_companion(self) -> str | None:
+        """Why no procedure may run now: another companion was heard within
+        :data:`OTHER_COMPANION_S` of vehicle time (None: none was)."""
+        seen = self._other_companion
+        if seen is None:
+            return None
+        system, component, when = seen
+        if math.isfinite(when) and math.isfinite(self.vehicle_time_s) and self.vehicle_time_s - when > self.OTHER_COMPANION_S:
+            return None
+        return (f"another companion (system {system}, component {component}) is on this vehicle's link: "
+                "two would fly it at once")
 
     def _on_param_value(self, msg: Any) -> None:
         if msg.get_srcSystem() != self.system_id:
