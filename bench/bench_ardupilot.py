@@ -19,10 +19,10 @@ import time
 from dataclasses import replace
 
 from companion.cli.rehearsal import RehearsalConfig, preset_defaults, rehearse
+from companion.link.profiles import get_profile
 from companion.procedures.campaign import CampaignConfig
 
 PRESETS = {"ardurover": "boat", "ardusub": "starfish"}
-THRUSTS = {"ardurover": (0.6, 0.8, 1.0), "ardusub": (0.5, 0.7, 0.9)}
 
 
 def main() -> int:
@@ -37,11 +37,16 @@ def main() -> int:
         print("no ArduPilot SITL: pass --ardupilot-bin DIR or set ARDUPILOT_SITL_BIN", file=sys.stderr)
         return 2
     preset = PRESETS[args.autopilot]
-    thrusts = tuple(float(t) for t in args.thrusts.split(",")) if args.thrusts else THRUSTS[args.autopilot]
-    campaign = replace(CampaignConfig(), thrusts=thrusts, axes=("yaw",))
+    # the campaign ``identify --connect`` flies on this autopilot: its profile's thrusts, axes, doublets
+    campaign = CampaignConfig().with_profile_defaults(get_profile(args.autopilot))
+    if args.thrusts:
+        campaign = replace(campaign, thrusts=tuple(float(t) for t in args.thrusts.split(",")))
+    thrusts = campaign.thrusts
     errors_a22, errors_b2, r2s, overshoot, iae, walls, vehicle_s, outcomes = [], [], [], {}, {}, [], [], []
     print(f"{args.autopilot} SITL + preset {preset}, thrusts {thrusts}, {args.repeats} repeats at {args.speedup:g}x")
-    print(f"{'run':>3} {'thrust':>6} {'speed':>6} {'a22 err%':>9} {'b2 err%':>8} {'R2':>6}")
+    print("errors against the simulator's linearised truth at the physics' own speed (its truth log); 'est.' is the")
+    print("autopilot's speed estimate, which the schedule uses")
+    print(f"{'run':>3} {'thrust':>6} {'speed':>6} {'est.':>6} {'a22 err%':>9} {'b2 err%':>8} {'R2':>6}")
     for repeat in range(args.repeats):
         with tempfile.TemporaryDirectory() as out:
             config = RehearsalConfig(preset=preset, speedup=args.speedup, seed=repeat + 1, out_dir=out,
@@ -59,7 +64,9 @@ def main() -> int:
             errors_a22.append(abs(ea))
             errors_b2.append(abs(eb))
             r2s.append(run["r2"])
-            print(f"{repeat + 1:>3} {run['thrust']:>6.2f} {run['speed']:>6.2f} {ea:>9.1f} {eb:>8.1f} {run['r2']:>6.3f}")
+            true = run.get("true_speed") or float("nan")
+            print(f"{repeat + 1:>3} {run['thrust']:>6.2f} {true:>6.3f} {run['speed']:>6.3f} {ea:>9.1f} {eb:>8.1f} "
+                  f"{run['r2']:>6.3f}")
         for step in summary.get("heading_steps", []):
             overshoot.setdefault(step["label"], []).append(step["max_overshoot_pct"])
             iae.setdefault(step["label"], []).append(step["iae_s"])
