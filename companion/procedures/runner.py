@@ -187,6 +187,16 @@ class RestorePoint:
         return problems
 
 
+def _last_words(link, within_s: float = 10.0) -> str:
+    """The vehicle's latest warnings (STATUSTEXT severity ≤ 4, within ``within_s`` of vehicle time)
+    as a suffix for an abort reason: why ArduSub disarmed, for instance; empty when it said nothing."""
+    texts = getattr(link, "statustexts", None) or ()
+    now = getattr(link, "vehicle_time_s", math.nan)
+    recent = [text for when, severity, text in texts
+              if severity <= 4 and not (math.isfinite(now) and math.isfinite(when) and now - when > within_s)]
+    return f" (the vehicle said: {'; '.join(recent[-3:])})" if recent else ""
+
+
 def _other_companion(link) -> str | None:
     """The link's report of another companion flying the same vehicle (None where it cannot tell)."""
     check = getattr(link, "other_companion", None)
@@ -413,7 +423,7 @@ class _TakeoverWatchdog:
             if telemetry.armed:
                 self.armed_seen = True
             elif self.armed_seen:
-                return "the vehicle was disarmed"
+                return "the vehicle was disarmed" + _last_words(self.link)
             else:
                 return "the vehicle is not armed"
         if not telemetry.mode:
