@@ -339,13 +339,16 @@ class SimServer:
                 wall_s, ratio, f"{target:g}x" if target > 0 else "as fast as possible")
 
     def _wait_readable(self, timeout: float) -> None:
+        """Wait for input, or (TCP) for a client's socket to take frames still queued for it."""
+        pending: list[int] = []
         if self._tcp is not None:
             fds = self._tcp.fds()
+            pending = self._tcp.pending_fds()
         else:
             fds = [self.conn.fd] if self.conn is not None and self.conn.fd is not None else []
         try:
             if fds:
-                select.select(fds, [], [], timeout)
+                select.select(fds, pending, [], timeout)
             else:
                 time.sleep(timeout)
         except (OSError, ValueError):
@@ -420,7 +423,10 @@ class SimServer:
             log.debug("write failed: %s", exc)
 
     def _tcp_backlogged(self) -> bool:
-        return self._tcp is not None and self._tcp.backlogged()
+        if self._tcp is None:
+            return False
+        self._tcp.flush()  # whatever a full socket left queued, even when no new frame follows
+        return self._tcp.backlogged()
 
     def _greet(self, client: object) -> None:
         """A HEARTBEAT for a client just heard from, at once: it learns the vehicle is there even

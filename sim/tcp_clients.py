@@ -126,6 +126,14 @@ class TcpClients:
             client.out += data
             self._flush(client)
 
+    def flush(self) -> None:
+        """Hand every client's queued frames to its socket, as far as it takes them. Called on every
+        turn of the main loop: a queue left behind by a full socket must drain even when no new
+        frame follows (in lockstep nothing does until the companion has read it: a deadlock)."""
+        for client in list(self.clients):
+            if client.out:
+                self._flush(client)
+
     def _flush(self, client: TcpClient) -> None:
         while client.out:
             try:
@@ -170,3 +178,7 @@ class TcpClients:
     def writable_fds(self) -> list[int]:
         """Sockets of lossless clients with frames queued (to wait until one can take more)."""
         return [c.sock.fileno() for c in self.clients if c.out and not c.lossy]
+
+    def pending_fds(self) -> list[int]:
+        """Sockets of every client with frames queued (a wait for input must also wake to send them)."""
+        return [c.sock.fileno() for c in self.clients if c.out]

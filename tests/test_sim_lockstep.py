@@ -3,6 +3,7 @@ waits at its start for the companion, and input acts at the last tick the compan
 at whatever tick the simulator happened to read it — so a rehearsal is a function of its seed."""
 from __future__ import annotations
 
+import socket
 import time
 
 from pymavlink import mavutil
@@ -64,6 +65,43 @@ def test_input_acts_at_the_limit_whatever_the_wall_clock_delay(sim_factory, mav_
         answered.append(reply.time_boot_ms - sample)
         sample = attitude.time_boot_ms
     assert answered == [PERIOD_MS] * 3
+
+
+def test_a_burst_left_queued_by_a_full_socket_still_reaches_the_companion(sim_factory):
+    """Frames a full TCP socket did not take must drain although, in lockstep, no new frame follows
+    until the companion has read them (found under load: a rehearsal stopped with LinkLost, the
+    simulator waiting for an acknowledgement of a sample still queued behind a burst of replies)."""
+    sim = sim_factory(transport="tcp", speedup=50, lockstep=True)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connect: a small window
+    sock.connect(("127.0.0.1", sim.port))
+    sock.settimeout(0.2)
+    mavlink = mav.MAVLink(None, srcSystem=1, srcComponent=191)
+    mavlink.robust_parsing = True
+
+    def attitudes(wall_s: float) -> list[int]:
+        stamps: list[int] = []
+        deadline = time.monotonic() + wall_s
+        while time.monotonic() < deadline:
+            try:
+                data = sock.recv(65536)
+            except socket.timeout:
+                continue
+            for msg in mavlink.parse_buffer(data) or []:
+                if msg.get_type() == "ATTITUDE":
+                    stamps.append(msg.time_boot_ms)
+        return stamps
+
+    try:
+        sock.sendall(mavlink.system_time_encode(0, 0).pack(mavlink))
+        first = attitudes(1.0)[0]
+        burst = b"".join(mavlink.param_request_list_encode(1, 1).pack(mavlink) for _ in range(150))  # ~100 kB back
+        time.sleep(0.3)
+        sock.sendall(burst + mavlink.system_time_encode(0, first).pack(mavlink))
+        time.sleep(1.0)  # the replies fill both socket buffers before we read
+        assert attitudes(3.0) == [first + PERIOD_MS]
+    finally:
+        sock.close()
 
 
 def test_interruptions_are_counted_only_when_a_companion_comes_back():
