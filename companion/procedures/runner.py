@@ -436,7 +436,7 @@ class _TakeoverWatchdog:
         if self.foreign_since is None:
             self.foreign_since = telemetry.time_s
         if telemetry.time_s - self.foreign_since > self.limits.mode_grace_s:
-            return f"mode changed to {telemetry.mode} by someone else"
+            return f"mode changed to {telemetry.mode} by someone else (the procedure had {self.expected_mode})"
         return None
 
 
