@@ -7,7 +7,9 @@ project never ships or builds ArduPilot). One ``companion rehearse --autopilot a
 (about 900 s of vehicle time, 80 s of wall clock on two cores), checked against the done-when
 figures: yaw identified at three speeds with validation R² ≥ 0.9, a22 and b2 within 5 % of the
 simulator's linearised truth, and native gains written only after their heading steps overshoot
-at most 10 % without oscillating and beat ArduSub's defaults.
+at most 10 % without oscillating and beat ArduSub's defaults. Then, on one armed sub, Ctrl-C in the
+doublet, a pilot's mode change and a 6.5 s link loss each leave every gain, the overrides and the mode
+as found (the pilot's mode stands).
 """
 from __future__ import annotations
 
@@ -70,3 +72,127 @@ def test_the_store_holds_the_models_and_the_written_gains(rehearsal):
         assert campaign["status"] == "completed"
         assert len(store.models(campaign["id"], axis="yaw")) == 3
         assert store.gains(campaign["id"])
+
+
+# ---------------------------------------------------------------------- aborts on the firmware
+GAINS = ("heading_angle_p", "heading_rate_p", "heading_rate_i", "heading_rate_ff", "heading_rate_d",
+         "heading_rate_imax")
+
+
+@pytest.fixture(scope="module")
+def sub():
+    """ArduSub SITL + STARFISH physics, connected, holding its depth and armed (shared by the abort
+    tests below; each leaves it as found)."""
+    from companion.cli.launcher import SimulatorProcess
+    from companion.cli.rehearsal import ARDUSUB_SIM_ARGS, ARDUSUB_VEHICLE, arm_ardusub_when_ready
+    from companion.link.vehicle import VehicleLink
+
+    with SimulatorProcess("starfish", 20.0, 1, (0.0, 0.0), autopilot="ardusub", ardupilot_bin=BIN, lockstep=False,
+                          ready_timeout_s=120.0, extra_args=list(ARDUSUB_SIM_ARGS)) as sim:
+        link = VehicleLink.connect(sim.endpoint, heartbeat_timeout_s=60.0, vehicle=ARDUSUB_VEHICLE)
+        try:
+            arm_ardusub_when_ready(link, patience_s=120.0)
+            yield sim, link
+        finally:
+            link.close()
+
+
+def _short_campaign(link, abort, tmp_path):
+    from dataclasses import replace
+
+    from behaviors.identification import ManoeuvreConfig
+    from companion.procedures.app import run_campaign
+    from companion.procedures.campaign import CampaignConfig
+
+    config = CampaignConfig(step_labels=("scheduled",)).with_profile_defaults(link.profile)
+    config = replace(config, thrusts=(0.55,), yaw=replace(config.yaw, settle_s=20.0, resettle_s=10.0))
+    assert isinstance(config.yaw, ManoeuvreConfig)
+    with Store(tmp_path / "s.sqlite") as store:
+        return run_campaign(link, store, config, vehicle_id=store.add_vehicle("sub"), abort=abort)
+
+
+def _found(link) -> tuple[dict, str]:
+    return link.get_params(GAINS), link.mode
+
+
+def _assert_as_found(link, found, *, mode: bool = True) -> None:
+    params, found_mode = found
+    now = link.get_params(GAINS)
+    for name, value in params.items():
+        assert now[name] == pytest.approx(value, rel=1e-6, abs=1e-9), name
+    assert not link.overrides.active, "no RC override may outlive a procedure"
+    if mode:
+        assert link.mode == found_mode
+
+
+def test_ardusub_ctrl_c_during_the_doublet_leaves_the_sub_as_found(sub, tmp_path):
+    _sim, link = sub
+    found = _found(link)
+    start = link.vehicle_time_s
+
+    def ctrl_c():  # what the signal handler does, at 23 s: inside the MANUAL excitation
+        return "signal SIGINT" if link.vehicle_time_s - start > 23.0 else None
+
+    _, outcome, _ = _short_campaign(link, ctrl_c, tmp_path)
+    assert outcome.status == "aborted" and outcome.reason == "signal SIGINT"
+    assert outcome.restore_problems == []
+    _assert_as_found(link, found)
+
+
+def test_ardusub_pilot_mode_change_aborts_and_the_pilots_mode_stands(sub, tmp_path):
+    _sim, link = sub
+    found = _found(link)
+    start = link.vehicle_time_s
+    state = {"done": False}
+
+    def pilot():  # the pilot selects STABILIZE (custom mode 0), not through the companion's set_mode
+        if not state["done"] and link.vehicle_time_s - start > 12.0:
+            state["done"] = True
+            link._command_long(176, (1, 0))
+        return None
+
+    _, outcome, _ = _short_campaign(link, pilot, tmp_path)
+    assert outcome.status == "aborted" and "by someone else" in outcome.reason
+    _assert_as_found(link, found, mode=False)
+    assert link.mode == "stabilize"  # the pilot's choice stands
+    link.set_mode(found[1])
+
+
+def test_ardusub_link_loss_aborts_and_the_restore_completes_when_the_link_returns(sub, tmp_path):
+    import signal
+    import threading
+    import time
+
+    sim, link = sub
+    found = _found(link)
+    pid = _sitl_pid(sim)
+    start = link.vehicle_time_s
+    state = {"stopped": False}
+
+    def freeze():  # SITL stops answering for 6.5 s of wall clock: longer than the 5 s link watchdog
+        if not state["stopped"] and link.vehicle_time_s - start > 22.0:
+            state["stopped"] = True
+            os.kill(pid, signal.SIGSTOP)
+            threading.Timer(6.5, os.kill, (pid, signal.SIGCONT)).start()
+        return None
+
+    _, outcome, _ = _short_campaign(link, freeze, tmp_path)
+    assert outcome.status == "aborted" and "LinkLost" in outcome.reason
+    time.sleep(1.0)
+    _assert_as_found(link, found)
+    assert link.armed, "the sub must still be armed (its failsafes did not fire)"
+
+
+def _sitl_pid(sim) -> int:
+    """The ardusub process (a child of the ``python -m sim`` process)."""
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        parent = int(stat.rsplit(")", 1)[1].split()[1])
+        if parent == sim.process.pid and "ardusub" in stat:
+            return int(entry.name)
+    raise AssertionError("no ardusub process under the simulator")
