@@ -24,6 +24,15 @@ def _current(text: str) -> tuple[float, float]:
     return north, east
 
 
+def _fault(text: str):
+    from sim.faults import parse_fault
+
+    try:
+        return parse_fault(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 #: the --listen forms the simulator serves, and what to write instead of the client forms
 LISTEN_FORMS = ("udpin", "tcpin", "udpout")
 CLIENT_FORMS = {"tcp": "tcpin", "udp": "udpin"}
@@ -76,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="folder of the ArduPilot SITL binaries (build/sitl/bin); default $ARDUPILOT_SITL_BIN")
     run.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                      help="extra ArduPilot parameter for SITL's defaults file (repeatable)")
+    run.add_argument("--fault", action="append", default=[], type=_fault, metavar="KIND=FACTOR@SECONDS",
+                     help="inject a fault at a vehicle time (repeatable): b2 (fin effectiveness), thrust "
+                          "(thrust efficiency) or damping (yaw damping a22) scaled by FACTOR, e.g. b2=0.7@600")
     run.add_argument("--truth-log", metavar="CSV", default=None,
                      help="with --autopilot ardurover/ardusub: write the physics' own speed every 0.1 s of "
                           "vehicle time (the autopilot's estimate of it is not the truth)")
@@ -117,7 +129,7 @@ def _run_ardupilot(args: argparse.Namespace) -> int:
     config = SitlConfig(autopilot=args.autopilot, bin_dir=Path(bin_dir), preset=preset,
                         speedup=args.speedup if args.speedup > 0 else 1.0, seed=args.seed, current=args.current,
                         depth=0.0 if args.autopilot == "ardurover" else args.depth, params=params,
-                        truth_log=Path(args.truth_log) if args.truth_log else None)
+                        truth_log=Path(args.truth_log) if args.truth_log else None, faults=tuple(args.fault))
     try:
         sitl = ArduPilotSitl(config, on_ready=lambda endpoint: print(f"READY {endpoint}", flush=True))
     except (ValueError, RuntimeError) as exc:
@@ -153,6 +165,7 @@ def _run(args: argparse.Namespace) -> int:
         depth=args.depth,
         lockstep=args.lockstep,
         signing_key=_signing_key(args.signing_key),
+        faults=tuple(args.fault),
     )
 
     def ready(endpoint: str) -> None:

@@ -57,6 +57,7 @@ class SitlConfig:
     params: dict[str, float] = field(default_factory=dict)
     workdir: Path | None = None  # None: a temporary folder (SITL writes eeprom.bin and logs there)
     truth_log: Path | None = None  # CSV of the physics' own speed over vehicle time (for scoring)
+    faults: tuple = ()  # sim.faults.Fault: injected into the physics at their vehicle time
 
 
 def find_binary(config: SitlConfig) -> Path:
@@ -112,7 +113,8 @@ class ArduPilotSitl:
         self.binary = find_binary(config)
         preset = load_preset(config.preset or AUTOPILOTS[config.autopilot][2])
         self.vehicle = Vehicle(preset, seed=config.seed, current_north=config.current[0],
-                               current_east=config.current[1], depth=config.depth, speed=0.0)
+                               current_east=config.current[1], depth=config.depth, speed=0.0,
+                               faults=config.faults)
         for name, value in FRAME_LIMITS.get(config.autopilot, {}).items():
             setattr(self.vehicle.limits, name, value)
         factory = DECODERS[config.autopilot]

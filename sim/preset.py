@@ -171,6 +171,8 @@ class Preset:
     autopilot: AutopilotDefaults
     sensors: SensorNoise
     surface: bool = False  # a surface vessel: depth, pitch and heave held at 0 (no dive plane)
+    # faults injected at their vehicle time (sim/faults.py; optional "faults" list of a preset file)
+    faults: tuple = ()
 
     @property
     def attitude_noise(self) -> float:
@@ -211,7 +213,10 @@ def preset_from_dict(data: dict[str, Any]) -> Preset:
     surface = data.get("surface", False)
     if not isinstance(surface, bool):
         raise ValueError(f"preset field 'surface' must be true or false, not {surface!r}")
-    return Preset(name=str(data["name"]), description=str(data.get("description", "")), surface=surface, **sections)
+    from sim.faults import faults_from_json
+
+    return Preset(name=str(data["name"]), description=str(data.get("description", "")), surface=surface,
+                  faults=faults_from_json(data.get("faults")), **sections)
 
 
 def load_preset(name: str) -> Preset:

@@ -100,6 +100,7 @@ class SimConfig:
     heading: float = 0.0
     lockstep: bool = False  # see SimServer._lockstep_limit
     signing_key: bytes | None = None  # MAVLink 2 signing: sign everything, drop unsigned input
+    faults: tuple = ()  # sim.faults.Fault: a property scaled from a vehicle time on (with the preset's)
 
 
 class _Stream:
@@ -131,6 +132,7 @@ class SimServer:
             current_east=config.current_east,
             depth=config.depth,
             heading=config.heading,
+            faults=config.faults,
         )
         self.autopilot = Autopilot(self.vehicle, self.params)
         self.tick = 0

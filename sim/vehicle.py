@@ -12,8 +12,10 @@ moment (thesis ch. 5); positive rolling-mass angle → negative roll (thesis ch.
 """
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -22,8 +24,11 @@ from sim.physics.dive_plane import DivePlaneConstants, dive_plane_accelerations
 from sim.physics.equilibrium import level_trim_at_speed, level_trim_at_thrust
 from sim.physics.roll import RollConstants, propeller_torque, roll_acceleration
 from sim.physics.thruster import thrust_force
+from sim.faults import Fault, in_time_order, scale_yaw
 from sim.physics.yaw import YawConstants, sway_acceleration, yaw_acceleration
 from sim.preset import Preset
+
+log = logging.getLogger(__name__)
 
 TWO_PI = 2.0 * math.pi
 
@@ -111,12 +116,17 @@ class Vehicle:
         depth: float = 5.0,
         heading: float = 0.0,
         speed: float | None = None,
+        faults: Sequence[Fault] = (),
     ) -> None:
         self.preset = preset
         a = preset.actuators
         self.limits = ActuatorLimits(a.rudder_max, a.rudder_rate, a.elevator_max, a.elevator_rate, a.mass_max)
         self._dive = DivePlaneConstants.from_preset(preset.dive_plane)
         self._yaw = YawConstants.from_preset(preset.yaw, preset.sway)
+        self._thrust_efficiency = 1.0
+        # the preset's faults and the caller's, applied in order of onset (sim/faults.py)
+        self._pending_faults = in_time_order((*getattr(preset, "faults", ()), *faults))
+        self.active_faults: list[Fault] = []
         self._roll = RollConstants.from_preset(preset.roll)
         self._mass_time_constant = preset.roll.servo_time_constant
         seeds = np.random.SeedSequence(seed).spawn(2)
@@ -186,6 +196,17 @@ class Vehicle:
         self.roll = roll
         self.roll_rate = 0.0
 
+    def _apply_due_faults(self) -> None:
+        """Apply every fault whose onset has come (sim/faults.py): from then on the physics differs."""
+        while self._pending_faults and self.time_s >= self._pending_faults[0].at_s - 1e-9:
+            fault = self._pending_faults.pop(0)
+            if fault.kind == "thrust":
+                self._thrust_efficiency *= fault.factor
+            else:
+                self._yaw = scale_yaw(self._yaw, fault)
+            self.active_faults.append(fault)
+            log.info("fault injected at t=%.2f s: %s", self.time_s, fault.describe())
+
     # ------------------------------------------------------------------ dynamics
     def _derivatives(
         self, u: float, w: float, q: float, theta: float, r: float, psi: float, v: float,
@@ -211,6 +232,8 @@ class Vehicle:
         ``heave_force`` (N, positive down) is an external vertical thrust (a vectored vehicle's
         vertical thrusters). A surface vessel (``preset.surface``) stays at the surface, level in pitch."""
         self._heave_force = heave_force
+        if self._pending_faults:
+            self._apply_due_faults()
         lim = self.limits
         self.rudder = _toward(self.rudder, demand.rudder, lim.rudder_max, lim.rudder_rate * dt)
         self.elevator = _toward(self.elevator, demand.elevator, lim.elevator_max, lim.elevator_rate * dt)
@@ -218,7 +241,7 @@ class Vehicle:
         mass_target = max(-lim.mass_max, min(lim.mass_max, demand.mass_angle))
         self.mass_angle += (mass_target - self.mass_angle) * (1.0 - math.exp(-dt / self._mass_time_constant))
 
-        thrust = thrust_force(self.preset.thruster, self.thrust_ratio)
+        thrust = thrust_force(self.preset.thruster, self.thrust_ratio) * self._thrust_efficiency
         roll_moment = propeller_torque(self._roll, self.thrust_ratio) + self._disturbance.step(dt)
         x0 = (self.surge, self.heave, self.pitch_rate, self.pitch, self.depth, self.yaw_rate, self.yaw,
               self.sway, self.roll, self.roll_rate, self.north, self.east)
