@@ -32,6 +32,10 @@ KEY_FIGURES = (".runs[0].a22", ".runs[0].b2", ".runs[0].r2", ".runs[0].converged
                ".roll.std_closed_deg", ".vehicle_time_s")
 
 
+class RehearsalFailed(RuntimeError):
+    pass
+
+
 def rehearse(seed: int, speedup: float, options: list[str], workdir: Path) -> dict:
     """One ``companion rehearse --json`` in its own directory (same relative --out every time)."""
     workdir.mkdir(parents=True)
@@ -39,7 +43,7 @@ def rehearse(seed: int, speedup: float, options: list[str], workdir: Path) -> di
                "--json", "--out", "rehearsal", *options]
     done = subprocess.run(command, cwd=workdir, capture_output=True, text=True, check=False)
     if done.returncode != 0:
-        raise RuntimeError(f"rehearsal failed ({done.returncode}): {done.stderr[-800:]}")
+        raise RehearsalFailed(f"rehearsal failed ({done.returncode}): {done.stderr[-800:]}")
     return json.loads(done.stdout)
 
 
@@ -77,19 +81,34 @@ def main() -> int:
     repeats: list[dict] = []
     by_seed: list[dict] = []
     walls: list[float] = []
+    failures: list[str] = []  # a failed run is a result too: reported, never hidden
     try:
         with tempfile.TemporaryDirectory(prefix="bench-repro-") as tmp:
             for index in range(args.repeats):
                 started = time.monotonic()
-                repeats.append(rehearse(seeds[0], args.speedup, options, Path(tmp) / f"repeat{index}"))
+                try:
+                    repeats.append(rehearse(seeds[0], args.speedup, options, Path(tmp) / f"repeat{index}"))
+                except RehearsalFailed as exc:
+                    failures.append(f"repeat {index + 1}: {exc}")
+                    continue
                 walls.append(time.monotonic() - started)
                 log.info("repeat %d: %.1f s wall", index + 1, walls[-1])
-            by_seed.append(repeats[0])
+            if repeats:
+                by_seed.append(repeats[0])
             for seed in seeds[1:]:
-                by_seed.append(rehearse(seed, args.speedup, options, Path(tmp) / f"seed{seed}"))
+                try:
+                    by_seed.append(rehearse(seed, args.speedup, options, Path(tmp) / f"seed{seed}"))
+                except RehearsalFailed as exc:
+                    failures.append(f"seed {seed}: {exc}")
+                    continue
                 log.info("seed %d done", seed)
     finally:
         stop_load(hogs)
+    for failure in failures:
+        print("FAILED", failure[-600:])
+    if len(repeats) < 2 or len(by_seed) < 2:
+        print("not enough completed runs to compare")
+        return 1
     over_repeats, over_seeds = spread(repeats), spread(by_seed)
     print(f"\n{'figure':36s} {'spread over repeats':>20s} {'spread over seeds':>18s}")
     for path in KEY_FIGURES:
