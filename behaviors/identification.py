@@ -38,6 +38,7 @@ from companion.interface import (
 )
 from companion.numerics.identification import ConvergenceRule, PitchIdentifier, PitchModel, YawIdentifier, YawModel
 from companion.numerics.validation import validate_pitch, validate_yaw
+from behaviors.steadiness import SteadinessDetector, SteadinessRule
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +70,11 @@ class ManoeuvreConfig:
     input_hold: str = "foh"
     output_hold: str = "foh"
     live_value_period_s: float = 0.25  # NAMED_VALUE_FLOAT rate of the live estimates
+    # issue 10: None settles and resettles for the fixed times above (the thesis); a rule ends them
+    # as soon as the vehicle is steady (behaviors/steadiness.py), the fixed times being the maximum
+    steadiness: SteadinessRule | None = None
+    # length of the validation record after its doublet (None: post_excitation_s, as training)
+    validation_post_s: float | None = None
 
     @property
     def actuator(self) -> str:
@@ -80,8 +86,14 @@ class ManoeuvreConfig:
 
     @property
     def window_s(self) -> float:
-        """Length of the training stage without early stop, and of the validation record."""
+        """Length of the training stage without early stop (and of the validation record unless
+        ``validation_post_s`` shortens it)."""
         return self.excitation_end_s + self.post_excitation_s
+
+    @property
+    def validation_window_s(self) -> float:
+        post = self.post_excitation_s if self.validation_post_s is None else self.validation_post_s
+        return self.excitation_end_s + post
 
 
 def thesis_estimator(config: ManoeuvreConfig) -> ManoeuvreConfig:
@@ -165,6 +177,8 @@ class IdentificationManoeuvre(Behaviour):
         self._last_live = -math.inf
         self._overriding = False
         self._training_time_s = math.nan
+        self._steadiness: SteadinessDetector | None = None
+        self.stage_times: dict[str, float] = {}  # vehicle seconds spent per stage (issue 10)
         self.outcome: str | None = None  # "accepted", "rejected", "aborted"
 
     @property
@@ -174,7 +188,24 @@ class IdentificationManoeuvre(Behaviour):
     # ------------------------------------------------------------------ lifecycle
     def initialise(self, telemetry: Telemetry) -> Sequence[Command]:
         self._stage_start = telemetry.time_s
-        return [self._status(f"settling {self.config.settle_s:.0f} s")]
+        self._new_steadiness(telemetry)
+        limit = "until steady, at most " if self.config.steadiness is not None else ""
+        return [self._status(f"settling {limit}{self.config.settle_s:.0f} s")]
+
+    def _new_steadiness(self, telemetry: Telemetry) -> None:
+        rule = self.config.steadiness
+        # the course is known once a record started; before, only the rates count
+        self._steadiness = SteadinessDetector(rule, self.config.axis, self._course) if rule is not None else None
+
+    def _settled(self, telemetry: Telemetry, t_rel: float, limit_s: float) -> bool:
+        """The settle (or resettle) may end: its fixed time is up, or the vehicle is steady."""
+        if t_rel >= limit_s:
+            return True
+        detector = self._steadiness
+        if detector is None:
+            return False
+        detector.add(telemetry.time_s, telemetry.speed_water, telemetry.yaw_rate, telemetry.pitch_rate, telemetry.yaw)
+        return detector.steady(telemetry.time_s)
 
     def update(self, telemetry: Telemetry) -> Sequence[Command]:
         now = telemetry.time_s
@@ -186,7 +217,7 @@ class IdentificationManoeuvre(Behaviour):
         if self.stage == TRAIN:
             return self._step_train(telemetry, t_rel)
         if self.stage == RESETTLE:
-            if t_rel >= self.config.resettle_s:
+            if self._settled(telemetry, t_rel, self.config.resettle_s):
                 self._enter(VALIDATE, now)
                 return [self._status(f"validating on a fresh {self.config.validation_amplitude:.2f} rad doublet")]
             return []
@@ -205,8 +236,13 @@ class IdentificationManoeuvre(Behaviour):
 
     # ------------------------------------------------------------------ stages
     def _enter(self, stage: str, now: float) -> None:
+        if self._stage_start is not None:
+            self.stage_times[self.stage] = self.stage_times.get(self.stage, 0.0) + (now - self._stage_start)
         self.stage = stage
         self._stage_start = now
+        if stage in (SETTLE, RESETTLE) and self._steadiness is not None:
+            rule = self.config.steadiness
+            self._steadiness = SteadinessDetector(rule, self.config.axis, self._course)
 
     def _signal(self, telemetry: Telemetry) -> float:
         return telemetry.yaw if self.config.axis == "yaw" else telemetry.pitch
@@ -215,7 +251,7 @@ class IdentificationManoeuvre(Behaviour):
         return telemetry.rudder if self.config.axis == "yaw" else telemetry.elevator
 
     def _step_settle(self, telemetry: Telemetry, t_rel: float) -> list[Command]:
-        if t_rel < self._settle_s:
+        if not self._settled(telemetry, t_rel, self._settle_s):
             return []
         return self._start_training(telemetry)
 
@@ -283,7 +319,7 @@ class IdentificationManoeuvre(Behaviour):
         signal, actuator = self._signal(telemetry), self._actuator(telemetry)
         if math.isfinite(signal) and math.isfinite(actuator):
             self._validation.add(telemetry.time_s, signal, actuator)
-        if t_rel < self.config.window_s:
+        if t_rel < self.config.validation_window_s:
             return commands
         if self._overriding:
             self._overriding = False
@@ -309,11 +345,11 @@ class IdentificationManoeuvre(Behaviour):
         commands: list[Command] = [self._status(f"validation R2 {r2:.3f}: {verdict}")]
         if accepted:
             self.outcome = "accepted"
-            self.stage = DONE
+            self._enter(DONE, now)
             self.finish(Status.SUCCESS)
         elif self.attempt >= self.config.max_attempts:
             self.outcome = "rejected"
-            self.stage = DONE
+            self._enter(DONE, now)
             self.finish(Status.FAILURE, f"no model passed validation after {self.attempt} attempts")
             commands.append(self._status(f"no model passed validation after {self.attempt} attempts", 4))
         else:  # repeat from the training stage after a short resettle (bounded by max_attempts)

@@ -138,3 +138,40 @@ class SequenceBehavior(Behaviour):
     def result(self) -> dict:
         return {"name": self.name, "status": self.status.value, "reason": self.reason,
                 "steps": [b.result() for b in self.completed]}
+
+
+class ParallelBehavior(Behaviour):
+    """Children stepped on the same telemetry, their commands concatenated (issue 10: the yaw and
+    pitch identifications at one thrust run together — the axes are decoupled in the model and
+    their doublets are staggered, so each estimator sees an input the other does not drive).
+
+    Done when every child is; SUCCESS only if every child succeeded, otherwise FAILURE with the
+    first child's reason. An abort stops every child still running."""
+
+    def __init__(self, children: Sequence[Behaviour], name: str | None = None) -> None:
+        super().__init__(name or "parallel")
+        self.children = list(children)
+        footprint = Footprint()
+        for child in self.children:
+            footprint = footprint | footprint_of(child)
+        self.footprint = footprint
+
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
+        commands: list[Command] = []
+        for child in self.children:
+            commands += child.tick(telemetry)
+        if all(child.done for child in self.children):
+            failed = [child for child in self.children if child.status is not Status.SUCCESS]
+            if failed:
+                self.finish(Status.FAILURE, failed[0].reason)
+            else:
+                self.finish(Status.SUCCESS)
+        return commands
+
+    def terminate(self, status: Status) -> Sequence[Command]:
+        if status is not Status.ABORTED:
+            return []
+        commands: list[Command] = []
+        for child in self.children:
+            commands += child.stop(self.reason or "aborted")
+        return commands

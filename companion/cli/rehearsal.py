@@ -239,7 +239,9 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
             campaign, outcome, campaign_id = run_campaign(link, store, config.campaign, vehicle_id=vehicle_id,
                                                           abort=abort, console=console, limits=SafetyLimits())
             summary.update(status=outcome.status, reason=outcome.reason, campaign_id=campaign_id,
-                           vehicle_time_s=outcome.vehicle_time_s)
+                           vehicle_time_s=outcome.vehicle_time_s,
+                           vehicle_time_by_phase={k: round(v, 2) for k, v in campaign.vehicle_time_by_phase.items()},
+                           identification_stage_s={k: round(v, 2) for k, v in campaign.phase_times.items()})
             extra: dict = {}
             if outcome.status == "completed":
                 extra = _run_behaviors(link, store, config, vehicle_id, campaign_id, abort, summary)

@@ -33,7 +33,8 @@ from behaviors.base import Behaviour, Footprint, Status
 from behaviors.gain_scheduling import GainDesign, ScheduleKind
 from behaviors.heading_steps import HeadingStepTest, StepTestConfig, reengage_hold
 from behaviors.identification import IdentificationAttempt, IdentificationManoeuvre, ManoeuvreConfig, thesis_estimator
-from behaviors.sequence import Deferred, Instant, SequenceBehavior
+from behaviors.sequence import Deferred, Instant, ParallelBehavior, SequenceBehavior
+from behaviors.steadiness import SteadinessRule
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.cascade_gains import CascadeRules, quicktune_feed_forward
 from companion.numerics.gains import GainBounds
@@ -66,9 +67,22 @@ class CampaignConfig:
     step_labels: tuple[str, ...] = ("original", "constant", "scheduled")
     step_test: StepTestConfig = StepTestConfig()
     verify: "GainCheck" = field(default_factory=lambda: GainCheck())
+    # identify yaw and pitch at one thrust together (their doublets staggered) instead of in turn
+    parallel_axes: bool = False
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    def quick(self) -> "CampaignConfig":
+        """Issue 10's procedure: settles and resettles end once the vehicle is steady (the thesis'
+        40/15 s become the maximum), the pre-excitation is 0.5 s, validation records end 4 s after
+        their doublet (the slowest yaw/pitch time constant is ~1 s), and yaw and pitch run together
+        with the pitch doublet half a period after the yaw one. The thesis procedure stays the default."""
+        rule = SteadinessRule()
+        yaw = replace(self.yaw, steadiness=rule, pre_excitation_s=0.5, validation_post_s=4.0)
+        pitch = replace(self.pitch, steadiness=rule, pre_excitation_s=0.5 + self.yaw.doublet_period_s / 2,
+                        validation_post_s=4.0)
+        return replace(self, yaw=yaw, pitch=pitch, parallel_axes=True)
 
     def with_thesis_estimator(self) -> "CampaignConfig":
         """The seeds' exact estimator on both axes (P0 = 100·I, zero-order holds)."""
@@ -166,6 +180,8 @@ class IdentificationCampaign(Behaviour):
         self.designs: dict[str, GainDesign] = {}
         self.design_errors: dict[str, str] = {}
         self.step_results: list[dict] = []
+        self.vehicle_time_by_phase: dict[str, float] = {}  # see _count_phase_time
+        self.phase_times: dict[str, float] = {}  # per identification stage, summed over manoeuvres
         self.final_gains: dict[str, float] | None = None
         self._sequence: SequenceBehavior | None = None
         self._total = 0
@@ -195,10 +211,12 @@ class IdentificationCampaign(Behaviour):
         for index, thrust in enumerate(cfg.thrusts):
             prefix = f"[{index + 1}/{len(cfg.thrusts)} T{thrust * 100:.0f}] "
             items.append(Instant(SetThrust(thrust), SetHeading(course), name=f"thrust {thrust:.2f}"))
-            for axis in cfg.axes:
-                manoeuvre_config = cfg.yaw if axis == "yaw" else cfg.pitch
-                items.append(IdentificationManoeuvre(replace(manoeuvre_config, axis=axis), thrust=thrust,
-                                                     status_prefix=prefix))
+            manoeuvres = [IdentificationManoeuvre(replace(cfg.yaw if axis == "yaw" else cfg.pitch, axis=axis),
+                                                  thrust=thrust, status_prefix=prefix) for axis in cfg.axes]
+            if cfg.parallel_axes and len(manoeuvres) > 1:
+                items.append(ParallelBehavior(manoeuvres, name=f"yaw and pitch at {thrust:.2f}"))
+            else:
+                items.extend(manoeuvres)
         items.append(Deferred(self._design_step))
         heading_gains = Footprint.of(self.heading_kind.parameters if self.heading_kind else (),
                                      ("mode", "thrust", "heading"))
@@ -314,7 +332,12 @@ class IdentificationCampaign(Behaviour):
 
     # ------------------------------------------------------------------ events
     def _on_complete(self, behavior: Behaviour) -> None:
+        if isinstance(behavior, ParallelBehavior):
+            for child in behavior.children:
+                self._on_complete(child)
+            return
         if isinstance(behavior, IdentificationManoeuvre):
+            self.phase_times = _add_times(self.phase_times, behavior.stage_times)
             self.manoeuvres.append({k: v for k, v in behavior.result().items() if k != "attempts"})
             for attempt in behavior.attempts:
                 self.events.append({"type": "run", "attempt": attempt})
@@ -331,7 +354,8 @@ class IdentificationCampaign(Behaviour):
             return 1.0
         if self._sequence is None or not self._total:
             return 0.0
-        done = sum(1 for b in self._sequence.completed if isinstance(b, (IdentificationManoeuvre, HeadingStepTest)))
+        done = sum(len(b.children) if isinstance(b, ParallelBehavior) else 1 for b in self._sequence.completed
+                   if isinstance(b, (IdentificationManoeuvre, HeadingStepTest, ParallelBehavior)))
         return min(1.0, done / self._total)
 
     @property
@@ -350,10 +374,26 @@ class IdentificationCampaign(Behaviour):
             if not telemetry.finite("yaw"):
                 return []
             self._sequence = self._build(telemetry.yaw)
+        self._count_phase_time(telemetry.time_s)
         commands = list(self._sequence.tick(telemetry))
         if self._sequence.done:
             commands += self._conclude()
         return commands
+
+    def _count_phase_time(self, now: float) -> None:
+        """Vehicle seconds per phase of the campaign (issue 10: what the campaign costs at sea):
+        identification (settles, records), checks (heading steps) and the rest (design, writes)."""
+        last = getattr(self, "_phase_clock", None)
+        current = self._sequence.current if self._sequence is not None else None
+        if isinstance(current, (IdentificationManoeuvre, ParallelBehavior)):
+            phase = "identification"
+        elif isinstance(current, HeadingStepTest):
+            phase = "heading_steps"
+        else:
+            phase = "other"
+        if last is not None and now > last[0]:
+            self.vehicle_time_by_phase[last[1]] = self.vehicle_time_by_phase.get(last[1], 0.0) + (now - last[0])
+        self._phase_clock = (now, phase)
 
     def _conclude(self) -> list[Command]:
         if not self.accepted:
@@ -385,3 +425,12 @@ class IdentificationCampaign(Behaviour):
             "steps": [{k: v for k, v in r.items() if k != "series"} for r in self.step_results],
             "final_gains": self.final_gains,
         }
+
+
+def _add_times(total: dict[str, float], more: dict[str, float]) -> dict[str, float]:
+    """Vehicle seconds per identification stage, summed over manoeuvres (run together, a parallel
+    pair's stages overlap: their sum is the axes' time, not the campaign's)."""
+    out = dict(total)
+    for stage, seconds in more.items():
+        out[stage] = out.get(stage, 0.0) + seconds
+    return out
