@@ -108,8 +108,13 @@ class _SvfRlsIdentifier:
         forgetting: float = 1.0,
         output_hold: str = "foh",
         input_hold: str = "zoh",
+        warm_up_s: float = 0.0,
     ) -> None:
         self.bandwidth = bandwidth
+        # samples within warm_up_s of the first only run the filters (no RLS update): a record that
+        # does not start at rest (a log cut mid-turn) lets their start-up transient die out first;
+        # it decays as e^(−λt)(1 + λt): 0.3 % of the initial error after 8/λ
+        self.warm_up_s = float(warm_up_s)
         self.rule = rule
         self._output_filter = StateVariableFilter(bandwidth, hold=output_hold)
         self._input_filter = StateVariableFilter(bandwidth, hold=input_hold)
@@ -117,11 +122,13 @@ class _SvfRlsIdentifier:
         self.history = IdentificationHistory()
         self.samples = 0
         self.skipped = 0
+        self.warming = 0  # samples that only advanced the filters (warm_up_s)
         self.converged = False
         self.converged_at_s: float | None = None  # when training may stop (the rule held long enough)
         self.criterion_met_from_s: float | None = None  # when eq. 3.39 started to hold for good
         self._quiet_start = 0.0
         self._first_time: float | None = None
+        self._rls_start: float | None = None  # time of the first RLS update (after the warm-up)
         self._last_time: float | None = None
         self._last_raw_output: float | None = None
         self._output_unwrapped = 0.0
@@ -154,12 +161,17 @@ class _SvfRlsIdentifier:
             out_f = self._output_filter.update(self._output_unwrapped, dt)
             in_f = self._input_filter.update(actuator, dt)
         self._last_time = time_s
+        if time_s - self._first_time < self.warm_up_s:
+            self.warming += 1
+            return
+        if self._rls_start is None:
+            self._rls_start = time_s
 
         previous = self.rls.theta.copy()
         regressor, target = self._regression(out_f, in_f)
         theta = self.rls.update(regressor, target)
         self.samples += 1
-        elapsed = time_s - self._first_time
+        elapsed = time_s - self._rls_start  # the first sample's time unless there is a warm-up
         step_norm = float(np.linalg.norm(theta - previous))
         self.history.time_s.append(elapsed)
         self.history.theta.append(theta.tolist())

@@ -43,6 +43,15 @@ def _figure(path: Path, draw: Callable[[], None], size=(9, 5)) -> str | None:
         plt.close(fig)
 
 
+def _run_label(run: dict) -> str:
+    """"T 60%" for a campaign run; a run from a log without thrust is named by its speed."""
+    thrust = run.get("thrust")
+    if isinstance(thrust, (int, float)):
+        return f"T {thrust * 100:.0f}%"
+    speed = run.get("speed")
+    return f"#{run.get('attempt')} u {speed:.2f} m/s" if isinstance(speed, (int, float)) else f"#{run.get('attempt')}"
+
+
 def _by_thrust(runs: list[dict], axis: str) -> list[dict]:
     return sorted((r for r in runs if r["axis"] == axis), key=lambda r: (r["thrust"] or 0, r["attempt"]))
 
@@ -64,7 +73,7 @@ def plot_convergence(runs: list[dict], path: Path) -> str | None:
                     continue
                 values = (np.asarray(history["delta0"]) * np.asarray(history["b2"]) if name == "C0"
                           else history[name])
-                ax.plot(history["time_s"], values, label=f"T {run['thrust'] * 100:.0f}%")
+                ax.plot(history["time_s"], values, label=_run_label(run))
                 if run.get("converged_s"):
                     ax.axvline(run["converged_s"], color="0.8", lw=0.8)
             ax.set_ylabel(name)
@@ -93,7 +102,7 @@ def plot_validation(runs: list[dict], path: Path) -> str | None:
             if val.get("simulated"):
                 ax.plot(t, np.degrees(val["simulated"]), "--", label="model")
             ax.set_ylabel("heading (deg)")
-            ax.set_title(f"T {run['thrust'] * 100:.0f}%  u {run['speed']:.2f} m/s  R² {run['r2']:.3f}", fontsize=9)
+            ax.set_title(f"{_run_label(run)}  u {run['speed']:.2f} m/s  R² {run['r2']:.3f}", fontsize=9)
             ax.grid(True, alpha=0.3)
             if i == 0:
                 ax.legend(fontsize=7)

@@ -19,8 +19,8 @@ def add_store_argument(parser: argparse.ArgumentParser) -> None:
                         help="SQLite store (default: $COMPANION_STORE or ./%(default)s)")
 
 
-def add_connect_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--connect", required=True, metavar="ENDPOINT", type=endpoint_argument,
+def add_connect_arguments(parser: argparse.ArgumentParser, required: bool = True) -> None:
+    parser.add_argument("--connect", required=required, metavar="ENDPOINT", type=endpoint_argument,
                         help="pymavlink connection string, e.g. udpin:0.0.0.0:14551, udpout:127.0.0.1:14550, "
                              "tcp:127.0.0.1:5760, /dev/ttyUSB0,57600")
     parser.add_argument("--profile", choices=("sim", "ardusub", "ardurover"), default=None,

@@ -15,7 +15,11 @@ def add_parser(subparsers) -> None:
         description="Settles, excites with rudder (and elevator) doublets, identifies online, validates on "
                     "fresh doublets at each thrust, designs speed-scheduled heading PI gains and writes them. "
                     "Ctrl-C (or MAV_CMD_USER_4 from the ground station) aborts and restores the autopilot.")
-    add_connect_arguments(parser)
+    add_connect_arguments(parser, required=False)
+    parser.add_argument("--log", metavar="FILE", default=None,
+                        help="identify offline from a recorded mission instead of a connected vehicle: a tlog, an "
+                             "ArduPilot DataFlash .bin, a PX4 .ulg or a CSV (t, yaw, rudder, speed); ordinary course "
+                             "changes at steady speed are enough (--profile decodes the actuators; default sim)")
     add_store_argument(parser)
     parser.add_argument("--thrusts", type=thrust_list, default=None,
                         help="thrust settings (default: the autopilot's: 60..100%% on our simulator and ArduRover, "
@@ -65,6 +69,14 @@ def campaign_config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.log is not None:
+        from companion.cli.commands.identify_log import run_log
+
+        return run_log(args)
+    if args.connect is None:
+        print("companion identify: error: one of --connect ENDPOINT (a vehicle) or --log FILE (a recorded "
+              "mission) is required", file=sys.stderr)
+        return 2
     from companion.procedures.app import ConsoleProgress, run_campaign, vehicle_record
     from companion.records.report import write_report
     from companion.records.store import Store
