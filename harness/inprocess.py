@@ -107,9 +107,10 @@ class _AutopilotHost:
     gcs_sysid: int = 255
     refuse: set[str] | frozenset[str] = frozenset()
 
-    def _build(self, preset_name: str, seed: int, depth: float, speed: float | None = None) -> None:
+    def _build(self, preset_name: str, seed: int, depth: float, speed: float | None = None,
+               faults: tuple = ()) -> None:
         preset = load_preset(preset_name)
-        self.vehicle = Vehicle(preset, seed=seed, depth=depth, speed=speed)
+        self.vehicle = Vehicle(preset, seed=seed, depth=depth, speed=speed, faults=faults)
         self.autopilot = Autopilot(self.vehicle, ParamTable.for_preset(preset))
         self.overrides: dict[str, float] = {}
         self.status_texts: list[str] = []
@@ -186,9 +187,10 @@ class InProcessLink(_AutopilotHost):
     lose_link_at_s: float | None = None
     nan_from_s: float | None = None
     gcs_sysid: int = 255
+    faults: tuple = ()  # sim.faults.Fault: the physics changes at their vehicle time
 
     def __post_init__(self) -> None:
-        self._build(self.preset, self.seed, self.depth)
+        self._build(self.preset, self.seed, self.depth, faults=self.faults)
         self.system_id = 1
         self.autopilot.arm(True)
         self.autopilot.set_mode(MODE_ALT_HOLD)  # as a vehicle waiting for its mission would be

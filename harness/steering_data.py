@@ -21,8 +21,10 @@ class SteeringTruth:
 def synth_steering(seconds: float = 240.0, rate_hz: float = 20.0, *, truth: SteeringTruth = SteeringTruth(),
                    speed=lambda t: 1.5, course_every_s: float = 30.0, course_deg=(25.0, -30.0, 20.0, -15.0),
                    kp: float = 0.6, rudder_max: float = 0.35, rudder_rate: float = 0.5,
-                   heading_noise_deg: float = 0.1, seed: int = 0, substeps: int = 10) -> dict[str, np.ndarray]:
-    """{"t", "heading" (wrapped, rad), "rudder" (rad), "speed" (m/s), "course"} sampled at ``rate_hz``."""
+                   heading_noise_deg: float = 0.1, seed: int = 0, substeps: int = 10,
+                   b2_change: tuple[float, float] | None = None) -> dict[str, np.ndarray]:
+    """{"t", "heading" (wrapped, rad), "rudder" (rad), "speed" (m/s), "course"} sampled at ``rate_hz``;
+    ``b2_change`` = (time s, factor) scales b2 from that time on (a fault)."""
     rng = np.random.default_rng(seed)
     n = int(round(seconds * rate_hz))
     dt = 1.0 / rate_hz
@@ -40,7 +42,8 @@ def synth_steering(seconds: float = 240.0, rate_hz: float = 20.0, *, truth: Stee
         out["speed"][k], out["course"][k] = speed(t), course
         for _ in range(substeps):
             delta += max(-rudder_rate * h, min(rudder_rate * h, demand - delta))
-            acc = truth.a22 * r + truth.b2 * (delta - truth.delta0)
+            b2 = truth.b2 * (b2_change[1] if b2_change is not None and t >= b2_change[0] else 1.0)
+            acc = truth.a22 * r + b2 * (delta - truth.delta0)
             psi += h * r + 0.5 * h * h * acc
             r += h * acc
     out["heading"] = np.remainder(out["heading"] + rng.normal(0, math.radians(heading_noise_deg), n) + math.pi,

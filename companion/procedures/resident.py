@@ -1,7 +1,10 @@
 """Running beside a vehicle: the companion's resident loop (SPEC C1, C5; ``companion run``).
 
 Between procedures it keeps the heading gains matched to speed with the schedule fitted from the
-store's latest accepted yaw models (rate-limited, with hysteresis). A ground station starts and
+store's latest accepted yaw models (rate-limited, with hysteresis), and watches the vehicle's health:
+passive identification from its ordinary manoeuvres against the stored models at the same speed,
+with a STATUSTEXT warning, NAMED_VALUE_FLOATs and a store event when a parameter drifts
+(``companion.procedures.health``, issue 11). A ground station starts and
 stops procedures with COMMAND_LONG aimed at component 191:
 
 | command | procedure |
@@ -26,6 +29,7 @@ from typing import Callable
 
 from behaviors.gain_scheduling import GainDesign, GainScheduler, SchedulingConfig
 from behaviors.base import Footprint
+from companion.numerics.drift import DriftConfig
 from companion.numerics.gains import GainBounds
 from companion.numerics.schedule import YawSchedule
 from companion.procedures.app import (
@@ -39,6 +43,7 @@ from companion.procedures.app import (
     run_named_procedure,
 )
 from companion.procedures.campaign import CampaignConfig
+from companion.procedures.health import HealthSession
 from companion.procedures.min_speed import MinSpeedProcedureConfig
 from companion.procedures.registry import (
     ABORT_COMMAND,
@@ -85,6 +90,9 @@ class ServeConfig:
     schedules: tuple[str, ...] = ("heading", "pitch")  # kinds kept matched to speed, when designed
     preset: str | None = None  # simulator preset (analytic minimum speed, simulator hooks)
     max_vehicle_s: float | None = None  # stop after this much vehicle time (tests); None: until signalled
+    # health monitoring (issue 11): passive identification against the stored models between procedures
+    health: bool = True
+    drift: DriftConfig = DriftConfig()
 
 
 class Companion:
@@ -98,6 +106,7 @@ class Companion:
         self.scheduler: GainScheduler | None = None
         self.unscheduled: RestorePoint | None = None
         self.history: list[dict] = []
+        self.health = HealthSession(link, store, vehicle_id, config.drift) if config.health else None
         link.on_user_command(self._on_user_command)
 
     # ------------------------------------------------------------------ ground station
@@ -164,6 +173,8 @@ class Companion:
     def run(self) -> list[dict]:
         """Serve until stopped; then the gains in place before scheduling started are written back."""
         self._rebuild_scheduler()
+        if self.health is not None:
+            self.health.start()
         self.link.status_text("companion ready: USER_1 identify, USER_2 roll, USER_3 min-speed, USER_4 abort")
         start = math.nan
         try:
@@ -178,7 +189,11 @@ class Companion:
                     continue
                 if self.scheduler is not None:
                     self._schedule(telemetry)
+                if self.health is not None:
+                    self.health.step(telemetry)
         finally:
+            if self.health is not None:
+                self.health.finish()
             if self.scheduler is not None and self.scheduler.writes and self.unscheduled is not None:
                 self.unscheduled.restore(self.link, mode=False)
         return self.history
@@ -219,6 +234,8 @@ class Companion:
                 entry = {"procedure": name, "status": outcome.status, "reason": outcome.reason,
                          "campaign_id": campaign_id}
                 self._rebuild_scheduler()
+                if self.health is not None:  # a new campaign is the new healthy reference
+                    self.health.start()
             else:
                 seconds = params[0] if params and math.isfinite(params[0]) and params[0] > 0 else None
                 if seconds is not None and seconds > MAX_PROCEDURE_S:

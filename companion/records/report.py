@@ -3,8 +3,9 @@
 Plots (each skipped when its data is absent): parameter convergence (thesis Fig. 3.7), validation
 overlays with R² (Fig. 3.9), b2 against u² with the fitted law (Fig. 3.8), turning radius / rate /
 U-turn time against speed (Fig. 3.13), heading steps with the original, one constant and the
-scheduled gains (Fig. 3.16), thrust and speed during minimum-speed seeking (Fig. 5.22) and roll
-open against closed loop (Fig. 4.8). Regenerate any time with ``companion results --report``.
+scheduled gains (Fig. 3.16), thrust and speed during minimum-speed seeking (Fig. 5.22), roll
+open against closed loop (Fig. 4.8) and, for a ``companion run`` session, the drift of the passive
+estimates with their CUSUM (issue 11). Regenerate any time with ``companion results --report``.
 """
 from __future__ import annotations
 
@@ -293,6 +294,47 @@ def plot_steady_state(result: dict, path: Path) -> str | None:
     return _figure(path, draw, (12, 5.5))
 
 
+def plot_health(result: dict, path: Path) -> str | None:
+    """The drift of the passive estimates (issue 11): a22 and b2 over their reference at the same
+    speed per window (±σ, with the tolerance band), and the CUSUM statistics against the threshold."""
+    windows = [w for w in result.get("windows") or [] if w.get("used")]
+    if not windows:
+        return None
+    config = result.get("config") or {}
+
+    def draw():
+        t = np.array([w["t_end"] for w in windows])
+        tolerance = config.get("tolerance", 0.0)
+        ax = plt.subplot(2, 1, 1)
+        for name, colour in (("a22", "C0"), ("b2", "C1")):
+            ratio = np.array([w["ratio"][name] for w in windows])
+            sigma = np.array([w[f"sigma_{name}"] / abs(w["reference"][name]) for w in windows])
+            ax.errorbar(t, ratio, yerr=sigma, fmt="o-", ms=3, lw=0.8, color=colour, label=f"{name} / reference")
+        ax.axhspan(1 - tolerance, 1 + tolerance, color="0.9", label=f"±{100 * tolerance:.0f} % tolerance")
+        ax.set_ylabel("estimate / stored model")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, loc="lower left")
+        alarm = result.get("alarm")
+        title = "Passive estimates against the stored model at the same speed"
+        if alarm:
+            title += f": alarm at {alarm['time_s']:.0f} s ({alarm['parameter']} {alarm['change_pct']:+.0f} %)"
+        ax.set_title(title, fontsize=9)
+        ax = plt.subplot(2, 1, 2, sharex=ax)
+        for name, colour in (("a22", "C0"), ("b2", "C1")):
+            ax.step(t, [w["cusum"][name] for w in windows], where="post", color=colour, label=f"CUSUM {name}")
+        if config.get("threshold"):
+            ax.axhline(config["threshold"], color="r", ls="--", lw=0.8, label="threshold h")
+        if alarm:
+            for axis in plt.gcf().axes:
+                axis.axvline(alarm["time_s"], color="r", lw=0.8)
+        ax.set_ylabel("CUSUM (σ units)")
+        ax.set_xlabel("vehicle time (s)")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+
+    return _figure(path, draw, (9, 6))
+
+
 def _table(rows: list[dict], columns: list[tuple[str, str, str]]) -> str:
     head = "".join(f"<th>{html.escape(title)}</th>" for _, title, _ in columns)
     body = []
@@ -322,8 +364,11 @@ def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: 
     steps = [b["result"] for b in behaviour_rows if b["kind"] == "heading_steps"]
     extra = dict(extra_results or {})
     for row in behaviour_rows:
-        if row["kind"] in ("roll", "min_speed", "steady_state") and row["kind"] not in extra:
+        if row["kind"] in ("roll", "min_speed", "steady_state", "health") and row["kind"] not in extra:
             extra[row["kind"]] = row["result"]
+    alarms = [row["result"] for row in behaviour_rows if row["kind"] == "health_alarm"]
+    if "health" not in extra and alarms:  # a session that died after its alarm: the alarm's evidence
+        extra["health"] = {**alarms[-1], "alarm": {k: alarms[-1].get(k) for k in ("parameter", "time_s", "change_pct")}}
 
     images = [
         ("Parameter convergence", plot_convergence(runs, out / "convergence.png")),
@@ -333,6 +378,8 @@ def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: 
         ("Heading steps", plot_heading_steps(steps, out / "heading_steps.png")),
         ("Roll stabilisation", plot_roll(extra["roll"], out / "roll.png") if "roll" in extra else None),
         ("Minimum-speed seeking", plot_min_speed(extra["min_speed"], out / "min_speed.png") if "min_speed" in extra else None),
+        ("Health: drift of the identified parameters",
+         plot_health(extra["health"], out / "health.png") if "health" in extra else None),
         ("Steady-state manoeuvres under current",
          plot_steady_state(extra["steady_state"], out / "steady_state.png") if "steady_state" in extra else None),
     ]

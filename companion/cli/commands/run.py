@@ -18,6 +18,9 @@ def add_parser(subparsers) -> None:
     add_connect_arguments(parser)
     add_store_argument(parser)
     parser.add_argument("--no-scheduling", action="store_true", help="do not write scheduled gains between procedures")
+    parser.add_argument("--no-health", action="store_true",
+                        help="do not watch the vehicle's health (passive identification against the stored models, "
+                             "STATUSTEXT warning on a drift of a22 or b2)")
     parser.add_argument("--preset", default=None, help="simulator preset (analytic minimum speed in results)")
     parser.add_argument("--max-vehicle-time", type=float, default=None, metavar="S",
                         help="stop after S seconds of vehicle time (default: run until interrupted)")
@@ -30,7 +33,8 @@ def run(args: argparse.Namespace) -> int:
     from companion.procedures.resident import Companion, ServeConfig
     from companion.records.store import Store
 
-    config = ServeConfig(schedule_gains=not args.no_scheduling, preset=args.preset, max_vehicle_s=args.max_vehicle_time)
+    config = ServeConfig(schedule_gains=not args.no_scheduling, preset=args.preset, max_vehicle_s=args.max_vehicle_time,
+                         health=not args.no_health)
     try:
         with connected_vehicle(args) as (link, stop), Store(args.store) as store:
             companion = Companion(link, store, vehicle_record(store, link), config, stop)
