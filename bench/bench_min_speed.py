@@ -142,6 +142,44 @@ def hold_table() -> None:
                       f"rev {reversals} || reconv {reconverged} | TR {after_kick}")
 
 
+def predicted_run(seed: int, margin: float | None, seconds: float, kick: bool, rate: float = 0.01) -> KickedSeeker:
+    """The product procedure (100 s at 0.70 first) starting its seeking at the nominal thrust
+    (``margin`` None, the thesis) or at the analytic TR* + ``margin`` (issue 10)."""
+    made: list[KickedSeeker] = []
+
+    def product(config: MinSpeedConfig) -> KickedSeeker:
+        behaviour = KickedSeeker(replace(config, start_ramp_rate=rate))
+        behaviour.kick_at_s = KICK_AT_S if kick else None
+        made.append(behaviour)
+        return behaviour
+
+    with mock.patch.object(procedure, "MinSpeedSeeking", product):
+        result = procedure.min_speed_procedure(
+            InProcessLink(seed=seed), lambda: None,
+            procedure.MinSpeedProcedureConfig(duration_s=seconds, start_margin=margin),
+            analytic=procedure.analytic_minimum_speed("starfish"))
+    assert result["status"] == "completed", result.get("abort_reason")
+    return made[0]
+
+
+def predicted_table() -> None:
+    """Issue 10: seeking from TR 0.70 (the thesis) against seeking from the predicted TR* + 0.02."""
+    tr_star = procedure.analytic_minimum_speed("starfish")["thrust_ratio_star"]
+    print(f"analytic TR* {tr_star:.3f}; seeds {HOLD_SEEDS}; goal: settled within 60 s, within +2 % of TR*, "
+          f"|dz| <= 0.3 m, no limit cycle, re-converges after a kick to {KICK_TO}")
+    for label, margin, rate in (("from TR 0.70", None, 0.01), ("TR*+0.02 @0.01/s", 0.02, 0.01),
+                                ("TR*+0.02 @0.005/s", 0.02, 0.005), ("TR*+0.04 @0.005/s", 0.04, 0.005)):
+        results = [predicted_run(s, margin, 200.0, False, rate).result() for s in HOLD_SEEDS]
+        kicked = [predicted_run(s, margin, KICK_RUN_S, True, rate) for s in HOLD_SEEDS]
+        settles = [r["settle_time_s"] for r in results]
+        finals = [r["thrust_ratio_final"] for r in results]
+        print(f"{label:<18}: settle s {' '.join(_seconds(v) for v in settles)} | final TR "
+              f"{' '.join(f'{v:.3f}' for v in finals)} (worst {100 * (max(finals) / tr_star - 1):+.1f} % of TR*) | "
+              f"max |dz| {max(r['max_depth_error_m'] for r in results):.2f} m | reversals last 30 s "
+              f"{' '.join(str(r['reversals_last_30s']) for r in results)} || reconv "
+              f"{' '.join(_seconds(reconvergence(b, KICK_RUN_S)) for b in kicked)} s")
+
+
 def _seconds(value: float | None) -> str:
     return "—" if value is None else f"{value:.0f}"
 
@@ -149,7 +187,15 @@ def _seconds(value: float | None) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hold", action="store_true", help="the thesis law against the hold after every change")
-    if parser.parse_args().hold:
+    parser.add_argument("--predicted", action="store_true",
+                        help="seeking from TR 0.70 against seeking from the predicted TR* + 0.02 (issue 10)")
+    args = parser.parse_args()
+    if args.predicted:
+        start = time.time()
+        predicted_table()
+        print(f"wall time {time.time() - start:.1f} s")
+        return
+    if args.hold:
         start = time.time()
         hold_table()
         print(f"wall time {time.time() - start:.1f} s")

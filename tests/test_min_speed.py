@@ -272,3 +272,23 @@ def test_product_procedure_with_the_default_hold():
     assert result["max_depth_error_m"] <= 0.3
     assert result["reversals_last_30s"] <= 1
     assert result["settle_time_s"] is not None
+
+
+def test_seeking_can_start_from_the_predicted_minimum_after_a_ramp():
+    """Issue 10: the procedure moves (0.005/s, no decision meanwhile) to the analytic TR* + 0.04 and
+    seeks from there; it ends near TR* with the depth held (in-process simulator, seed 3)."""
+    from companion.procedures import min_speed as procedure
+    from harness.inprocess import InProcessLink
+
+    analytic = procedure.analytic_minimum_speed("starfish")
+    tr_star = analytic["thrust_ratio_star"]
+    result = procedure.min_speed_procedure(
+        InProcessLink(seed=3), lambda: None,
+        procedure.MinSpeedProcedureConfig(duration_s=120.0, start_margin=0.04, settle_s=30.0), analytic=analytic)
+    assert result["status"] == "completed", result.get("abort_reason")
+    ramp_s = (0.70 - (tr_star + 0.04)) / 0.005
+    series = result["series"]
+    decided = [t for t, d in zip(series["time"], series["decision"]) if d is not None and d == d]
+    assert decided and min(decided) >= ramp_s - 1.0  # nothing decided while moving there
+    assert tr_star <= result["thrust_ratio_final"] <= tr_star * 1.05
+    assert result["max_depth_error_m"] <= 0.35

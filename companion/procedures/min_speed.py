@@ -7,6 +7,8 @@ ratio and speed, against the analytic TR* and Vmin (eq. 5.28–5.54) when the ve
 """
 from __future__ import annotations
 
+import math
+
 import logging
 from dataclasses import dataclass, replace
 
@@ -25,6 +27,9 @@ class MinSpeedProcedureConfig:
     settle_s: float = 100.0
     duration_s: float = 200.0
     period_s: float | None = None  # None: the seeker's default Ts
+    # issue 10: start seeking at the analytic TR* (eq. 5.28–5.54, the vehicle's data) plus this
+    # margin instead of at the nominal thrust; None: the thesis' start (nominal thrust)
+    start_margin: float | None = None
 
 
 class MinSpeedProcedure(SequenceBehavior):
@@ -38,6 +43,9 @@ class MinSpeedProcedure(SequenceBehavior):
             self.depth_gains_source = "autopilot"
         if config.period_s is not None:
             seeker_config = replace(seeker_config, seeker=replace(seeker_config.seeker, period_s=config.period_s))
+        predicted = (analytic or {}).get("thrust_ratio_star")
+        if config.start_margin is not None and isinstance(predicted, (int, float)) and math.isfinite(predicted):
+            seeker_config = replace(seeker_config, start_thrust=float(predicted) + config.start_margin)
         self.analytic = analytic
         self.seeker = MinSpeedSeeking(seeker_config)
         super().__init__([Instant(SetMode("hold"), SetThrust(config.nominal_thrust), name="prepare"),

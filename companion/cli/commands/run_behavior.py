@@ -30,6 +30,9 @@ def add_parser(subparsers) -> None:
                         help="cruise / nominal thrust ratio (default: 0.7; steady-state 0.6 on the legs, 0.5 in "
                              "the turns); on ArduRover a fraction of WP_SPEED")
     parser.add_argument("--period", type=float, default=None, help="min-speed: decision period Ts in s (default: 1)")
+    parser.add_argument("--start-margin", type=float, default=None, metavar="TR",
+                        help="min-speed: move (at 0.005/s) to the analytic TR* of --preset plus this margin before "
+                             "seeking, instead of seeking from the nominal thrust (e.g. 0.04; issue 10)")
     parser.add_argument("--preset", default=None,
                         help="min-speed: simulator preset whose vehicle data give the analytic TR* and Vmin")
     parser.add_argument("--simulator-hooks", action="store_true",
@@ -52,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     thrust = 0.70 if args.thrust is None else args.thrust
     roll = RollProcedureConfig(thrust=thrust)
-    min_speed = MinSpeedProcedureConfig(nominal_thrust=thrust, period_s=args.period)
+    min_speed = MinSpeedProcedureConfig(nominal_thrust=thrust, period_s=args.period, start_margin=args.start_margin)
     steady = SteadyStateConfig()
     if args.thrust is not None:
         steady = replace(steady, squares=replace(steady.squares, thrust_ratio=args.thrust),
