@@ -127,21 +127,28 @@ class RestorePoint:
             log.info("restore point: this profile has no parameter for %s (not touched)", unknown)
         natives_of = {name: profile.natives_touched([name]) for name in neutral} if profile is not None else {}
         native: dict[str, float] = {}
+        unread: list[str] = []
         for name in dict.fromkeys(n for names in natives_of.values() for n in names):
             try:
                 native[name] = link.get_param(name)
-            except Exception as exc:  # noqa: BLE001 - a parameter this firmware lacks is not touched either
-                log.info("restore point: %s not readable (%s)", name, exc)
-        latest = getattr(link, "latest_telemetry", None)
-        telemetry = latest() if callable(latest) else None
+            except Exception:  # noqa: BLE001 - read again below
+                unread.append(name)
+        latest = getattr(link, "latest_telemetry", None)  # VehicleLink: a property (was never called: no
+        telemetry = latest() if callable(latest) else latest  # set-point was ever captured over MAVLink)
+        kept_by_autopilot = _persistent_setpoints(link)
         setpoints: dict[str, float] = {}
         if telemetry is not None:
             for setpoint, value in (("thrust", telemetry.thrust_ratio), ("heading", telemetry.yaw),
                                     ("rolling_mass", telemetry.mass_angle)):
-                if setpoint in footprint.setpoints and math.isfinite(value):
+                if setpoint in footprint.setpoints and setpoint in kept_by_autopilot and math.isfinite(value):
                     setpoints[setpoint] = float(value)
-        return cls(mode=getattr(link, "mode", None) or None,
-                   parameters=dict(link.get_params(neutral)) if neutral else {}, native=native,
+        parameters = dict(link.get_params(neutral)) if neutral else {}
+        for name in unread:  # a second chance: answers lost on the link are not a missing parameter
+            try:  # (issue 9, faults: three lost PARAM_VALUEs left HDG_I out, and an abort left it changed)
+                native[name] = link.get_param(name)
+            except Exception as exc:  # noqa: BLE001 - a parameter this firmware lacks is not touched either
+                log.info("restore point: %s not readable (%s)", name, exc)
+        return cls(mode=getattr(link, "mode", None) or None, parameters=parameters, native=native,
                    setpoints=setpoints, natives_of=natives_of)
 
     def restore(self, link, *, parameters: bool = True, mode: bool = True,
@@ -155,6 +162,8 @@ class RestorePoint:
         under way (it then never interrupts it) and what is still pending. The failures are
         returned and logged."""
         strategy = getattr(link, "autopilot", None)
+        if not callable(getattr(strategy, "release", None)):
+            strategy = None  # a link without an autopilot strategy (the in-process harness)
         items: list[tuple[str, Callable[[], None]]] = [
             # through the autopilot's strategy: ArduSub keeps a released override's last value unless
             # the stick is centred first, and ArduRover's excitation ends by leaving MANUAL
@@ -164,27 +173,45 @@ class RestorePoint:
             items += [(f"restore {name}", lambda name=name, value=value: _write_if_changed(link, name, value))
                       for name, value in self.native.items() if name not in kept]
         if self.mode in _SETPOINT_MODES and "thrust" in self.setpoints:
-            items.append(("restore thrust", lambda: link.execute([SetThrust(self.setpoints["thrust"])])))
+            items.append(("restore thrust", lambda: _set_and_confirm(link, SetThrust(self.setpoints["thrust"]))))
         if self.mode in _SETPOINT_MODES and "heading" in self.setpoints:
-            items.append(("restore heading", lambda: link.execute([SetHeading(self.setpoints["heading"])])))
+            items.append(("restore heading", lambda: _set_and_confirm(link, SetHeading(self.setpoints["heading"]))))
         if "rolling_mass" in self.setpoints:
             items.append(("restore rolling mass",
-                          lambda: link.execute([SetRollingMass(self.setpoints["rolling_mass"])])))
+                          lambda: _set_and_confirm(link, SetRollingMass(self.setpoints["rolling_mass"]))))
         if mode and self.mode:
             items.append(("restore mode", lambda: link.set_mode(self.mode)))
         guard = guard or RestoreGuard()
         was_interruptible, guard.interruptible = guard.interruptible, False
         guard.restoring, guard.pending = True, [what for what, _ in items]
         problems: list[str] = []
+        reconnect = _Reconnector(link)
         try:
             for what, action in items:
-                failure = _try_restore_item(what, action)
+                failure = _try_restore_item(what, action, reconnect)
                 if failure is not None:
                     problems.append(failure)
                 guard.pending.remove(what)
         finally:
             guard.restoring, guard.interruptible = False, was_interruptible
         return problems
+
+
+def _persistent_setpoints(link) -> tuple[str, ...]:
+    """The set-points the link's autopilot keeps after the companion is done (its strategy's
+    ``persistent_setpoints``): only those are captured and put back. Elsewhere a set-point is not
+    autopilot state (ArduSub's thrust is an RC override the restore releases; ArduRover's speed is a
+    fraction of WP_SPEED that telemetry does not report), so there is nothing to restore."""
+    return tuple(getattr(getattr(link, "autopilot", None), "persistent_setpoints", ()) or ())
+
+
+def _set_and_confirm(link, command: Command) -> None:
+    """Send one set-point and wait until the vehicle acknowledged it (a restore is verified, like a
+    parameter write: a lost command or acknowledgement fails the try, which is retried)."""
+    link.execute([command])
+    confirm = getattr(link, "await_setpoints", None)
+    if callable(confirm):
+        confirm()
 
 
 def _last_words(link, within_s: float = 10.0) -> str:
@@ -203,9 +230,39 @@ def _other_companion(link) -> str | None:
     return check() if callable(check) else None
 
 
-def _try_restore_item(what: str, action: Callable[[], None]) -> str | None:
+class _Reconnector:
+    """A restore's bounded attempts to get a closed link back (``link.reconnect``, at most
+    :data:`RESTORE_RECONNECTS` per restore, each bounded by the link's own wall-clock limit);
+    once one fails, the link is taken as gone for the rest of the restore."""
+
+    def __init__(self, link) -> None:
+        self._reconnect = getattr(link, "reconnect", None)
+        self.left = RESTORE_RECONNECTS if callable(self._reconnect) else 0
+
+    def __call__(self) -> bool:
+        if self.left <= 0:
+            return False
+        self.left -= 1
+        try:
+            back = bool(self._reconnect())
+        except Exception as exc:  # noqa: BLE001 - a failed reconnect is a lost link, reported below
+            log.error("reconnect failed: %s", exc)
+            back = False
+        if not back:
+            self.left = 0
+        return back
+
+
+#: reconnections one restore may make (a link that keeps dropping is not chased for ever)
+RESTORE_RECONNECTS = 2
+
+
+def _try_restore_item(what: str, action: Callable[[], None],
+                      reconnect: Callable[[], bool] = lambda: False) -> str | None:
     """``action`` tried up to :data:`RESTORE_TRIES` times; None on success, else the last failure.
-    A lost link ends the tries at once (bounded: each attempt already waited out its timeout)."""
+    A lost link is reconnected if it can be (a TCP link that dropped and came back) and the item
+    tried again; otherwise it ends the tries at once (bounded: each attempt already waited out its
+    timeout)."""
     from companion.link.errors import LinkLost
 
     failure = "not tried"
@@ -216,7 +273,7 @@ def _try_restore_item(what: str, action: Callable[[], None]) -> str | None:
         except Exception as exc:  # noqa: BLE001 - every item is tried whatever went wrong
             failure = f"{type(exc).__name__}: {exc}" if not str(exc) else str(exc)
             log.error("%s failed (try %d of %d): %s", what, attempt, RESTORE_TRIES, failure)
-            if isinstance(exc, LinkLost):
+            if isinstance(exc, LinkLost) and not reconnect():
                 break
     return f"{what}: {failure}"
 
@@ -374,7 +431,11 @@ def run_procedure(
     if guard is not None:
         guard.active += 1  # from here to the end of the restore only the step loop is interruptible
     try:
-        restore = restore or RestorePoint.capture(link, footprint_of(procedure))
+        if restore is None:
+            try:
+                restore = RestorePoint.capture(link, footprint_of(procedure))
+            except Exception as exc:  # noqa: BLE001 - nothing was changed yet: refuse to start, never raise
+                return not_started(exc)
         outcome = run_behavior(link, procedure, limits=limits, abort_requested=abort_requested, on_step=on_step,
                                restore=None, telemetry_timeout_s=telemetry_timeout_s)
         outcome.restore = restore
@@ -384,6 +445,13 @@ def run_procedure(
     finally:
         if guard is not None:
             guard.active -= 1
+
+
+def not_started(exc: Exception) -> RunOutcome:
+    """The outcome of a procedure whose restore point could not be taken (the link lost the
+    answers): aborted before its first step, so nothing was changed and nothing needs restoring."""
+    log.error("restore point not taken: %s", exc)
+    return RunOutcome("aborted", f"restore point not taken: {type(exc).__name__}: {exc}", {})
 
 
 class _TakeoverWatchdog:
