@@ -71,6 +71,11 @@ class LinkTimeouts:
     # time out (and then read the late echo as a refusal of its next write).
     min_try_wall_s: float = 0.5
     heartbeat_period_s: float = 1.0  # our HEARTBEAT, vehicle time
+    # lockstep: wall seconds with nothing received while waiting before acknowledging again (a lost
+    # acknowledgement or sample would otherwise stall vehicle time for good; a lossless link never
+    # goes that long without a frame)
+    lockstep_stall_s: float = 1.0
+    reconnect_s: float = 10.0  # wall seconds a restore waits for a closed TCP link to come back
 
 
 @dataclass(frozen=True)
@@ -94,6 +99,9 @@ class VehicleLink:
         self.lockstep = False
         self._returned_ms: int | None = None
         self._acked_ms = -1
+        self._nudged_ms: int | None = None  # the last acknowledgement re-sent after a stall
+        self._last_nudge_wall = -math.inf
+        self._attitude_period_ms = 50  # between the latest two samples (a stalled lockstep steps one)
         self.system_id = system_id
         self.autopilot_component = autopilot_component
         self.component = component
@@ -116,8 +124,15 @@ class VehicleLink:
         self.autopilot = None  # the profile's strategy (companion.link.autopilots), set at connect
         self.commanded_mode: str | None = None  # the last mode the companion itself switched to
         self._awaiting_ack: dict[int, float] = {}  # set-point command -> vehicle time it was sent
+        # set-point command -> (its latest parameters, vehicle time last sent, times sent): an
+        # unanswered set-point is sent again every command period (a frame lost on the link)
+        self._setpoint_sends: dict[int, tuple[tuple[float, ...], float, int]] = {}
         self._refusals: collections.deque[str] = collections.deque(maxlen=16)
         self._gcs_heartbeat_component = 190
+        self._endpoint: str | None = None
+        self._signing_key: bytes | None = None
+        self._stream_rates: dict[int, float] = {}
+        self.reconnects = 0  # connections opened again after the vehicle closed or reset one
         self.allowed_senders: set[int] = set()  # more system ids allowed to start procedures
         self._last_attitude_ms: float | None = None
         self._last_heartbeat_sent: float = -math.inf
@@ -133,7 +148,9 @@ class VehicleLink:
         # bounded (SNAPSHOT_QUEUE_MAX, ~100 s at 20 Hz) so a caller that never reads cannot grow it forever
         self._unread_snapshots: collections.deque[Telemetry] = collections.deque(maxlen=SNAPSHOT_QUEUE_MAX)
         self.snapshots_dropped = 0
-        self.wall_timeouts = 0  # blocking waits ended by their wall-clock guard (the vehicle clock stalled)
+        # wall-clock decisions, counted so a run can say it was not exact: blocking waits ended by
+        # their wall-clock guard (the vehicle clock stalled) and lockstep re-acknowledgements
+        self.wall_timeouts = 0
         self._user_callback: Callable[[int, tuple[float, ...]], None] | None = None
         self._user_queue: collections.deque[UserCommand] = collections.deque()
         self.last_user_command: UserCommand | None = None
@@ -195,6 +212,7 @@ class VehicleLink:
             link = cls(master, system_id=heartbeat.get_srcSystem(), autopilot_component=heartbeat.get_srcComponent(),
                        component=component, timeouts=timeouts)
             link.lockstep = lockstep
+            link._endpoint, link._signing_key = endpoint, signing_key  # to reconnect (a restore after EOF)
             master.mav.srcSystem = link.system_id
             master.mav.srcComponent = component
             link._on_heartbeat(heartbeat)
@@ -229,8 +247,8 @@ class VehicleLink:
             chosen = dataclasses.replace(chosen, **vehicle)
         self.profile = chosen
         self.autopilot = strategy_for(self, chosen)
-        for message_id, rate_hz in (self.autopilot.streams if stream_rates is None else stream_rates).items():
-            self._command_long(MAV_CMD_SET_MESSAGE_INTERVAL, (message_id, 1e6 / rate_hz if rate_hz > 0 else -1))
+        self._stream_rates = dict(self.autopilot.streams if stream_rates is None else stream_rates)
+        self._request_streams()
         self.int_encoding = chosen.int_encoding
         self.assembler = TelemetryAssembler(chosen, depth_sensor=depth_sensor)
         if self._last_heartbeat_msg is not None:
@@ -244,6 +262,55 @@ class VehicleLink:
             self.int_encoding = paramcodec.encoding_from_capabilities(self.capabilities, chosen.int_encoding)
         log.info("connected: system %d, profile %s, GCS sysid %d, override timeout %.1f s, int encoding %s",
                  self.system_id, chosen.name, self.gcs_sysid, self.override_timeout_s, self.int_encoding)
+
+    def _request_streams(self) -> None:
+        for message_id, rate_hz in self._stream_rates.items():
+            self._command_long(MAV_CMD_SET_MESSAGE_INTERVAL, (message_id, 1e6 / rate_hz if rate_hz > 0 else -1))
+
+    def reconnect(self, timeout_s: float | None = None) -> bool:
+        """Open the TCP connection again after the vehicle closed or reset it (issue 9, fault
+        injection: a link that dropped for a moment left every gain and set-point unrestored,
+        because the restore gave up at the first EOF). Tries for ``timeout_s`` of wall clock
+        (default ``timeouts.reconnect_s``) until the autopilot's HEARTBEAT arrives on a new
+        connection; then asks for the streams again (and, in lockstep, acknowledges where it was).
+        Everything else the link knows (profile, parameters, overrides held) is kept. False when the
+        vehicle did not come back, or for a link that is not a TCP connection (nothing to open)."""
+        from pymavlink import mavutil
+
+        if self._endpoint is None or not hasattr(self.master, "destination_addr"):
+            return False
+        deadline = time.monotonic() + (self.timeouts.reconnect_s if timeout_s is None else timeout_s)
+        try:
+            self.master.close()
+        except OSError:
+            pass
+        while time.monotonic() < deadline:
+            try:  # retries=0: one attempt, never pymavlink's print-and-sleep loop
+                master = mavutil.mavlink_connection(self._endpoint, source_system=self.system_id,
+                                                    source_component=self.component, robust_parsing=True, retries=0)
+            except OSError:
+                time.sleep(0.2)
+                continue
+            if self._signing_key is not None:
+                master.setup_signing(self._signing_key, sign_outgoing=True)
+            _raise_on_stream_end(master, self._endpoint)
+            try:
+                heartbeat = self._await_autopilot_heartbeat(master, max(deadline - time.monotonic(), 0.1),
+                                                            self._endpoint, self.component)
+            except (HeartbeatTimeout, LinkLost):
+                master.close()
+                continue
+            self.master = master
+            self.reconnects += 1
+            self._last_rx_wall = time.monotonic()
+            self._on_heartbeat(heartbeat)
+            self._request_streams()
+            if self.lockstep and self._acked_ms >= 0:  # a lockstep simulator waits for its new companion
+                self.master.mav.system_time_send(0, self._acked_ms & 0xFFFFFFFF)
+            log.warning("reconnected to %s", self._endpoint)
+            return True
+        log.error("%s did not come back within %.0f s", self._endpoint, self.timeouts.reconnect_s)
+        return False
 
     def _detect_profile(self) -> AutopilotProfile:
         """Probe each profile's marker parameter with PARAM_REQUEST_READ; the one that answers wins
@@ -316,6 +383,7 @@ class VehicleLink:
                 # blocked on an answer: let the simulator run on (a real vehicle would); 0 before any
                 # sample starts a simulator that waits at t = 0 for its companion
                 self._acknowledge(int(self._last_attitude_ms) if self._last_attitude_ms is not None else 0)
+                self._unstall_lockstep()
         return True
 
     def _acknowledge(self, time_ms: int) -> None:
@@ -323,6 +391,27 @@ class VehicleLink:
         if time_ms > self._acked_ms:
             self._acked_ms = time_ms
             self.master.mav.system_time_send(0, time_ms & 0xFFFFFFFF)
+
+    def _unstall_lockstep(self) -> None:
+        """Lockstep over a link that loses frames (issue 9, fault injection): a lost acknowledgement
+        leaves the simulator waiting at its limit, and a lost sample leaves the companion waiting
+        for one the simulator will not send before the next acknowledgement; vehicle time would
+        stop for good (the procedure then died of link loss and its restore could not confirm
+        the mode: no heartbeat comes from a stopped vehicle). After ``timeouts.lockstep_stall_s`` of
+        wall clock with nothing received the last acknowledgement is sent again (a lost one is
+        replaced), and if that was already done, one sample period further (a lost sample is
+        skipped). A wall-clock decision, so it is counted in ``wall_timeouts``; a lossless link
+        never stalls that long."""
+        now = time.monotonic()
+        if now - max(self._last_rx_wall, self._last_nudge_wall) < self.timeouts.lockstep_stall_s:
+            return
+        base = max(self._acked_ms, 0)
+        target = base + self._attitude_period_ms if self._nudged_ms == base else base
+        self._acked_ms = self._nudged_ms = target
+        self._last_nudge_wall = now
+        self.wall_timeouts += 1
+        log.info("lockstep stalled %.1f s: acknowledging t=%d ms again", now - self._last_rx_wall, target)
+        self.master.mav.system_time_send(0, target & 0xFFFFFFFF)
 
     def next_telemetry(self, timeout_s: float = 5.0) -> Telemetry:
         """The next telemetry snapshot, in order; blocks until an ATTITUDE completes one.
@@ -343,7 +432,11 @@ class VehicleLink:
                 silent = time.monotonic() - self._last_rx_wall
                 raise LinkLost(f"no telemetry snapshot for {timeout_s:g} s of wall clock "
                                f"(last message of any kind {silent:.1f} s ago)")
-            self._pump(min(remaining, 0.5))
+            if self.lockstep:  # wake in time to notice a stall
+                self._pump(min(remaining, 0.5, self.timeouts.lockstep_stall_s / 2.0))
+                self._unstall_lockstep()
+            else:
+                self._pump(min(remaining, 0.5))
         self._check_setpoint_answers()
         snapshot = self._unread_snapshots.popleft()
         self._returned_ms = int(round(snapshot.time_s * 1000.0))
@@ -352,7 +445,10 @@ class VehicleLink:
 
     def _check_setpoint_answers(self) -> None:
         """A set-point the vehicle refused, or left unanswered for 3 command periods of vehicle
-        time, is a failure of the procedure that sent it (CommandFailed), never a warning."""
+        time, is a failure of the procedure that sent it (CommandFailed), never a warning. One
+        unanswered for a command period is sent again first (issue 9, fault injection: a single
+        lost command or acknowledgement aborted the procedure); set-points are absolute, so a
+        vehicle that did get the first one is not moved by the second."""
         if self._refusals:
             reason = self._refusals.popleft()
             self._refusals.clear()
@@ -362,6 +458,34 @@ class VehicleLink:
         if overdue:
             self._awaiting_ack.clear()
             raise CommandFailed(f"the vehicle did not acknowledge command {overdue[0]}", command=overdue[0])
+        self._resend_setpoints()
+
+    def _resend_setpoints(self) -> None:
+        """Send again every awaited set-point last sent a command period of vehicle time ago."""
+        for command in list(self._awaiting_ack):
+            params, last, sends = self._setpoint_sends.get(command, ((), -math.inf, 1))
+            if params and self.vehicle_time_s - last >= self.timeouts.command_s:
+                log.info("command %d unanswered for %.1f s: sent again", command, self.vehicle_time_s - last)
+                self._command_long(command, params, confirmation=min(sends, 255))
+                self._setpoint_sends[command] = (params, self.vehicle_time_s, sends + 1)
+
+    def await_setpoints(self) -> None:
+        """Wait (vehicle time, three command periods, sending unanswered ones again each period)
+        until every set-point sent has been acknowledged; CommandFailed on a refusal or when one
+        is still unanswered."""
+        for _period in range(3):
+            if self._wait_until(lambda: not self._awaiting_ack or bool(self._refusals), self.timeouts.command_s):
+                break
+            self._resend_setpoints()
+        if self._refusals:
+            reason = self._refusals.popleft()
+            self._refusals.clear()
+            self._awaiting_ack.clear()
+            raise CommandFailed(reason)
+        if self._awaiting_ack:
+            unanswered = sorted(self._awaiting_ack)
+            self._awaiting_ack.clear()
+            raise CommandFailed(f"the vehicle did not acknowledge command {unanswered[0]}", command=unanswered[0])
 
     @property
     def pending_snapshots(self) -> int:
@@ -396,6 +520,7 @@ class VehicleLink:
                 raise VehicleRebooted(f"time_boot_ms went back from {previous} to {time_ms}: the vehicle rebooted")
             if time_ms <= self._last_attitude_ms:
                 return  # duplicate or reordered sample
+            self._attitude_period_ms = int(min(max(time_ms - self._last_attitude_ms, 1), 1000))
         if self.assembler is None:
             if isinstance(time_ms, (int, float)):
                 self._advance_clock(time_ms)
@@ -576,7 +701,9 @@ class VehicleLink:
     def send_setpoint(self, command: int, params: Sequence[float]) -> None:
         """A set-point COMMAND_LONG whose ACK is awaited in the background (see next_telemetry)."""
         self._command_long(command, params)
-        self._awaiting_ack.setdefault(command, self.vehicle_time_s if math.isfinite(self.vehicle_time_s) else 0.0)
+        now = self.vehicle_time_s if math.isfinite(self.vehicle_time_s) else 0.0
+        self._awaiting_ack.setdefault(command, now)
+        self._setpoint_sends[command] = (tuple(params), now, 1)
 
     def send_attitude_target(self, quaternion: Sequence[float], thrust: float, *, ignore_thrust: bool = False) -> None:
         """SET_ATTITUDE_TARGET: attitude from the quaternion, body rates ignored (type_mask 7, +64

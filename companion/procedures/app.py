@@ -21,7 +21,8 @@ from typing import Callable
 
 from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
 from companion.interface import Behavior, Telemetry
-from companion.procedures.runner import RestoreGuard, RestorePoint, RunOutcome, SafetyLimits, run_procedure
+from companion.procedures.runner import (RestoreGuard, RestorePoint, RunOutcome, SafetyLimits, not_started,
+                                         run_procedure)
 from companion.records.store import Store
 
 log = logging.getLogger(__name__)
@@ -186,7 +187,14 @@ def run_campaign(
     config = config.resolved_for(getattr(link, "profile", None))
     campaign_id = store.start_campaign(vehicle_id, "identification", config.to_dict())
     campaign = IdentificationCampaign(config)
-    original = RestorePoint.capture(link, campaign.footprint)  # the original gains, for the step checks
+    try:
+        original = RestorePoint.capture(link, campaign.footprint)  # the original gains, for the step checks
+    except Exception as exc:  # noqa: BLE001 - the link lost the answers: close the record, never raise
+        outcome = not_started(exc)
+        store.finish_campaign(campaign_id, outcome.status, outcome.reason)
+        if gcs is not None:
+            gcs.finish(outcome)
+        return campaign, outcome, campaign_id
     campaign.original_gains = dict(original.parameters)
     log.info("campaign %d started; original gains %s, mode %s", campaign_id, original.parameters, original.mode)
 

@@ -29,6 +29,9 @@ class AutopilotStrategy:
 
     #: telemetry streams to request at connect
     streams: dict[int, float] = BASE_STREAMS
+    #: set-points the autopilot keeps as its own state after the companion is done, read back from
+    #: telemetry by a restore point and put back after a procedure (none by default)
+    persistent_setpoints: tuple[str, ...] = ()
 
     def __init__(self, link) -> None:
         self.link = link

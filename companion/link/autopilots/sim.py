@@ -41,6 +41,8 @@ PROFILE = AutopilotProfile(
 
 class Strategy(AutopilotStrategy):
     streams = {**BASE_STREAMS, 29: 10.0}  # + SCALED_PRESSURE (depth)
+    # the holding mode keeps the last thrust and heading commanded and the mass servo its position
+    persistent_setpoints = ("thrust", "heading", "rolling_mass")
 
     def set_heading(self, heading: float) -> None:
         self.link.send_setpoint(MAV_CMD_CONDITION_YAW, (math.degrees(heading) % 360.0, 0.0, 0.0, 0.0))

@@ -1,0 +1,259 @@
+"""Fault injection (issue 9, "Done when"): a MAVLink-aware proxy between the companion and the simulator
+drops, delays, duplicates, reorders and corrupts frames and cuts the link, at every phase of a
+campaign and of each behaviour; every case must end without an escaping exception, with the
+vehicle as found (parameters, mode, thrust, heading set-point, no RC override held) and the store
+intact with every committed row (``harness/fault_cases.py`` says how each is checked).
+
+The e2e cases share one ``--lockstep`` simulator (the vehicle is put back after each case: that is
+what they check). Their schedules are grouped to stay fast: each frame fault kind one after the
+other at every phase of a procedure in one run, a short silent cut at every phase in another, the
+restore hit in its own runs, and the connection closed (the companion must reconnect to restore)
+at one phase of each procedure and in a restore. ``bench/bench_faults.py`` runs the full matrix,
+one fault per case, and prints the table.
+
+The unit tests at the end pin the product bugs the suite found, each without a simulator.
+"""
+from __future__ import annotations
+
+import os
+import sqlite3
+from types import SimpleNamespace
+
+import pytest
+
+from harness.fault_cases import (CASE_PROCEDURES, PHASES, closed_cut_case, mixed_case, restore_case, run_case,
+                                 silent_cut_case)
+from harness.fault_proxy import FAULT_KINDS, Fault, FaultProxy, Frame, Trigger, split_frames
+
+CASES = ([mixed_case(procedure) for procedure in CASE_PROCEDURES]
+         + [silent_cut_case(procedure) for procedure in CASE_PROCEDURES]
+         + [restore_case(procedure) for procedure in CASE_PROCEDURES]
+         + [restore_case(procedure, ("cut",)) for procedure in CASE_PROCEDURES]
+         + [closed_cut_case(PHASES[label]) for label in
+            ("campaign/excitation", "campaign/restore", "roll/closed-loop", "min_speed/seeking")])
+
+
+@pytest.fixture(scope="module")
+def lockstep_sim(module_sim_factory):
+    return module_sim_factory(transport="tcp", speedup=50.0, seed=5, lockstep=True)
+
+
+def test_every_fault_kind_meets_every_phase():
+    covered = {pair for case in CASES for pair in case.covers}
+    assert covered == {(kind, label) for label in PHASES for kind in FAULT_KINDS}
+    assert len(covered) == len(FAULT_KINDS) * len(PHASES)
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("case", CASES, ids=[case.label for case in CASES])
+def test_the_vehicle_is_restored_whatever_the_link_does(lockstep_sim, case, tmp_path):
+    result = run_case(lockstep_sim, case, tmp_path / "store.sqlite")
+    assert result.crash is None, result.crash
+    assert result.problems == [], f"{case.label}: {result.status} ({result.reason}): {result.problems}"
+    assert result.status in ("completed", "aborted", "failed")
+    assert result.status == "completed" or result.reason
+    assert result.untriggered == [], "faults that never met their phase (the run ended first)"
+    if case.abort_after is not None:
+        assert result.status == "aborted" and "operator abort" in result.reason
+
+
+# ---------------------------------------------------------------------------- the proxy itself
+def _v2_frame(msgid: int, payload: bytes, signed: bool = False) -> bytes:
+    header = bytes([0xFD, len(payload), 0x01 if signed else 0x00, 0, 7, 1, 1]) + msgid.to_bytes(3, "little")
+    return header + payload + b"\x12\x34" + (bytes(13) if signed else b"")
+
+
+def test_frames_are_split_whole_and_garbage_is_passed_on():
+    attitude = _v2_frame(30, (1234).to_bytes(4, "little") + bytes(24))
+    signed = _v2_frame(0, bytes(9), signed=True)
+    stream = bytearray(b"\x00junk" + attitude + signed + attitude[:5])
+    items, rest = split_frames(stream)
+    assert items[0] == b"\x00junk"
+    assert [item.name for item in items[1:]] == ["ATTITUDE", "HEARTBEAT"]
+    assert items[1].time_boot_ms() == 1234 and len(items[2].raw) == len(signed)
+    assert bytes(rest) == attitude[:5]  # an incomplete frame waits for its bytes
+
+
+def test_a_corrupted_frame_keeps_its_header_and_length():
+    import random
+
+    frame = Frame(_v2_frame(23, bytes(23)), 23, 10, 23)
+    bad = frame.corrupted(random.Random(1))
+    assert len(bad) == len(frame.raw) and bad[:10] == frame.raw[:10] and bad != frame.raw
+
+
+def test_faults_are_bounded_and_named():
+    with pytest.raises(ValueError):
+        Fault("explode")
+    with pytest.raises(ValueError):
+        Fault("drop", frames=0)
+    with pytest.raises(ValueError):
+        FaultProxy(1, max_faults=1).arm([Fault("drop"), Fault("drop")])
+    assert "3rd PARAM_SET" in Fault("drop", Trigger("PARAM_SET", 3)).describe()
+
+
+# ---------------------------------------------------------------------------- regression tests of the bugs found
+class _Strategy:
+    persistent_setpoints = ("thrust", "heading", "rolling_mass")
+
+
+class _LinkWithProperty:
+    """VehicleLink's shape: ``latest_telemetry`` is a property, set-points go through ``execute``."""
+
+    def __init__(self, fail_first: set[str] = frozenset()) -> None:
+        from companion.interface import Telemetry
+        from companion.link.autopilots.sim import PROFILE
+
+        self.profile = PROFILE
+        self.autopilot = _Strategy()
+        self.mode = "hold"
+        self.params = {"HDG_P": 0.5, "HDG_I": 0.05, "HDG_TRIM": 0.0}
+        self.fail_first = set(fail_first)
+        self.executed: list = []
+        self._latest = Telemetry(time_s=10.0, thrust_ratio=0.7, yaw=1.0)
+
+    @property
+    def latest_telemetry(self):
+        return self._latest
+
+    def get_param(self, name):
+        if name in self.fail_first:
+            self.fail_first.discard(name)
+            from companion.link.errors import ParamTimeout
+
+            raise ParamTimeout(f"no PARAM_VALUE for {name}", name=name)
+        return self.params[name]
+
+    def get_params(self, names):
+        return {name: self.params[self.profile.native_param(name)] for name in names}
+
+    def execute(self, commands):
+        self.executed += list(commands)
+
+
+def test_set_points_are_captured_from_the_links_latest_telemetry_property():
+    """Found by the suite: every procedure over MAVLink left the thrust where it ended (e.g. 1.0,
+    found 0.7): the restore point called ``latest_telemetry`` only if callable, and on VehicleLink
+    it is a property, so no set-point was ever captured or put back."""
+    from behaviors.base import Footprint
+    from companion.interface import SetThrust
+    from companion.procedures.runner import RestorePoint
+
+    link = _LinkWithProperty()
+    restore = RestorePoint.capture(link, Footprint.of((), ("thrust", "heading")))
+    assert restore.setpoints == {"thrust": 0.7, "heading": 1.0}
+    restore.restore(link)
+    assert SetThrust(0.7) in link.executed
+
+
+def test_an_autopilot_without_persistent_set_points_gets_none_put_back():
+    from behaviors.base import Footprint
+    from companion.procedures.runner import RestorePoint
+
+    link = _LinkWithProperty()
+    link.autopilot = SimpleNamespace()  # e.g. ArduSub: its thrust is an override the restore releases
+    assert RestorePoint.capture(link, Footprint.of((), ("thrust", "heading"))).setpoints == {}
+
+
+def test_a_lost_answer_while_the_restore_point_is_taken_does_not_leave_a_gain_out():
+    """Found by the suite: three lost PARAM_VALUEs while the restore point was read left HDG_I out
+    of it ("not readable"), and an abort in the step checks then left HDG_I at its trial value."""
+    from behaviors.base import Footprint
+    from companion.procedures.runner import RestorePoint
+
+    link = _LinkWithProperty(fail_first={"HDG_I"})
+    restore = RestorePoint.capture(link, Footprint.of(("heading_p", "heading_i", "rudder_trim")))
+    assert set(restore.native) == {"HDG_P", "HDG_I", "HDG_TRIM"}
+
+
+def test_a_restore_point_that_cannot_be_taken_ends_the_campaign_cleanly(tmp_path):
+    """Found by the suite: a ParamTimeout while the restore point was read escaped ``run_campaign``
+    and left the campaign row 'running'; now nothing has changed, the outcome says why."""
+    from companion.link.errors import ParamTimeout
+    from companion.procedures.app import AbortFlag, run_campaign
+    from companion.records.store import Store
+    from harness.fault_cases import campaign_config
+    from harness.inprocess import InProcessLink
+
+    link = InProcessLink(seed=2)
+
+    def unanswered(names):
+        raise ParamTimeout(f"no PARAM_VALUE for {sorted(names)[0]} after 3 tries", name=sorted(names)[0])
+
+    link.get_params = unanswered
+    with Store(tmp_path / "s.sqlite") as store:
+        _, outcome, campaign_id = run_campaign(link, store, campaign_config(), vehicle_id=store.add_vehicle("v"),
+                                               abort=AbortFlag())
+        row = store.campaign(campaign_id)
+    assert outcome.status == "aborted" and "restore point not taken" in outcome.reason
+    assert row["status"] == "aborted" and "ParamTimeout" in row["reason"]
+
+
+class _Mav:
+    def __init__(self) -> None:
+        self.sent: list[tuple] = []
+
+    def __getattr__(self, name):
+        return lambda *args: self.sent.append((name, *args))
+
+
+def _bare_link(**timeouts):
+    from companion.link.vehicle import LinkTimeouts, VehicleLink
+
+    link = VehicleLink(SimpleNamespace(mav=_Mav()), system_id=1, autopilot_component=1, component=191,
+                       timeouts=LinkTimeouts(**timeouts))
+    return link, link.master.mav.sent
+
+
+def test_a_stalled_lockstep_is_acknowledged_again_then_stepped_on():
+    """Found by the suite: one lost SYSTEM_TIME acknowledgement or ATTITUDE sample stopped lockstep
+    vehicle time for good; the procedure died of link loss 5 s later and its restore could not
+    confirm the mode (no heartbeat from a stopped vehicle) until the simulator's 30 s rule."""
+    link, sent = _bare_link(lockstep_stall_s=0.5)
+    link.lockstep = True
+    link._acknowledge(1000)
+    link._attitude_period_ms = 50
+    link._last_rx_wall -= 10.0  # nothing received for 10 s
+    link._unstall_lockstep()
+    link._last_nudge_wall -= 10.0
+    link._unstall_lockstep()
+    acks = [args[1] for name, *args in sent if name == "system_time_send"]
+    assert acks == [1000, 1000, 1050]  # the ack, the same again (a lost ack), then one sample on (a lost sample)
+    assert link.wall_timeouts == 2  # wall-clock decisions are counted (the run then says it was not exact)
+
+
+def test_an_unanswered_set_point_is_sent_again_before_it_fails():
+    """Found by the suite: a single lost set-point command or COMMAND_ACK aborted the procedure."""
+    from companion.link.errors import CommandFailed
+
+    link, sent = _bare_link()
+    link.vehicle_time_s = 10.0
+    link.send_setpoint(178, (0.0, -1.0, 70.0))
+    link.vehicle_time_s = 11.05
+    link._check_setpoint_answers()
+    commands = [args for name, *args in sent if name == "command_long_send"]
+    assert len(commands) == 2 and commands[1][2] == 178 and commands[1][3] == 1  # confirmation 1
+    link.vehicle_time_s = 13.2
+    with pytest.raises(CommandFailed):
+        link._check_setpoint_answers()
+
+
+def test_the_store_of_a_case_reads_back_intact(tmp_path):
+    """The integrity check the cases rely on sees a damaged file (the check is not vacuous)."""
+    from harness.fault_cases import _check_store
+    from companion.records.store import Store
+
+    path = tmp_path / "s.sqlite"
+    with Store(path) as store:
+        store.finish_campaign(store.start_campaign(store.add_vehicle("v"), "roll"), "completed")
+    assert _check_store(path, {"campaigns": 1}, None, "completed") == []
+    assert _check_store(path, {"campaigns": 2}, None, "completed") == ["store lost rows: campaigns has 1 of 2 committed"]
+    size = path.stat().st_size
+    with open(path, "r+b") as handle:  # every page but the first (the header stays readable)
+        handle.seek(4096)
+        handle.write(os.urandom(size - 4096))
+    try:
+        problems = _check_store(path, {}, None, "completed")
+    except sqlite3.DatabaseError:  # damaged beyond the integrity check: as much a failure
+        problems = ["unreadable"]
+    assert problems
