@@ -27,6 +27,8 @@ actuator's time base matches the attitude's. Each check made is listed in ``Stee
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import logging
 import math
 import os
@@ -280,40 +282,56 @@ def _scaled_angle(profile: AutopilotProfile, pwm: float, full_scale: float) -> f
 def _read_dataflash(path: str, profile: AutopilotProfile, full_scale: float) -> SteeringRecord:
     from pymavlink import DFReader
 
-    from companion.link.autopilots.ardusub import unmix_vectored
-
+    said = io.StringIO()  # DFReader prints what it cannot parse ("bad msg at offset …") on stdout
     try:
-        reader = DFReader.DFReader_binary(path, zero_time_base=True)
+        with contextlib.redirect_stdout(said):
+            reader = DFReader.DFReader_binary(path, zero_time_base=True)
     except Exception as exc:  # noqa: BLE001
         raise LogError(f"{path}: cannot open as an ArduPilot DataFlash log ({exc})") from None
     att, rcou, gps, xkf, params = [], [], [], [], {}
     units: dict[str, str] = {}
     try:
-        while True:
-            msg = reader.recv_match(type=["ATT", "RCOU", "GPS", "XKF1", "PARM"])
-            if msg is None:
-                break
-            kind = msg.get_type()
-            if kind == "PARM":
-                params[str(msg.Name)] = float(msg.Value)
-                continue
-            if kind not in units:
-                units[kind] = _unit(msg, "TimeUS")
-            t = msg.TimeUS / 1e6
-            if kind == "ATT":
-                units.setdefault("ATT.Yaw", _unit(msg, "Yaw"))
-                att.append((t, float(msg.Yaw)))
-            elif kind == "RCOU":
-                rcou.append((t, *[float(getattr(msg, f"C{i}", 0) or 0) for i in range(1, 15)]))
-            elif kind == "GPS" and getattr(msg, "I", 0) == 0:
-                gps.append((t, float(msg.Spd)))
-            elif kind == "XKF1" and getattr(msg, "C", 0) == 0:
-                xkf.append((t, math.hypot(msg.VN, msg.VE)))
+        with contextlib.redirect_stdout(said):
+            _collect_dataflash(reader, att, rcou, gps, xkf, params, units)
     except Exception as exc:  # noqa: BLE001
         raise LogError(f"{path}: malformed DataFlash log ({exc})") from None
+    bad = sum(1 for line in said.getvalue().splitlines() if line.startswith("bad msg"))
+    return _dataflash_record(path, profile, full_scale, att, rcou, gps, xkf, params, units, bad)
+
+
+def _collect_dataflash(reader, att: list, rcou: list, gps: list, xkf: list, params: dict, units: dict) -> None:
+    """The ATT, RCOU, GPS, XKF1 rows and the PARM values of a DataFlash log, with the units its FMTU states."""
+    while True:
+        msg = reader.recv_match(type=["ATT", "RCOU", "GPS", "XKF1", "PARM"])
+        if msg is None:
+            break
+        kind = msg.get_type()
+        if kind == "PARM":
+            params[str(msg.Name)] = float(msg.Value)
+            continue
+        if kind not in units:
+            units[kind] = _unit(msg, "TimeUS")
+        t = msg.TimeUS / 1e6
+        if kind == "ATT":
+            units.setdefault("ATT.Yaw", _unit(msg, "Yaw"))
+            att.append((t, float(msg.Yaw)))
+        elif kind == "RCOU":
+            rcou.append((t, *[float(getattr(msg, f"C{i}", 0) or 0) for i in range(1, 15)]))
+        elif kind == "GPS" and getattr(msg, "I", 0) == 0:
+            gps.append((t, float(msg.Spd)))
+        elif kind == "XKF1" and getattr(msg, "C", 0) == 0:
+            xkf.append((t, math.hypot(msg.VN, msg.VE)))
+
+
+def _dataflash_record(path: str, profile: AutopilotProfile, full_scale: float, att, rcou, gps, xkf, params, units,
+                      bad: int) -> SteeringRecord:
+    from companion.link.autopilots.ardusub import unmix_vectored
+
     a = _series(att, "fewer than 2 ATT messages", path)
     out = _series(rcou, "no RCOU messages: the log carries no servo output", path)
     checks = [f"TimeUS unit {units.get('ATT') or 'not stated'}: read as microseconds"]
+    if bad:
+        checks.append(f"{bad} DataFlash message(s) could not be parsed and were skipped")
     yaw_deg = a[:, 1]
     unit = units.get("ATT.Yaw") or ""
     if "cdeg" in unit or np.nanmax(np.abs(yaw_deg)) > 360.0 + 1e-6:
