@@ -1,4 +1,4 @@
-"""End to end: companion.link.VehicleLink against the simulator subprocess over UDP loopback,
+"""End to end: companion.link.VehicleLink against the simulator subprocess over TCP loopback (lockstep),
 sped up (shared fixture ``module_sim_factory`` from conftest.py). One simulator and one link for
 the module; the tests run in file order and each leaves the vehicle in a known mode."""
 from __future__ import annotations
@@ -20,12 +20,14 @@ SPEEDUP = 50.0
 
 @pytest.fixture(scope="module")
 def sim(module_sim_factory):
-    return module_sim_factory(speedup=SPEEDUP, seed=3)
+    # TCP and lockstep: the vehicle waits for the companion, so a companion descheduled on a loaded
+    # machine neither loses samples nor falls behind the override and expiry times these tests measure
+    return module_sim_factory(speedup=SPEEDUP, seed=3, transport="tcp", lockstep=True)
 
 
 @pytest.fixture(scope="module")
 def link(sim):
-    link = VehicleLink.connect(sim.endpoint, heartbeat_timeout_s=10.0)
+    link = VehicleLink.connect(sim.endpoint, heartbeat_timeout_s=10.0, lockstep=True)
     yield link
     link.close()
 
@@ -135,8 +137,14 @@ def test_override_expires_when_not_refreshed(link):
     assert link.mode == "hold"
     timeout = link.override_timeout_s
     try:
+        link.skip_to_now()
+        start = link.next_telemetry().time_s
         link.override("rudder", 0.15, keep_alive=False)  # sent once, never refreshed
-        samples = run_for(link, timeout + 4.0)
+        # every snapshot from the send on, queued ones included: a companion running behind on a
+        # loaded machine must not skip the override's whole life (run_for drops the backlog)
+        samples = [link.next_telemetry()]
+        while samples[-1].time_s - start < timeout + 4.0:
+            samples.append(link.next_telemetry())
         # measured from when the rudder got there (the link may see the vehicle a little late)
         onset = next(s.time_s for s in samples if abs(s.rudder - 0.15) < 0.01)
         during = [s for s in samples if onset <= s.time_s <= onset + timeout - 0.7]
@@ -160,8 +168,17 @@ def status_main(argv: list[str]) -> int:
     return args.func(args)
 
 
-def test_status_command_prints_json(sim, capsys):
-    assert status_main(["status", "--connect", sim.endpoint, "--json"]) == 0
+def test_status_command_prints_json(sim, link, capsys):
+    import threading
+
+    # in lockstep the vehicle only moves on while the link acknowledges: keep it reading meanwhile
+    answer: list[int] = []
+    status = threading.Thread(target=lambda: answer.append(status_main(["status", "--connect", sim.endpoint,
+                                                                         "--json"])))
+    status.start()
+    while status.is_alive():
+        link.next_telemetry()
+    assert answer == [0]
     record = json.loads(capsys.readouterr().out)
     assert record["profile"] == "sim" and record["mode"] == "manual" and record["vehicle_time_s"] > 0
     assert set(record["attitude_deg"]) == {"roll", "pitch", "yaw"}
