@@ -257,3 +257,36 @@ def test_the_store_of_a_case_reads_back_intact(tmp_path):
     except sqlite3.DatabaseError:  # damaged beyond the integrity check: as much a failure
         problems = ["unreadable"]
     assert problems
+
+
+def test_the_simulator_still_reports_its_outputs_after_71_minutes():
+    """Found by the fault bench (many campaigns on one simulator): SERVO_OUTPUT_RAW.time_usec (a
+    uint32) could not be packed after 4295 s of vehicle time, so rudder and thrust vanished from
+    telemetry (NaN) and every later campaign failed validation."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    from sim.server import SimConfig, SimServer
+
+    server = SimServer(SimConfig())
+    server.tick = int(4400.0 / server.dt)  # 4400 s of vehicle time
+    message = server._build(mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW)
+    message.pack(mavlink.MAVLink(None))
+    assert message.time_usec == (4_400_000 * 1000) & 0xFFFFFFFF
+
+
+def test_outputs_are_paired_with_their_attitude_after_the_microsecond_clock_wraps():
+    """The same uint32 on ArduPilot (micros()): after 71.6 minutes of uptime every SERVO_OUTPUT_RAW
+    looked older than its ATTITUDE and no snapshot got its loop's outputs."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    from companion.link.autopilots.ardurover import PROFILE
+    from companion.link.snapshot import TelemetryAssembler
+
+    assembler = TelemetryAssembler(PROFILE)
+    time_ms = 4_400_000
+    assembler.on_message(mavlink.MAVLink_attitude_message(time_ms, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0))
+    servos = [1500] * 16
+    servos[PROFILE.servo_outputs["rudder"] - 1] = 1700
+    snapshot = assembler.on_message(mavlink.MAVLink_servo_output_raw_message((time_ms * 1000) & 0xFFFFFFFF, 0,
+                                                                             *servos))
+    assert snapshot is not None and snapshot.time_s == time_ms / 1000.0 and snapshot.rudder != 0.0

@@ -97,7 +97,7 @@ class TelemetryAssembler:
         held = self._held
         if held is None:
             return None
-        time_ms = self._number(msg, "time_usec") / 1000.0
+        time_ms = _unwrap_usec_ms(self._number(msg, "time_usec"), held.time_s * 1000.0)
         if not (math.isfinite(time_ms) and time_ms >= held.time_s * 1000.0 - 1.0):
             return None  # an older loop's outputs
         self._held = None
@@ -169,3 +169,18 @@ class TelemetryAssembler:
                 log.warning("telemetry field %s is not a finite number (%r): NaN in snapshots", key, value)
             return math.nan
         return number
+
+
+#: SERVO_OUTPUT_RAW.time_usec is a uint32 of microseconds: it wraps every 2**32 µs (71.6 minutes)
+USEC_WRAP_MS = 2 ** 32 / 1000.0
+
+
+def _unwrap_usec_ms(time_usec: float, reference_ms: float) -> float:
+    """A wrapped uint32 ``time_usec`` as milliseconds of boot time, the lap nearest ``reference_ms``
+    (the attitude it is paired with: ``time_boot_ms`` is a uint32 of milliseconds and wraps only
+    after 49 days). Without it, after 71.6 minutes of autopilot uptime every output message looked
+    older than its attitude and was never paired (issue 9, found by the fault bench's long runs)."""
+    if not (math.isfinite(time_usec) and math.isfinite(reference_ms)):
+        return math.nan
+    time_ms = time_usec / 1000.0
+    return time_ms + round((reference_ms - time_ms) / USEC_WRAP_MS) * USEC_WRAP_MS
