@@ -75,6 +75,8 @@ class ManoeuvreConfig:
     steadiness: SteadinessRule | None = None
     # length of the validation record after its doublet (None: post_excitation_s, as training)
     validation_post_s: float | None = None
+    # the noise-aware stopping rule (ConvergenceRule.relative_drift); None: eq. 3.39
+    convergence_drift: float | None = None
 
     @property
     def actuator(self) -> str:
@@ -275,7 +277,7 @@ class IdentificationManoeuvre(Behaviour):
 
     def _new_identifier(self):
         # convergence only counts once the whole doublet has been seen (eq. 3.39 + thesis §3.3.1)
-        rule = ConvergenceRule(min_time_s=self.config.excitation_end_s)
+        rule = ConvergenceRule(min_time_s=self.config.excitation_end_s, relative_drift=self.config.convergence_drift)
         kwargs = {"p0": self.config.p0, "rule": rule, "input_hold": self.config.input_hold,
                   "output_hold": self.config.output_hold}
         if self.config.svf_bandwidth is not None:

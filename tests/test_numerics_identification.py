@@ -172,3 +172,18 @@ def test_pitch_with_attitude_noise_and_nan():
     assert model.c22 == pytest.approx(PITCH_TRUE.c22, rel=0.1)
     assert model.d2 == pytest.approx(PITCH_TRUE.d2, rel=0.1)
     assert model.cb == pytest.approx(PITCH_TRUE.cb, rel=0.15)
+
+
+def test_the_drift_rule_stops_once_the_estimate_stays_put_and_never_before_the_excitation_ends():
+    """ConvergenceRule.relative_drift (issue 10's noise-aware alternative to eq. 3.39): converged when Θ
+    stayed within the fraction of ‖Θ‖ over the window; never before min_time_s + the window."""
+    true = YawModel(*TABLE_3_1[2])
+    times, heading, rudder = yaw_record(true, seed=1, noise=HEADING_NOISE)
+    drift = YawIdentifier(p0=1e4, rule=ConvergenceRule(min_time_s=6.0, relative_drift=0.01, drift_window_s=1.5))
+    identify(drift, times, heading, rudder)
+    assert drift.converged and 7.5 <= drift.converged_at_s <= 16.5
+    at = drift.history.time_s.index(drift.converged_at_s)
+    window = [np.asarray(theta) for t, theta in zip(drift.history.time_s, drift.history.theta)
+              if drift.converged_at_s - 1.5 <= t <= drift.converged_at_s]
+    final = np.asarray(drift.history.theta[at])
+    assert max(np.linalg.norm(theta - final) for theta in window) <= 0.01 * np.linalg.norm(final)

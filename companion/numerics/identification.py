@@ -52,6 +52,11 @@ class ConvergenceRule:
     tolerance: float = 1e-3
     consecutive: int = 20
     min_time_s: float = 6.0
+    # issue 10, a noise-aware alternative: converged once Θ has moved by less than this fraction of
+    # ‖Θ‖ over the last ``drift_window_s`` (measurement noise keeps the per-sample ‖ΔΘ‖ of eq. 3.39
+    # near 10⁻³ long after the estimates settled); None: eq. 3.39 as above
+    relative_drift: float | None = None
+    drift_window_s: float = 1.5
 
 
 @dataclass
@@ -184,11 +189,32 @@ class _SvfRlsIdentifier:
             self._quiet_count += 1
         else:
             self._quiet_count = 0
+        if not self.converged and self.rule.relative_drift is not None and self._drift_settled(elapsed, theta):
+            self.converged = True
+            self.converged_at_s = elapsed
+            self.criterion_met_from_s = elapsed - self.rule.drift_window_s
         if not self.converged and self._quiet_count >= self.rule.consecutive:
             self.converged = True
             self.converged_at_s = elapsed
             # the thesis' figure (Fig. 3.11: "met from 12 s onward") is when the quiet run began
             self.criterion_met_from_s = self._quiet_start
+
+    def _drift_settled(self, elapsed: float, theta: np.ndarray) -> bool:
+        """The drift rule: over the last ``drift_window_s`` (all of it after ``min_time_s``) no
+        estimate was farther than ``relative_drift``·‖Θ‖ from the current one."""
+        rule = self.rule
+        if elapsed - rule.drift_window_s < rule.min_time_s:
+            return False
+        scale = float(np.linalg.norm(theta))
+        if not scale > 0.0:
+            return False
+        times, thetas = self.history.time_s, self.history.theta
+        index = len(times) - 1
+        while index >= 0 and times[index] >= elapsed - rule.drift_window_s:
+            if float(np.linalg.norm(np.asarray(thetas[index]) - theta)) > rule.relative_drift * scale:
+                return False
+            index -= 1
+        return True
 
     @property
     def theta(self) -> np.ndarray:
