@@ -57,7 +57,7 @@ class DriftConfig:
     reference_margin: float = 0.1  # a speed within [0.9·u_min, 1.1·u_max] of the reference's range
     tolerance: float = 0.06  # ε, relative
     allowance: float = 1.0  # k (in units of z)
-    threshold: float = 4.0  # h
+    threshold: float = 3.5  # h: one window with z ≥ 4.5 (a 27 % shift at ε = 6 %) alarms at once
 
 
 @dataclass
