@@ -185,3 +185,27 @@ def test_csv_and_unit_refusals(synthetic, tmp_path):
                                                            f"{d['rudder'][i]:.6f},1.5" for i, t in enumerate(d["t"])]))
     with pytest.raises(LogError, match="degrees"):
         read_steering_log(str(degrees))
+
+
+def test_tlog_servo_clock_that_wraps(tmp_path):
+    """SERVO_OUTPUT_RAW.time_usec is a uint32 that wraps after 71.6 min: a tlog crossing the wrap keeps
+    its rudder paired with the attitude (the lap nearest the attitude's clock)."""
+    import struct
+
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    d = synth_steering(60.0, truth=TRUTH, seed=3)
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    offset_ms = 4_270_000  # the wrap (4294.967 s) falls 25 s into the record
+    with open(tmp_path / "late.tlog", "wb") as handle:
+        for k, t in enumerate(d["t"]):
+            ms = offset_ms + int(round(t * 1000))
+            pwm = int(round(1500 + d["rudder"][k] / 0.5236 * 500))
+            for msg in (mavlink.MAVLink_servo_output_raw_message((ms * 1000) % 2 ** 32, 0, pwm, 1500, 1700, 1500,
+                                                                  1500, 1500, 1500, 1500),
+                        mavlink.MAVLink_attitude_message(ms, 0.0, 0.0, d["heading"][k], 0.0, 0.0, 0.0),
+                        mavlink.MAVLink_vfr_hud_message(1.5, 1.5, 0, 70, 0.0, 0.0)):
+                handle.write(struct.pack(">Q", 1_700_000_000_000_000 + ms * 1000) + msg.pack(mav))
+    record = read_steering_log(str(tmp_path / "late.tlog"))
+    assert record.t[0] == pytest.approx(offset_ms / 1000.0)
+    assert record.rudder == pytest.approx(d["rudder"], abs=0.0011)  # 1 µs of PWM

@@ -230,7 +230,7 @@ def _read_tlog(path: str, profile: AutopilotProfile, full_scale: float) -> Steer
                 else:
                     rudder = _scaled_angle(profile, pwm[rudder_output - 1], full_scale) if rudder_output else math.nan
                     thrust = profile.pwm_to_thrust(pwm[thrust_output - 1]) if thrust_output else math.nan
-                servo.append((msg.time_usec / 1e6, rudder, thrust))
+                servo.append((_unwrap_usec(msg.time_usec, last_ms), rudder, thrust))
             elif kind == "VFR_HUD":
                 if math.isfinite(last_ms):
                     hud.append((last_ms / 1000.0, msg.airspeed, msg.groundspeed))
@@ -270,6 +270,18 @@ def _read_tlog(path: str, profile: AutopilotProfile, full_scale: float) -> Steer
     return SteeringRecord(t=t, heading=att[:, 1], rudder=rudder, speed=speed,
                           thrust=thrust if np.isfinite(thrust).any() else None, rudder_limit=limit,
                           rudder_source=rudder_source, speed_source=speed_source, checks=checks)
+
+
+#: SERVO_OUTPUT_RAW.time_usec is a uint32: it wraps every 2³² µs (71.6 min of uptime)
+USEC_WRAP_S = 2 ** 32 / 1e6
+
+
+def _unwrap_usec(time_usec: int, attitude_ms: float) -> float:
+    """``time_usec`` in s on the lap nearest the latest attitude time seen before it (ms; NaN: none)."""
+    t = time_usec / 1e6
+    if not math.isfinite(attitude_ms):
+        return t
+    return t + round((attitude_ms / 1000.0 - t) / USEC_WRAP_S) * USEC_WRAP_S
 
 
 def _scaled_angle(profile: AutopilotProfile, pwm: float, full_scale: float) -> float:
