@@ -60,7 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="serve the simulated vehicle over MAVLink")
-    run.add_argument("--preset", default="starfish", help="vehicle preset (see `presets`)")
+    run.add_argument("--preset", default="starfish",
+                     help="vehicle preset (see `presets`) or a preset file PATH.json of the same form")
     run.add_argument("--speedup", type=float, default=1.0,
                      help="vehicle time / wall time (0 = as fast as possible)")
     run.add_argument("--listen", default="udpin:127.0.0.1:14550", type=listen_endpoint,
@@ -94,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.set_defaults(func=_run)
 
     lin = sub.add_parser("linearize", help="the preset's linearised yaw parameters (truth)")
-    lin.add_argument("--preset", required=True)
+    lin.add_argument("--preset", required=True, help="vehicle preset or a preset file PATH.json")
     group = lin.add_mutually_exclusive_group(required=True)
     group.add_argument("--speed", type=float, help="water speed U (m/s)")
     group.add_argument("--thrust", type=float, help="thrust ratio TR (0..1): steady speed first")
@@ -194,7 +195,11 @@ def _linearize(args: argparse.Namespace) -> int:
     from sim.linearize import linearized_yaw, steady_speed
     from sim.preset import load_preset
 
-    preset = load_preset(args.preset)
+    try:
+        preset = load_preset(args.preset)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     speed = args.speed if args.speed is not None else steady_speed(preset, args.thrust)
     result = dict(linearized_yaw(preset, speed))
     if args.thrust is not None:

@@ -1,8 +1,9 @@
 """Vehicle presets: the simulator's physical parameters as JSON data files (SPEC C2, §3).
 
 A preset is read from ``sim/presets/<name>.json`` through :mod:`importlib.resources`, so it works
-from an installed package too. Every field is SI (m, kg, N, s, rad) unless its name says otherwise
-(``*_deg``). The field meanings are documented on the dataclasses below and in
+from an installed package too, or from any JSON file of the same form (``--preset PATH.json``, e.g.
+a vehicle variant a sweep derived). Every field is SI (m, kg, N, s, rad) unless its name says
+otherwise (``*_deg``). The field meanings are documented on the dataclasses below and in
 ``sim/presets/README.md``.
 """
 from __future__ import annotations
@@ -11,6 +12,7 @@ import json
 import math
 from dataclasses import dataclass, fields
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 
@@ -219,8 +221,26 @@ def preset_from_dict(data: dict[str, Any]) -> Preset:
                   faults=faults_from_json(data.get("faults")), **sections)
 
 
+def is_preset_file(name: str) -> bool:
+    """Whether ``--preset`` names a JSON file (a path ending in ``.json``) rather than a shipped preset."""
+    return name.endswith(".json")
+
+
 def load_preset(name: str) -> Preset:
-    """Read ``sim/presets/<name>.json``; a clear error lists the available names."""
+    """Read ``sim/presets/<name>.json``, or the preset file ``name`` when it is a path ending in
+    ``.json`` (a vehicle variant, e.g. one a parameter sweep derived from a shipped preset); a clear
+    error lists the available names."""
+    if is_preset_file(name):
+        try:
+            data = json.loads(Path(name).read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"cannot read the preset file {name}: {exc}") from None
+        if not isinstance(data, dict):
+            raise ValueError(f"the preset file {name} does not hold a JSON object")
+        try:
+            return preset_from_dict(data)
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"the preset file {name} lacks {exc}") from None
     names = preset_names()
     if name not in names:
         raise ValueError(f"unknown vehicle preset {name!r}; available: {', '.join(names)}")

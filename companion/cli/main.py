@@ -17,6 +17,7 @@ from companion.errors import UserError
 #: subcommand modules, in the order ``companion --help`` lists them
 SUBCOMMANDS = (
     "rehearse",
+    "sweep",
     "identify",
     "run",
     "run_behavior",

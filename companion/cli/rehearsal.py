@@ -20,7 +20,6 @@ from companion.cli.reproducibility import reproducibility_record
 from companion.procedures.app import AbortFlag, ConsoleProgress, finite_or_none, run_campaign, vehicle_record
 from companion.link.autopilots.ardusub import CAMPAIGN_DEFAULTS as ARDUSUB_CAMPAIGN
 from companion.procedures.campaign import CampaignConfig
-from companion.records.report import write_report
 from companion.procedures.runner import SafetyLimits
 from companion.records.store import Store, json_safe
 
@@ -76,6 +75,15 @@ class RehearsalConfig:
     progress: bool = True
     autopilot: str = "builtin"  # or "ardurover"/"ardusub": real ArduPilot SITL (needs ardupilot_bin)
     ardupilot_bin: str | None = None
+    #: a vehicle variant: (perturbation, factor) pairs on the preset (companion.records.variants)
+    perturb: tuple[tuple[str, float], ...] = ()
+    noise: float = 1.0  # factor on every sensor σ of the preset
+    report: bool = True  # write report.html (a sweep's cases skip it)
+
+    @property
+    def variant(self) -> bool:
+        """Whether the simulator flies a variant of the preset rather than the preset itself."""
+        return bool(self.perturb) or self.noise != 1.0
 
 
 def preset_defaults(preset: str) -> dict:
@@ -217,7 +225,13 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     store_path = out / "store.sqlite"
     summary: dict = {"preset": config.preset, "speedup": config.speedup, "seed": config.seed}
-    simulator = SimulatorProcess(config.preset, config.speedup, config.seed, config.current,
+    sim_preset = config.preset  # what the simulator and its truth read: the preset or its variant's file
+    if config.variant:
+        from companion.records.variants import write_variant
+
+        sim_preset = str(write_variant(config.preset, dict(config.perturb), config.noise, out / "preset.json"))
+        summary["variant"] = {"perturb": dict(sorted(config.perturb)), "noise": config.noise}
+    simulator = SimulatorProcess(sim_preset, config.speedup, config.seed, config.current,
                                  log_path=out / "simulator.log", autopilot=config.autopilot,
                                  ardupilot_bin=config.ardupilot_bin, lockstep=config.autopilot == "builtin",
                                  ready_timeout_s=120.0,
@@ -227,14 +241,15 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
     with Store(store_path) as store, simulator as sim:
         link = VehicleLink.connect(sim.endpoint, lockstep=sim.lockstep,
                                    heartbeat_timeout_s=60.0 if sim.real_autopilot else 10.0,
-                                   vehicle=(preset_vehicle(config.preset) if config.autopilot != "ardusub" else
+                                   vehicle=(preset_vehicle(sim_preset) if config.autopilot != "ardusub" else
                                             ARDUSUB_VEHICLE) if sim.real_autopilot else None)
         try:
             if config.autopilot == "ardusub":
                 arm_ardusub_when_ready(link, patience_s=120.0)
             else:
                 arm_when_ready(link, patience_s=120.0 if sim.real_autopilot else 0.0)
-            vehicle_id = vehicle_record(store, link, f"sim:{config.preset}", {"preset": config.preset, "seed": config.seed})
+            vehicle_id = vehicle_record(store, link, f"sim:{config.preset}",
+                                        {"preset": config.preset, "seed": config.seed, **summary.get("variant", {})})
             console = ConsoleProgress("identification", enabled=config.progress)
             campaign, outcome, campaign_id = run_campaign(link, store, config.campaign, vehicle_id=vehicle_id,
                                                           abort=abort, console=console, limits=SafetyLimits())
@@ -244,7 +259,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                            identification_stage_s={k: round(v, 2) for k, v in campaign.phase_times.items()})
             extra: dict = {}
             if outcome.status == "completed":
-                extra = _run_behaviors(link, store, config, vehicle_id, campaign_id, abort, summary)
+                extra = _run_behaviors(link, store, config, vehicle_id, campaign_id, abort, summary, sim_preset)
             if outcome.status == "completed" and config.steady_state:
                 extra["steady_state"] = _run_steady_state(link, store, config, campaign_id, abort, summary)
         finally:
@@ -256,7 +271,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                 # our autopilot's speed sensor is the physics' (noise only); a real one's is an estimate
                 speed = true_speed(out / "truth.csv", attempt) if sim.real_autopilot else None
                 speeds[f"{attempt.thrust:.2f}"] = speed
-                truth[f"{attempt.thrust:.2f}"] = simulator_truth(config.preset, speed if speed else attempt.speed)
+                truth[f"{attempt.thrust:.2f}"] = simulator_truth(sim_preset, speed if speed else attempt.speed)
         summary["runs"] = _run_rows(campaign, truth, speeds if sim.real_autopilot else None)
         summary["design"] = campaign.design_summary()
         summary["heading_steps"] = [{"thrust": s["thrust"], "label": s["label"],
@@ -266,11 +281,14 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
         summary["verification"] = campaign.verification or ("passed" if campaign.final_gains else None)
         summary["final_gains"] = campaign.final_gains
         summary["store"] = str(store_path)
-        summary["report"] = str(out / "report.html")
+        summary["report"] = str(out / "report.html") if config.report else None
         summary["wall_time_s"] = round(time.monotonic() - started, 2)
-        write_report(store, campaign_id, out, truth={k: v for k, v in truth.items() if v}, extra_results=extra,
-                     summary={k: v for k, v in summary.items() if k != "design"},
-                     delta_max=config.campaign.yaw.training_amplitude)
+        if config.report:
+            from companion.records.report import write_report  # matplotlib: only when a report is written
+
+            write_report(store, campaign_id, out, truth={k: v for k, v in truth.items() if v}, extra_results=extra,
+                         summary={k: v for k, v in summary.items() if k != "design"},
+                         delta_max=config.campaign.yaw.training_amplitude)
         summary["wall_time_s"] = round(time.monotonic() - started, 2)
     # after the simulator stopped: its exit report says whether lockstep held (issue 12)
     summary["reproducibility"] = reproducibility_record(config.autopilot, simulator.lockstep, simulator.stats,
@@ -292,8 +310,9 @@ def _run_steady_state(link, store, config: RehearsalConfig, campaign_id: int, ab
 
 
 def _run_behaviors(link, store, config: RehearsalConfig, vehicle_id: int, campaign_id: int, abort: AbortFlag,
-                   summary: dict) -> dict:
-    """Roll stabilisation and minimum-speed seeking after the campaign (issue 4)."""
+                   summary: dict, sim_preset: str | None = None) -> dict:
+    """Roll stabilisation and minimum-speed seeking after the campaign (issue 4); ``sim_preset`` is
+    the vehicle data the analytic figures come from (a variant's file, or the preset)."""
     extra: dict = {}
     if not config.behaviors:
         return extra
@@ -301,7 +320,7 @@ def _run_behaviors(link, store, config: RehearsalConfig, vehicle_id: int, campai
 
     for name in config.behaviors:
         result = run_named_behavior(name, link, store, vehicle_id=vehicle_id, campaign_id=campaign_id, abort=abort,
-                                    preset=config.preset)
+                                    preset=sim_preset or config.preset)
         if result is not None:
             extra[name] = result["result"]
             summary[name] = result["summary"]

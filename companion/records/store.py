@@ -1,8 +1,9 @@
 """The embedded store: SQLite from the standard library (SPEC C10).
 
 What it holds: vehicle configurations, campaigns, identification runs (every attempt, accepted or
-not, with its time series), the accepted models, the gains written (before and after) and the
-behaviour results. Each write is its own transaction in WAL mode, so a process killed at any moment
+not, with its time series), the accepted models, the gains written (before and after), the
+behaviour results and the rows of parameter sweeps (``sweep_cases``, one per case, keyed by the hash
+of its inputs). Each write is its own transaction in WAL mode, so a process killed at any moment
 leaves every completed write on disk and no half-written row; a campaign that never finished stays
 ``running`` and is shown as such.
 
@@ -106,6 +107,22 @@ MIGRATIONS: tuple[str, ...] = (
     CREATE INDEX runs_campaign ON runs(campaign_id);
     CREATE INDEX models_campaign ON models(campaign_id);
     """,
+    # version 2: one row per case of a parameter sweep (issue 13), keyed by the hash of its inputs
+    """
+    CREATE TABLE sweep_cases (
+        id INTEGER PRIMARY KEY,
+        case_key TEXT NOT NULL UNIQUE,
+        sweep TEXT NOT NULL,
+        status TEXT NOT NULL,
+        reason TEXT,
+        inputs_json TEXT NOT NULL,
+        row_json TEXT NOT NULL,
+        summary_json TEXT NOT NULL DEFAULT '{}',
+        log_tail TEXT,
+        recorded_utc TEXT NOT NULL
+    );
+    CREATE INDEX sweep_cases_sweep ON sweep_cases(sweep);
+    """,
 )
 
 
@@ -141,11 +158,22 @@ class _FileState:
 
 
 def _read_state(db: sqlite3.Connection, path: Path) -> _FileState:
-    """The marks and tables of the open file; StoreError when it is not a readable SQLite database."""
+    """The marks and tables of the open file; StoreError when it is not a readable SQLite database.
+
+    The three reads share one read transaction (unless the caller holds one already): read one by
+    one, they could straddle another process's creation of the store and see its tables missing but
+    its version set — a fresh store of ours taken for another application's file."""
+    own = not db.in_transaction
     try:
-        tables = frozenset(row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type='table'"))
-        application_id = int(db.execute("PRAGMA application_id").fetchone()[0])
-        user_version = int(db.execute("PRAGMA user_version").fetchone()[0])
+        if own:
+            db.execute("BEGIN")
+        try:
+            tables = frozenset(row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type='table'"))
+            application_id = int(db.execute("PRAGMA application_id").fetchone()[0])
+            user_version = int(db.execute("PRAGMA user_version").fetchone()[0])
+        finally:
+            if own and db.in_transaction:
+                db.execute("COMMIT")
     except sqlite3.DatabaseError as exc:  # "file is not a database", "database disk image is malformed"
         raise StoreError(f"{path} is not a companion store: it is not a readable SQLite database ({exc})") from None
     return _FileState(application_id, user_version, tables)
@@ -400,6 +428,34 @@ class Store:
         return self._insert(
             "INSERT INTO behavior_results(campaign_id, kind, status, result_json, recorded_utc) VALUES (?,?,?,?,?)",
             (campaign_id, kind, status, _json(result), _now()))
+
+    def put_sweep_case(self, case_key: str, sweep: str, status: str, reason: str | None, inputs: dict, row: dict,
+                       summary: dict | None = None, log_tail: str | None = None) -> None:
+        """Record one finished sweep case (one transaction): its row, the rehearsal's summary and, for
+        a case that did not complete, the end of its log. A case recorded before under the same key
+        (a rerun of a failed case) is replaced."""
+        with self._transaction():
+            self._db.execute(
+                "INSERT INTO sweep_cases(case_key, sweep, status, reason, inputs_json, row_json, summary_json,"
+                " log_tail, recorded_utc) VALUES (?,?,?,?,?,?,?,?,?) ON CONFLICT(case_key) DO UPDATE SET"
+                " sweep=excluded.sweep, status=excluded.status, reason=excluded.reason,"
+                " inputs_json=excluded.inputs_json, row_json=excluded.row_json, summary_json=excluded.summary_json,"
+                " log_tail=excluded.log_tail, recorded_utc=excluded.recorded_utc",
+                (case_key, sweep, status, reason, _json(inputs), _json(row), _json(summary or {}), log_tail, _now()))
+
+    def sweep_cases(self, sweep: str | None = None, with_summary: bool = False) -> list[dict]:
+        """The recorded sweep cases (all, or those a sweep named ``sweep`` ran), oldest first: ``case_key``,
+        ``sweep``, ``status``, ``reason``, ``inputs``, ``row``, ``recorded_utc`` (and ``summary``, ``log_tail``)."""
+        out = []
+        for r in self._select("sweep_cases", sweep=sweep):
+            item = {"case_key": r["case_key"], "sweep": r["sweep"], "status": r["status"], "reason": r["reason"],
+                    "inputs": json.loads(r["inputs_json"]), "row": json.loads(r["row_json"]),
+                    "recorded_utc": r["recorded_utc"]}
+            if with_summary:
+                item["summary"] = json.loads(r["summary_json"])
+                item["log_tail"] = r["log_tail"]
+            out.append(item)
+        return out
 
     # ------------------------------------------------------------------ reads
     def campaigns(self) -> list[dict]:

@@ -58,7 +58,12 @@ class VehicleFileError(UserError, ValueError):
 
 
 def preset_path(name: str) -> Path:
-    """Path of ``sim/presets/<name>.json`` found without importing ``sim``."""
+    """Path of ``sim/presets/<name>.json`` found without importing ``sim``; a ``name`` ending in
+    ``.json`` is a preset file of its own (a vehicle variant, :mod:`companion.records.variants`)."""
+    if name.endswith(".json"):
+        if not Path(name).is_file():
+            raise FileNotFoundError(f"no preset file {name}")
+        return Path(name)
     spec = importlib.util.find_spec("sim")
     if spec is None or not spec.submodule_search_locations:
         raise FileNotFoundError("the simulator package 'sim' is not installed; use --vehicle FILE.json")

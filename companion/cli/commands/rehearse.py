@@ -41,8 +41,45 @@ def add_parser(subparsers) -> None:
                              "(SITL, JSON backend) flying our physics (boat preset for ardurover)")
     parser.add_argument("--ardupilot-bin", metavar="DIR", default=None,
                         help="ArduPilot SITL binaries (build/sitl/bin); default $ARDUPILOT_SITL_BIN")
+    parser.add_argument("--perturb", type=perturbation_list, action="append", default=[], metavar="NAME=FACTOR",
+                        help="fly a variant of the preset: multiply a parameter group by a factor, e.g. mass=1.1,b2=0.8 "
+                             "(mass, b2, a22, trim, elevator, drag, thrust or SECTION.FIELD; repeatable)")
+    parser.add_argument("--noise", type=noise_factor, default=1.0, metavar="FACTOR",
+                        help="sensor-noise level: factor on every sensor σ of the preset (default: %(default)s)")
+    parser.add_argument("--no-report", action="store_true", help="do not write report.html (the summary and store only)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.set_defaults(func=run)
+
+
+def perturbation_list(text: str) -> tuple[tuple[str, float], ...]:
+    """``mass=1.1,b2=0.8`` -> (("mass", 1.1), ("b2", 0.8)) (argparse type; names and factors checked)."""
+    from companion.records.variants import VariantError, check_perturbation
+
+    out = []
+    for item in (part.strip() for part in text.split(",") if part.strip()):
+        name, sep, value = item.partition("=")
+        try:
+            factor = float(value)
+            if not sep:
+                raise ValueError
+            check_perturbation(name.strip(), factor)
+        except ValueError as exc:
+            detail = str(exc) if isinstance(exc, VariantError) else f"expected NAME=FACTOR, not {item!r}"
+            raise argparse.ArgumentTypeError(detail) from None
+        out.append((name.strip(), factor))
+    if not out:
+        raise argparse.ArgumentTypeError("expected NAME=FACTOR[,NAME=FACTOR...]")
+    return tuple(out)
+
+
+def noise_factor(text: str) -> float:
+    """A finite factor >= 0 on the sensor noise (argparse type)."""
+    from companion.cli.commands._common import finite_float
+
+    value = finite_float(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"the noise factor must be >= 0, not {text!r}")
+    return value
 
 
 def run(args: argparse.Namespace) -> int:
@@ -97,9 +134,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"unknown behaviour(s) {', '.join(sorted(unknown))}: use roll, min-speed or none", file=sys.stderr)
         return 2
     steady = defaults["steady_state"] if args.steady_state is None else args.steady_state
+    perturb = dict(pair for group in args.perturb for pair in group)  # a name given twice: the last wins
     config = RehearsalConfig(preset=args.preset, speedup=args.speedup, seed=args.seed, out_dir=args.out,
                              campaign=campaign, behaviors=behaviors, current=current, steady_state=steady,
-                             progress=not args.json, autopilot=args.autopilot, ardupilot_bin=ardupilot_bin)
+                             progress=not args.json, autopilot=args.autopilot, ardupilot_bin=ardupilot_bin,
+                             perturb=tuple(sorted(perturb.items())), noise=args.noise, report=not args.no_report)
     abort = AbortFlag()
     undo = install_signal_handlers(abort)
     try:
