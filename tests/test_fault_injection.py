@@ -290,3 +290,39 @@ def test_outputs_are_paired_with_their_attitude_after_the_microsecond_clock_wrap
     snapshot = assembler.on_message(mavlink.MAVLink_servo_output_raw_message((time_ms * 1000) & 0xFFFFFFFF, 0,
                                                                              *servos))
     assert snapshot is not None and snapshot.time_s == time_ms / 1000.0 and snapshot.rudder != 0.0
+
+
+def test_a_restore_reconnects_a_closed_link_and_says_what_it_could_not_do_when_it_stays_closed():
+    """Found by the suite: a TCP link closed for half a second left every gain, set-point and the mode
+    unrestored (the restore gave up at the first EOF). Now the item is tried again after a reconnect;
+    a link that does not come back ends the restore with one clear reason per item."""
+    from companion.link.errors import LinkLost
+    from companion.procedures.runner import _Reconnector, _try_restore_item
+
+    class Link:
+        def __init__(self, back: bool) -> None:
+            self.back, self.reconnects = back, 0
+
+        def reconnect(self) -> bool:
+            self.reconnects += 1
+            return self.back
+
+    tries = []
+
+    def lost_once() -> None:
+        tries.append(1)
+        if len(tries) == 1:
+            raise LinkLost("the vehicle closed the TCP connection")
+
+    def lost() -> None:
+        raise LinkLost("the vehicle closed the TCP connection")
+
+    link = Link(back=True)
+    assert _try_restore_item("restore HDG_P", lost_once, _Reconnector(link)) is None
+    assert len(tries) == 2 and link.reconnects == 1
+    link = Link(back=False)
+    reconnect = _Reconnector(link)
+    assert "closed the TCP connection" in _try_restore_item("restore HDG_P", lost, reconnect)
+    assert _try_restore_item("restore mode", lost, reconnect) == \
+        "restore mode: not tried: the link was lost and did not come back"
+    assert link.reconnects == 1

@@ -238,6 +238,7 @@ class _Reconnector:
     def __init__(self, link) -> None:
         self._reconnect = getattr(link, "reconnect", None)
         self.left = RESTORE_RECONNECTS if callable(self._reconnect) else 0
+        self.gone: str | None = None  # why the rest of the restore is not tried (the link did not come back)
 
     def __call__(self) -> bool:
         if self.left <= 0:
@@ -250,6 +251,7 @@ class _Reconnector:
             back = False
         if not back:
             self.left = 0
+            self.gone = "the link was lost and did not come back"
         return back
 
 
@@ -265,6 +267,9 @@ def _try_restore_item(what: str, action: Callable[[], None],
     timeout)."""
     from companion.link.errors import LinkLost
 
+    gone = getattr(reconnect, "gone", None)
+    if gone:  # each try would fail on the closed connection, with a less useful message
+        return f"{what}: not tried: {gone}"
     failure = "not tried"
     for attempt in range(1, RESTORE_TRIES + 1):
         try:
