@@ -6,6 +6,11 @@
   the companion's one launcher (:class:`companion.cli.launcher.SimulatorProcess`), with the tests'
   defaults.
 * :mod:`harness.mavlink_clients` — pymavlink clients of that simulator (``connect_client``).
+* :mod:`harness.fault_proxy` — a MAVLink-aware TCP proxy that injects link faults (drop, delay,
+  duplicate, reorder, corrupt, cut) between the companion and the vehicle, at phases recognised
+  from the companion's traffic; :mod:`harness.fault_cases` runs a procedure through it and checks
+  that the vehicle and the store come back as found (``tests/test_fault_injection.py``,
+  ``bench/bench_faults.py``).
 * :mod:`harness.datasets` — synthetic data sets (ROMEO regime points and surge, steady-state
   squares and turns).
 
