@@ -134,7 +134,7 @@ def row_from_summary(case: Case, summary: dict | None, status: str | None = None
     summary = summary or {}
     inputs = case.inputs()
     row: dict = {"case_key": case.key, **{k: v for k, v in inputs.items() if k != "perturb"},
-                 "perturb": " ".join(f"{name}={factor:g}" for name, factor in case.perturb)}
+                 "perturb": " ".join(f"{name}={factor:g}" for name, factor in case.perturb), "quick": case.quick}
     for name, factor in case.perturb:
         row[f"perturb_{name}"] = factor
     row["thrusts"] = " ".join(f"{t:g}" for t in case.thrusts)

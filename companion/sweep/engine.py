@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 
 #: the row columns before the per-perturbation ones and the figures (the CSV's order)
 INPUT_COLUMNS = ("case_key", "preset", "seed", "current_north", "current_east", "noise", "perturb", "thrusts",
-                 "axes", "steps", "behaviors", "steady_state", "schedules", "thesis_estimator")
+                 "axes", "steps", "behaviors", "steady_state", "schedules", "thesis_estimator", "quick")
 OUTCOME_COLUMNS = ("status", "reason", "failure")
 #: recorded beside the row, not part of it (they differ between two runs of one case)
 RUN_COLUMNS = ("wall_s", "host", "command")

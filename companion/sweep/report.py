@@ -126,9 +126,14 @@ def plot_overview(rows: Sequence[dict], path: Path, title: str = "") -> str | No
               "Roll stabilisation: σ reduction", "σ open loop / σ closed loop")
         ax = axes[1, 2]
         counts = failure_counts(rows)
-        if rows:
-            labels = [label for label, _ in counts.most_common(8)] or ["no failure"]
-            rates = [100.0 * counts[label] / len(rows) for label in labels] if counts else [0.0]
+        if rows and not counts:
+            ax.set_title("Failure rate by reason", fontsize=10)
+            ax.text(0.5, 0.5, f"no failure in {len(rows)} cases", ha="center", va="center", transform=ax.transAxes)
+            ax.set_xticks([])
+            ax.set_yticks([])
+        elif rows:
+            labels = [label for label, _ in counts.most_common(8)]
+            rates = [100.0 * counts[label] / len(rows) for label in labels]
             ax.barh(range(len(labels)), rates, color="C3")
             ax.set_yticks(range(len(labels)), [label if len(label) < 48 else label[:45] + "…" for label in labels],
                         fontsize=7)

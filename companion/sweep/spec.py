@@ -13,7 +13,7 @@ flags; every axis is a list and the cases are their cross product, in a fixed or
       "perturb": {"mass": "±10%", "b2": [0.8, 1.2]},     # factors (companion.records.variants)
       "thrusts": [[0.6, 0.8, 1.0]],                      # one or several thrust lists
       "axes": ["yaw"], "steps": true, "behaviors": ["roll", "min_speed"],
-      "steady_state": false, "schedules": ["heading"], "thesis_estimator": false,
+      "steady_state": false, "schedules": ["heading"], "thesis_estimator": false, "quick": false,
       "speedup": 50, "timeout_s": 1800
     }
 
@@ -24,7 +24,8 @@ also as ``"1..8"``; factors also as ``"±10%"`` (0.9, 1.0, 1.1). A :class:`Case`
 SHA-256 of its inputs — names exactly what runs, and :meth:`Case.command` is the ``companion
 rehearse`` command that reproduces it alone. The speed-up is not an input: a rehearsal on the
 built-in simulator gives the same numbers at any speed-up (lockstep, README "Same seed, same
-numbers").
+numbers"). An option added after the first sweeps (``quick``) enters the inputs only when set, so
+the keys of cases recorded before it stay valid.
 """
 from __future__ import annotations
 
@@ -262,14 +263,18 @@ class Case:
     steady_state: bool = False
     schedules: tuple[str, ...] = ("heading",)
     thesis_estimator: bool = False
+    quick: bool = False  # issue 10's shorter procedure (companion rehearse --quick)
 
     def inputs(self) -> dict:
         """The case's inputs as plain JSON (the columns of its row, and what its key hashes)."""
-        return {"preset": self.preset, "seed": self.seed, "current_north": self.current[0],
-                "current_east": self.current[1], "thrusts": list(self.thrusts), "noise": self.noise,
-                "perturb": dict(self.perturb), "axes": list(self.axes), "steps": self.steps,
-                "behaviors": list(self.behaviors), "steady_state": self.steady_state,
-                "schedules": list(self.schedules), "thesis_estimator": self.thesis_estimator}
+        out = {"preset": self.preset, "seed": self.seed, "current_north": self.current[0],
+               "current_east": self.current[1], "thrusts": list(self.thrusts), "noise": self.noise,
+               "perturb": dict(self.perturb), "axes": list(self.axes), "steps": self.steps,
+               "behaviors": list(self.behaviors), "steady_state": self.steady_state,
+               "schedules": list(self.schedules), "thesis_estimator": self.thesis_estimator}
+        if self.quick:
+            out["quick"] = True
+        return out
 
     @property
     def key(self) -> str:
@@ -282,13 +287,15 @@ class Case:
         args = ["--preset", self.preset, "--seed", str(self.seed),
                 "--current", f"{_number_text(self.current[0])},{_number_text(self.current[1])}",
                 "--thrusts", ",".join(_number_text(t) for t in self.thrusts),
-                "--axes", ",".join(self.axes), "--behaviors", ",".join(self.behaviors) or "none",
+                "--axes", ",".join(self.axes), "--behaviors", ",".join(b.replace("_", "-") for b in self.behaviors) or "none",
                 "--steady-state" if self.steady_state else "--no-steady-state",
                 "--schedules", ",".join(self.schedules)]
         if not self.steps:
             args.append("--no-steps")
         if self.thesis_estimator:
             args.append("--thesis-estimator")
+        if self.quick:
+            args.append("--quick")
         if self.perturb:
             args += ["--perturb", ",".join(f"{name}={_number_text(factor)}" for name, factor in self.perturb)]
         if self.noise != 1.0:
@@ -321,6 +328,7 @@ class SweepSpec:
     steady_state: bool | None = None
     schedules: tuple[str, ...] = ("heading",)
     thesis_estimator: bool = False
+    quick: bool = False
     speedup: float = 50.0
     timeout_s: float = 1800.0
 
@@ -345,7 +353,7 @@ class SweepSpec:
                     axes=self.axes, steps=self.steps,
                     behaviors=tuple(defaults["behaviors"]) if self.behaviors is None else self.behaviors,
                     steady_state=bool(defaults["steady_state"]) if self.steady_state is None else self.steady_state,
-                    schedules=self.schedules, thesis_estimator=self.thesis_estimator))
+                    schedules=self.schedules, thesis_estimator=self.thesis_estimator, quick=self.quick))
         unique = list(dict.fromkeys(out))  # e.g. factor 1.0 listed under two names: one case
         return unique
 
@@ -381,6 +389,7 @@ _READERS = {
     "steady_state": lambda v: _flag(v, "steady_state"),
     "schedules": lambda v: _schedules(v),
     "thesis_estimator": lambda v: _flag(v, "thesis_estimator"),
+    "quick": lambda v: _flag(v, "quick"),
     "speedup": lambda v: _positive(v, "speedup"),
     "timeout_s": lambda v: _positive(v, "timeout_s"),
 }

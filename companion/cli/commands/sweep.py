@@ -49,6 +49,8 @@ def add_parser(subparsers) -> None:
     what.add_argument("--schedules", default=None, metavar="NAMES", help="gain schedules: heading and/or pitch")
     what.add_argument("--thesis-estimator", dest="thesis_estimator", action="store_const", const=True, default=None,
                       help="the seeds' exact estimator")
+    what.add_argument("--quick", dest="quick", action="store_const", const=True, default=None,
+                      help="issue 10's shorter procedure (companion rehearse --quick)")
     what.add_argument("--speedup", default=None, help="simulation speed-up of every case (default: 50; "
                                                       "the numbers do not depend on it)")
     what.add_argument("--timeout", default=None, metavar="S", help="wall-clock limit of one case (default: 1800)")
@@ -56,7 +58,7 @@ def add_parser(subparsers) -> None:
     run.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
                      help="an existing dask.distributed scheduler (default: a local cluster on this machine)")
     run.add_argument("--workers", type=int, default=None, metavar="N",
-                     help="worker processes of the local cluster (default: one per core)")
+                     help="workers of the local cluster, i.e. cases run at once (default: one per core)")
     run.add_argument("--out", default="sweep", help="output folder: store, CSV, report (default: %(default)s)")
     run.add_argument("--store", default=None, help="the store (default: OUT/sweep.sqlite)")
     run.add_argument("--retry-failed", action="store_true", help="run recorded cases that did not complete again")
@@ -69,7 +71,7 @@ def add_parser(subparsers) -> None:
 
 
 _FLAG_FIELDS = ("name", "presets", "seeds", "currents", "noise", "thrusts", "axes", "steps", "behaviors",
-                "steady_state", "schedules", "thesis_estimator", "speedup")
+                "steady_state", "schedules", "thesis_estimator", "quick", "speedup")
 
 
 def build_spec(args: argparse.Namespace):
