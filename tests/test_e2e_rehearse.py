@@ -18,7 +18,7 @@ pytestmark = pytest.mark.e2e
 def rehearsal(tmp_path_factory):
     out = tmp_path_factory.mktemp("rehearsal")
     command = [sys.executable, "-m", "companion", "rehearse", "--out", str(out), "--thrusts", "0.7,1.0",
-               "--axes", "yaw", "--no-steps", "--behaviors", "roll,min-speed", "--speedup", "50", "--seed", "4", "--json"]
+               "--axes", "yaw", "--no-steps", "--behaviors", "roll,min-speed", "--speedup", "100", "--seed", "4", "--json"]
     done = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     return out, json.loads(done.stdout)
@@ -67,7 +67,7 @@ def test_hugin_rehearsal_recovers_the_current_from_squares_and_turns(tmp_path):
     """Issue 5: the steady-state manoeuvres inside the rehearsal on the HUGIN-like preset, scored
     against the known current the simulator was started with (14 mm/s towards 300°)."""
     command = [sys.executable, "-m", "companion", "rehearse", "--preset", "hugin", "--out", str(tmp_path),
-               "--thrusts", "0.8", "--axes", "yaw", "--no-steps", "--seed", "2", "--json"]
+               "--thrusts", "0.8", "--axes", "yaw", "--no-steps", "--seed", "2", "--speedup", "100", "--json"]
     done = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     steady = json.loads(done.stdout)["steady_state"]

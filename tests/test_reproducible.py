@@ -1,10 +1,10 @@
 """Issue 12, same seed, same numbers: a rehearsal is a function of its seed and options alone.
 
-Two runs of one short rehearsal, at 30x (the simulator paced on the wall clock, so the companion's
+Two runs of one short rehearsal, at 50x (the simulator paced on the wall clock, so the companion's
 messages arrive while it is between two samples) and at 100x (the simulator as fast as the companion
 lets it), must give the same summary, bit for bit, apart from its wall-clock field and the speed-up
 it was asked for: scheduling, load and the speed-up must not matter (lockstep, sim/lockstep.py).
-About 30 s on an idle 2-core machine (the rehearsal's 387 s of vehicle time at 30x is 13 s). Run as
+About 25 s on an idle 2-core machine (the rehearsal's 387 s of vehicle time at 50x is 8 s). Run as
 a user runs it: ``companion rehearse --json`` in a child process, each in a fresh directory with the
 same relative ``--out``.
 """
@@ -34,7 +34,7 @@ def rehearse(workdir: Path, speedup: float, seed: int = 1) -> dict:
 
 
 def test_same_seed_gives_the_same_summary_bit_for_bit(tmp_path):
-    slow = rehearse(tmp_path / "at30", 30.0)
+    slow = rehearse(tmp_path / "at50", 50.0)
     fast = rehearse(tmp_path / "at100", 100.0)
     assert slow["status"] == "completed" and slow["runs"] and slow["min_speed"]["status"] == "completed"
     assert slow["reproducibility"] == {"exact": True, "varied": [],
