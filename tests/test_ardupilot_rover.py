@@ -23,14 +23,13 @@ from companion.cli.rehearsal import arm_when_ready, preset_vehicle, simulator_tr
 from companion.procedures.app import AbortFlag, run_campaign
 from companion.procedures.campaign import CampaignConfig
 from companion.records.store import Store
+from harness.ardupilot import assert_as_found, found_state, sitl_pid
 
 BIN = os.environ.get("ARDUPILOT_SITL_BIN")
 pytestmark = [pytest.mark.e2e, pytest.mark.skipif(
     not (BIN and (Path(BIN) / "ardurover").is_file()),
     reason="ARDUPILOT_SITL_BIN is not set to a folder with ArduPilot's ardurover SITL binary")]
 
-GAINS = ("heading_angle_p", "heading_rate_p", "heading_rate_i", "heading_rate_ff", "heading_rate_d",
-         "heading_rate_imax")
 #: one thrust, short settles: the abort tests only need the campaign to be under way
 SHORT = CampaignConfig(thrusts=(0.8,), axes=("yaw",), step_labels=("scheduled",),
                        yaw=ManoeuvreConfig(settle_s=20.0, resettle_s=10.0))
@@ -56,23 +55,9 @@ def rover(truth_log):
             link.close()
 
 
-def _found(link) -> tuple[dict, str]:
-    return link.get_params(GAINS), link.mode
-
-
-def _assert_as_found(link, found: tuple[dict, str], *, mode: bool = True) -> None:
-    params, found_mode = found
-    now = link.get_params(GAINS)
-    for name, value in params.items():
-        assert now[name] == pytest.approx(value, rel=1e-6, abs=1e-9), name
-    assert not link.overrides.active, "no RC override may outlive a procedure"
-    if mode:
-        assert link.mode == found_mode
-
-
 def test_campaign_identifies_designs_verifies_and_keeps_native_gains(rover, truth_log, tmp_path):
     _sim, link = rover
-    found = _found(link)
+    found = found_state(link)
     with Store(tmp_path / "s.sqlite") as store:
         config = replace(CampaignConfig(), thrusts=(0.6, 0.8, 1.0), axes=("yaw",))
         campaign, outcome, _ = run_campaign(link, store, config, vehicle_id=store.add_vehicle("rover"),
@@ -108,7 +93,7 @@ def _campaign_with(link, abort, tmp_path):
 
 def test_ctrl_c_during_the_doublet_leaves_the_boat_as_found(rover, tmp_path):
     _sim, link = rover
-    found = _found(link)
+    found = found_state(link)
     start = link.vehicle_time_s
 
     def ctrl_c():  # what the signal handler does, at 23 s: inside the MANUAL excitation
@@ -117,12 +102,12 @@ def test_ctrl_c_during_the_doublet_leaves_the_boat_as_found(rover, tmp_path):
     _, outcome, _ = _campaign_with(link, ctrl_c, tmp_path)
     assert outcome.status == "aborted" and outcome.reason == "signal SIGINT"
     assert outcome.restore_problems == []
-    _assert_as_found(link, found)
+    assert_as_found(link, found)
 
 
 def test_a_pilot_mode_change_aborts_and_the_companion_does_not_fight_back(rover, tmp_path):
     _sim, link = rover
-    found = _found(link)
+    found = found_state(link)
     start = link.vehicle_time_s
     state = {"done": False}
 
@@ -134,15 +119,15 @@ def test_a_pilot_mode_change_aborts_and_the_companion_does_not_fight_back(rover,
 
     _, outcome, _ = _campaign_with(link, pilot, tmp_path)
     assert outcome.status == "aborted" and "by someone else" in outcome.reason
-    _assert_as_found(link, found, mode=False)
+    assert_as_found(link, found, mode=False)
     assert link.mode == "acro"  # the pilot's choice stands
     link.set_mode(found[1])
 
 
 def test_link_loss_aborts_and_the_restore_completes_when_the_link_returns(rover, tmp_path):
     sim, link = rover
-    found = _found(link)
-    pid = _sitl_pid(sim)
+    found = found_state(link)
+    pid = sitl_pid(sim, "ardurover")
     start = link.vehicle_time_s
     state = {"stopped": False}
 
@@ -156,22 +141,7 @@ def test_link_loss_aborts_and_the_restore_completes_when_the_link_returns(rover,
     _, outcome, _ = _campaign_with(link, freeze, tmp_path)
     assert outcome.status == "aborted" and "LinkLost" in outcome.reason
     time.sleep(1.0)  # let the last timer fire before the next test
-    _assert_as_found(link, found)
-
-
-def _sitl_pid(sim) -> int:
-    """The ardurover process (a child of the ``python -m sim`` process)."""
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-        except OSError:
-            continue
-        parent = int(stat.rsplit(")", 1)[1].split()[1])
-        if parent == sim.process.pid and "ardurover" in stat:
-            return int(entry.name)
-    raise AssertionError("no ardurover process under the simulator")
+    assert_as_found(link, found)
 
 
 def test_rehearse_exits_zero_only_with_verified_gains_and_reports_math_free_json(tmp_path):
@@ -205,7 +175,7 @@ def test_steady_state_squares_and_turns_against_the_connected_firmware(tmp_path)
         link = VehicleLink.connect(sim.endpoint, heartbeat_timeout_s=60.0, vehicle=preset_vehicle("boat"))
         try:
             arm_when_ready(link, patience_s=120.0)  # a user arms the boat; the procedure never does
-            found = _found(link)
+            found = found_state(link)
         finally:
             link.close()
         done = subprocess.run([sys.executable, "-m", "companion", "run-behavior", "steady-state", "--connect",
@@ -223,6 +193,6 @@ def test_steady_state_squares_and_turns_against_the_connected_firmware(tmp_path)
         assert summary["squares"]["surge_water"] == pytest.approx(1.5, abs=0.1)
         link = VehicleLink.connect(sim.endpoint, heartbeat_timeout_s=60.0, vehicle=preset_vehicle("boat"))
         try:
-            _assert_as_found(link, found)
+            assert_as_found(link, found)
         finally:
             link.close()

@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from companion.records.store import Store
+from harness.ardupilot import assert_as_found, found_state, sitl_pid
 
 BIN = os.environ.get("ARDUPILOT_SITL_BIN")
 pytestmark = [pytest.mark.e2e, pytest.mark.skipif(
@@ -75,10 +76,6 @@ def test_the_store_holds_the_models_and_the_written_gains(rehearsal):
 
 
 # ---------------------------------------------------------------------- aborts on the firmware
-GAINS = ("heading_angle_p", "heading_rate_p", "heading_rate_i", "heading_rate_ff", "heading_rate_d",
-         "heading_rate_imax")
-
-
 @pytest.fixture(scope="module")
 def sub():
     """ArduSub SITL + STARFISH physics, connected, holding its depth and armed (shared by the abort
@@ -111,23 +108,9 @@ def _short_campaign(link, abort, tmp_path):
         return run_campaign(link, store, config, vehicle_id=store.add_vehicle("sub"), abort=abort)
 
 
-def _found(link) -> tuple[dict, str]:
-    return link.get_params(GAINS), link.mode
-
-
-def _assert_as_found(link, found, *, mode: bool = True) -> None:
-    params, found_mode = found
-    now = link.get_params(GAINS)
-    for name, value in params.items():
-        assert now[name] == pytest.approx(value, rel=1e-6, abs=1e-9), name
-    assert not link.overrides.active, "no RC override may outlive a procedure"
-    if mode:
-        assert link.mode == found_mode
-
-
 def test_ardusub_ctrl_c_during_the_doublet_leaves_the_sub_as_found(sub, tmp_path):
     _sim, link = sub
-    found = _found(link)
+    found = found_state(link)
     start = link.vehicle_time_s
 
     def ctrl_c():  # what the signal handler does, at 23 s: inside the MANUAL excitation
@@ -136,12 +119,12 @@ def test_ardusub_ctrl_c_during_the_doublet_leaves_the_sub_as_found(sub, tmp_path
     _, outcome, _ = _short_campaign(link, ctrl_c, tmp_path)
     assert outcome.status == "aborted" and outcome.reason == "signal SIGINT"
     assert outcome.restore_problems == []
-    _assert_as_found(link, found)
+    assert_as_found(link, found)
 
 
 def test_ardusub_pilot_mode_change_aborts_and_the_pilots_mode_stands(sub, tmp_path):
     _sim, link = sub
-    found = _found(link)
+    found = found_state(link)
     start = link.vehicle_time_s
     state = {"done": False}
 
@@ -153,7 +136,7 @@ def test_ardusub_pilot_mode_change_aborts_and_the_pilots_mode_stands(sub, tmp_pa
 
     _, outcome, _ = _short_campaign(link, pilot, tmp_path)
     assert outcome.status == "aborted" and "by someone else" in outcome.reason
-    _assert_as_found(link, found, mode=False)
+    assert_as_found(link, found, mode=False)
     assert link.mode == "stabilize"  # the pilot's choice stands
     link.set_mode(found[1])
 
@@ -164,8 +147,8 @@ def test_ardusub_link_loss_aborts_and_the_restore_completes_when_the_link_return
     import time
 
     sim, link = sub
-    found = _found(link)
-    pid = _sitl_pid(sim)
+    found = found_state(link)
+    pid = sitl_pid(sim, "ardusub")
     start = link.vehicle_time_s
     state = {"stopped": False}
 
@@ -179,20 +162,6 @@ def test_ardusub_link_loss_aborts_and_the_restore_completes_when_the_link_return
     _, outcome, _ = _short_campaign(link, freeze, tmp_path)
     assert outcome.status == "aborted" and "LinkLost" in outcome.reason
     time.sleep(1.0)
-    _assert_as_found(link, found)
+    assert_as_found(link, found)
     assert link.armed, "the sub must still be armed (its failsafes did not fire)"
 
-
-def _sitl_pid(sim) -> int:
-    """The ardusub process (a child of the ``python -m sim`` process)."""
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-        except OSError:
-            continue
-        parent = int(stat.rsplit(")", 1)[1].split()[1])
-        if parent == sim.process.pid and "ardusub" in stat:
-            return int(entry.name)
-    raise AssertionError("no ardusub process under the simulator")
