@@ -91,6 +91,13 @@ def install_signal_handlers(flag: AbortFlag, stream=None) -> Callable[[], None]:
                 else "ending the procedure and restoring the vehicle"
             say(f"{doing}; signal {FORCE_EXIT_SIGNAL - received[0]} more time(s) to exit without restoring")
 
+    return handle_stop_signals(handler, previous)
+
+
+def handle_stop_signals(handler, previous: dict | None = None) -> Callable[[], None]:
+    """Install ``handler`` for SIGINT and SIGTERM; returns the function that puts back the handlers
+    found (``previous``, when the caller already read them)."""
+    previous = previous or {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
     for sig in previous:
         signal.signal(sig, handler)
 

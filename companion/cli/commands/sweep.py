@@ -202,12 +202,7 @@ def _install_stop_handlers(run):
         else:
             raise KeyboardInterrupt
 
-    for sig in previous:
-        signal.signal(sig, handler)
+    from companion.procedures.app import handle_stop_signals
 
-    def undo() -> None:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
-
-    return undo
+    return handle_stop_signals(handler, previous)
 
