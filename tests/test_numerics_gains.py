@@ -189,3 +189,26 @@ def test_without_feed_forward_a_fast_plant_still_gets_a_proportional_rate_gain()
     assert _cascade_heading_step_overshoot(-15.0, b, gains) < 10.0
     # with a feed-forward the FF carries the turn and the plant is fast enough: P stays 0
     assert design_cascade_gains(model, CascadeRules()).rate_p == 0.0
+
+
+@pytest.mark.parametrize("zeta", [0.75, 0.8])
+def test_a_design_damping_places_the_pair_at_that_damping_and_lowers_the_overshoot(zeta):
+    """GainBounds.damping generalises eq. 3.57: Kp = a22²/(4ζ²b2) puts the dominant pair at ζ
+    (within 0.005 with the N = 100 integrator) and the step overshoots less than at 0.7071."""
+    a22, b2 = TABLE_3_4[1][0]
+    plant = control.tf([b2], [1.0, -a22, 0.0])
+
+    def loop(bounds: GainBounds):
+        gains = design_heading_gains(YawModel(a22, b2, 0.0), bounds)
+        return gains, control.feedback(control.tf([gains.kp, gains.ki], [1.0, 0.0]) * plant, 1)
+
+    gains, closed = loop(GainBounds(damping=zeta))
+    assert gains.kp == pytest.approx(a22 * a22 / (4 * zeta * zeta * b2))
+    wn, damping, poles = control.damp(closed, doprint=False)
+    pair = np.flatnonzero(np.abs(poles.imag) > 1e-9)
+    assert np.all(np.abs(damping[pair] - zeta) < 0.005)
+    overshoot = control.step_info(closed, T=np.linspace(0, 3000, 60001))["Overshoot"]
+    _, reference = loop(GainBounds())
+    assert overshoot < control.step_info(reference, T=np.linspace(0, 3000, 60001))["Overshoot"] - 1.0
+    with pytest.raises(ValueError):
+        design_heading_gains(YawModel(a22, b2, 0.0), GainBounds(damping=0.0))
