@@ -57,6 +57,12 @@ class ConvergenceRule:
     # near 10⁻³ long after the estimates settled); None: eq. 3.39 as above
     relative_drift: float | None = None
     drift_window_s: float = 1.5
+    # issue 10, the noise-aware rule taken by the quick procedure: converged once, over the last
+    # ``noise_window_s``, every parameter stayed within ``noise_band``·σ_i of its current value, σ_i
+    # the standard error the RLS covariance predicts (σ̂²·P, eq. 3.38's P): Θ then moves by less than
+    # its own noise floor, and more samples of a decayed response cannot move it further. None: eq. 3.39
+    noise_band: float | None = None
+    noise_window_s: float = 1.0
 
 
 @dataclass
@@ -189,6 +195,10 @@ class _SvfRlsIdentifier:
             self._quiet_count += 1
         else:
             self._quiet_count = 0
+        if not self.converged and self.rule.noise_band is not None and self._within_noise(elapsed, theta):
+            self.converged = True
+            self.converged_at_s = elapsed
+            self.criterion_met_from_s = elapsed - self.rule.noise_window_s
         if not self.converged and self.rule.relative_drift is not None and self._drift_settled(elapsed, theta):
             self.converged = True
             self.converged_at_s = elapsed
@@ -212,6 +222,24 @@ class _SvfRlsIdentifier:
         index = len(times) - 1
         while index >= 0 and times[index] >= elapsed - rule.drift_window_s:
             if float(np.linalg.norm(np.asarray(thetas[index]) - theta)) > rule.relative_drift * scale:
+                return False
+            index -= 1
+        return True
+
+    def _within_noise(self, elapsed: float, theta: np.ndarray) -> bool:
+        """The noise-aware rule (``ConvergenceRule.noise_band``): over the last ``noise_window_s``
+        (all of it after ``min_time_s``) |Θ_i(t') − Θ_i(t)| < band·σ_i(t) for every parameter i."""
+        rule = self.rule
+        if elapsed - rule.noise_window_s < rule.min_time_s or self.rls.samples <= self.n_parameters:
+            return False
+        variances = np.diag(self.rls.parameter_covariance())
+        if not np.all(np.isfinite(variances)) or np.any(variances <= 0.0):
+            return False
+        limits = rule.noise_band * np.sqrt(variances)
+        times, thetas = self.history.time_s, self.history.theta
+        index = len(times) - 1
+        while index >= 0 and times[index] >= elapsed - rule.noise_window_s:
+            if np.any(np.abs(np.asarray(thetas[index]) - theta) >= limits):
                 return False
             index -= 1
         return True
