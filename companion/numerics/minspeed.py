@@ -299,3 +299,30 @@ def elevator_for_level_flight(vehicle: DivePlaneVehicle, speed: float) -> tuple[
     rhs = np.array([v.buoyancy - v.weight, 0.0])
     theta, delta = np.linalg.solve(a, rhs)
     return float(theta), float(delta)
+
+
+def trim_pitch_curve(vehicle: DivePlaneVehicle, thrust_ratio_low: float, thrust_ratio_high: float = 1.0,
+                     points: int = 121) -> tuple[tuple[float, float], ...]:
+    """The level-flight pitch the vehicle needs at each steady thrust ratio: ((T_R, θ), ...), T_R ascending.
+
+    For a grid of water speeds V, θ and δ from the heave and moment balances (eq. 5.27, 5.29, see
+    :func:`elevator_for_level_flight`), the thrust that balances drag F_t = −½ρV²A_bC_D0·cosθ
+    (eq. 5.25/5.54) and T_R from the thruster map (eq. 5.16/5.55). The speeds span the thrust ratios
+    [``thrust_ratio_low``, ``thrust_ratio_high``]. This is the curve the minimum-speed seeker's
+    governed start (behaviors.min_speed) moves along: the autopilot's depth integrator must carry
+    the pitch change from θ(T_R nominal) to θ(T_R*), so the thrust may fall only as fast as the
+    integrator follows. Points where the drag balance needs no thrust are left out.
+    """
+    def speed_for(ratio: float) -> float:  # F_t(T_R) = ½ρV²A_b|C_D0| at small θ, refined below
+        force = thrust_from_ratio(ratio)
+        return math.sqrt(max(force, 1e-9) / (0.5 * vehicle.rho * vehicle.area_body * abs(vehicle.c_d0)))
+
+    speeds = np.linspace(speed_for(thrust_ratio_low) * 0.97, speed_for(thrust_ratio_high) * 1.03, points)
+    pairs: list[tuple[float, float]] = []
+    for speed in speeds:
+        theta, _delta = elevator_for_level_flight(vehicle, float(speed))
+        ratio = ratio_from_thrust(steady_thrust(vehicle, float(speed), theta))
+        if ratio > THRUST_DEAD_ZONE and thrust_ratio_low - 0.02 <= ratio <= thrust_ratio_high + 0.02:
+            pairs.append((float(ratio), float(theta)))
+    pairs.sort()
+    return tuple(pairs)
