@@ -61,6 +61,28 @@ better on three seeds. Ts = 2-3 s settles at 0.44 in 90-160 s without reversals 
 give bounded limit cycles (as the lake trials did for 0.40). The default stays the seed's Ts = 1 s,
 with the 4 s hold above.
 
+Governed start (issue 10; ``start_depth_budget_m``, with ``start_thrust`` from the procedure's
+predicted T_R* + margin; None keeps today's ramp at ``start_ramp_rate``): the set-point falls from the
+nominal thrust as fast as the autopilot's depth integrator can carry the level-flight pitch change of
+eq. 5.25–5.29/5.54–5.55 (along ``start_pitch_curve``, :func:`companion.numerics.minspeed.trim_pitch_curve`)
+with the depth error near the budget (:meth:`MinSpeedSeeking._governed`), then the fuzzy seeker takes
+over. Measured (bench/bench_min_speed.py --predicted, product procedure, seeds 1-6,
+``MinSpeedProcedureConfig.governed()``: T_R* + 0.018, 0.25 m): the move takes 30-33 s (the 0.005/s ramp to
+T_R* + 0.04: 46 s), final T_R 0.440 on every seed (+1.9 % of the analytic 0.432; today's 0.442, +2.3 %,
+is the ΔT = 0.01 grid falling at T_R* + 0.01 from T_R* + 0.04), max depth error 0.29-0.31 m, ≤ 1
+reversal, re-converges after the kick to 0.60 in 61-99 s; settled after 61-69 s on four seeds, 101 and
+180 s on two. The ≤ 60 s goal is not met, for two measured reasons: (1) the depth PI's integrator
+must move by Δθ = θ(0.44) − θ(0.70) ≈ −0.107 rad at Kiz·e, so ∫e dt ≥ 0.107/0.01 = 10.7 m·s, i.e. at
+least 36 s at the 0.3 m limit (a step at once lost 0.7 m = Δθ/Kpz); (2) the move ends with ≈ 0.28 m of
+depth error, and recovering it needs nose-down pitch beyond the trim while the elevator has only
+≈ 0.014 rad left at T_R 0.44 (trim 0.246 of 0.26): it saturates, rule 3 raises the thrust to 0.46-0.47
+and the seeker comes back down 20-30 s later (seed 5 repeatedly). Tried and not better: a smaller
+budget (0.20 m: 68-98 s), a larger one (0.28 m: 37-71 s but 0.30-0.325 m), tapering the budget to
+0.08-0.1 m over the last 0.03-0.05 of T_R, waiting for the depth error to fall to 0.10-0.15 m before
+the first decision (the low-speed depth loop needs 25-40 s for that), and a fine cell (ΔT 0.002 once
+δs > δmax − 0.017), which the recovery transient drove below the feasible T_R (0.4375) into slow limit
+cycles.
+
 Settling rule: the seeker has settled when its thrust set-point has not changed for
 ``settle_window_s`` (15 s, i.e. 15 decisions at Ts = 1 s); ``settle_time_s`` is the time from the
 start to the last change before the first such quiet window. ``max_depth_error_m`` is the largest
@@ -107,6 +129,13 @@ class MinSpeedConfig:
     # a step there at once lost 0.7 m of depth in the speed transient, 0.01/s 0.44 m, 0.005/s 0.30 m
     # (bench/bench_min_speed.py --predicted); no decision meanwhile
     start_ramp_rate: float = 0.005
+    # issue 10, the governed move (None: today's ramp at ``start_ramp_rate``): the set-point falls
+    # as fast as the autopilot's depth integrator can carry the pitch change while the depth error
+    # stays near this budget (m); needs ``start_pitch_curve``, see :meth:`MinSpeedSeeking._governed`
+    start_depth_budget_m: float | None = None
+    # the model's level-flight pitch against thrust ratio, ((T_R, θ rad), ...) with T_R ascending
+    # and θ rising with T_R (minspeed.trim_pitch_curve, eq. 5.25–5.29, 5.54–5.55)
+    start_pitch_curve: tuple[tuple[float, float], ...] = ()
 
 
 class MinSpeedSeeking(Behaviour):
@@ -165,20 +194,26 @@ class MinSpeedSeeking(Behaviour):
             if cfg.start_thrust is not None:
                 self._ramp_to = min(max(cfg.start_thrust, cfg.thrust_floor), cfg.thrust_ceiling)
                 commands.append(StatusText(f"minspeed: to the predicted TR {self._ramp_to:.2f}"))
-        if self._ramp_to is not None:  # moving to the predicted start: no seeking decision yet
-            step = cfg.start_ramp_rate * max(0.0, now - self._ramp_clock) if math.isfinite(self._ramp_clock) else 0.0
-            self._ramp_clock = now
-            target = self._ramp_to
-            self.thrust_ratio = target if abs(target - self.thrust_ratio) <= step else \
-                self.thrust_ratio + math.copysign(step, target - self.thrust_ratio)
-            commands.append(SetThrust(round(self.thrust_ratio, 6)))
-            if self.thrust_ratio == target:
-                self._ramp_to = None
-                self.ramp_done_s = now - self._start
-                self._last_change = now
-                self._next_decision = now + cfg.seeker.period_s
         elapsed = now - self._start
         theta_d = self._shadow_depth_loop(now, elapsed, telemetry)
+        if self._ramp_to is not None:  # moving to the predicted start: no seeking decision yet
+            target = self._ramp_to
+            governed = cfg.start_depth_budget_m is not None and bool(cfg.start_pitch_curve)
+            if governed:
+                moved = self._governed(target)
+            else:
+                step = cfg.start_ramp_rate * max(0.0, now - self._ramp_clock) if math.isfinite(self._ramp_clock) else 0.0
+                self._ramp_clock = now
+                moved = target if abs(target - self.thrust_ratio) <= step else \
+                    self.thrust_ratio + math.copysign(step, target - self.thrust_ratio)
+            if moved != self.thrust_ratio or not governed:
+                self.thrust_ratio = moved
+                commands.append(SetThrust(round(self.thrust_ratio, 6)))
+            if self.thrust_ratio == target:
+                self._ramp_to = None
+                self.ramp_done_s = elapsed
+                self._last_change = now
+                self._next_decision = now + cfg.seeker.period_s
         theta_e = telemetry.pitch - theta_d if math.isfinite(theta_d) else math.nan
         theta_e_f = self._theta_filter.update(now, theta_e)
         delta_f = self._delta_filter.update(now, telemetry.elevator)
@@ -204,6 +239,28 @@ class MinSpeedSeeking(Behaviour):
         return commands
 
     # ------------------------------------------------------------------ internals
+    def _governed(self, target: float) -> float:
+        """The set-point of the governed move to ``target`` (issue 10), never rising.
+
+        In level flight the pitch θ(T_R) is fixed by the thrust (eq. 5.25–5.29: the slower, the more
+        nose-down), and the autopilot's depth PI, θd = Kpz·e + I, holds it at zero depth error only
+        once its integrator I has moved there; what I has not yet carried, the depth error e must
+        (e = (θ − I)/Kpz). So the thrust may fall only to where the model's trim pitch is within
+        |Kpz|·``start_depth_budget_m`` of the shadow integrator (module doc): the depth error then
+        rises to about the budget at once and stays there while I integrates at Kiz·e, the fastest
+        move the depth loop allows with that error. Before the shadow loop is initialised the
+        set-point stays where it is (without a curve the caller ramps at ``start_ramp_rate``).
+        """
+        cfg = self.config
+        curve = cfg.start_pitch_curve
+        if not self._initialised:
+            return self.thrust_ratio
+        ratios = np.array([point[0] for point in curve])
+        pitches = np.array([point[1] for point in curve])
+        allowed_pitch = self._integrator - abs(cfg.depth_p) * cfg.start_depth_budget_m
+        allowed = float(np.interp(allowed_pitch, pitches, ratios))  # θ rises with T_R (config doc)
+        return max(target, min(self.thrust_ratio, allowed))
+
     def _shadow_depth_loop(self, now: float, elapsed: float, t: Telemetry) -> float:
         """θd recomputed from the autopilot's depth PI (see module docstring); NaN while initialising."""
         cfg = self.config

@@ -7,6 +7,7 @@ import math
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking
@@ -292,3 +293,60 @@ def test_seeking_can_start_from_the_predicted_minimum_after_a_ramp():
     assert decided and min(decided) >= ramp_s - 1.0  # nothing decided while moving there
     assert tr_star <= result["thrust_ratio_final"] <= tr_star * 1.05
     assert result["max_depth_error_m"] <= 0.35
+
+
+# ------------------------------------------------------------------ issue 10: the governed move to the predicted start
+def test_trim_pitch_curve_is_the_level_flight_balance():
+    """eq. 5.25–5.29, 5.54–5.55: at T_R* the curve gives θ*; the pitch falls (nose down) as T_R falls."""
+    from companion.numerics.minspeed import trim_pitch_curve
+
+    result = minimum_speed(DivePlaneVehicle())
+    curve = trim_pitch_curve(DivePlaneVehicle(), 0.9 * result.thrust_ratio_star, 1.0)
+    ratios = [r for r, _ in curve]
+    pitches = [t for _, t in curve]
+    assert ratios == sorted(ratios) and pitches == sorted(pitches)
+    assert ratios[0] <= 0.9 * result.thrust_ratio_star + 0.02 and ratios[-1] >= 0.98
+    assert float(np.interp(result.thrust_ratio_star, ratios, pitches)) == pytest.approx(result.theta_star, abs=0.003)
+
+
+def test_governed_move_falls_only_as_far_as_the_depth_integrator_allows():
+    """The set-point is the lowest T_R whose model trim pitch is within |Kpz|·budget of the shadow
+    integrator, never below the start and never rising (no physics: the integrator stays at θ(0))."""
+    curve = ((0.40, -0.16), (0.45, -0.12), (0.50, -0.08), (0.70, -0.02))
+    behaviour = MinSpeedSeeking(MinSpeedConfig(start_thrust=0.45, start_depth_budget_m=0.2, start_pitch_curve=curve,
+                                               depth_setpoint=2.0))
+    first = behaviour.step(Telemetry(time_s=0.0, pitch=-0.02, depth=2.0, elevator=0.0))
+    assert SetThrust(0.70) in first
+    for i in range(1, 60):  # 3 s at 20 Hz, no depth error: the integrator stays at θ(0) = -0.02
+        behaviour.step(Telemetry(time_s=0.05 * i, pitch=-0.02, depth=2.0, elevator=0.0))
+    allowed = float(np.interp(-0.02 - 0.15 * 0.2, [-0.16, -0.12, -0.08, -0.02], [0.40, 0.45, 0.50, 0.70]))
+    assert behaviour.thrust_ratio == pytest.approx(allowed, abs=1e-9)  # 0.05 rad of pitch -> T_R 0.5333
+    assert not behaviour.decisions  # still moving: no decision
+    for i in range(60, 400):  # 17 s 0.5 m shallow: the integrator winds nose-down (Kiz·e), the set-point follows
+        behaviour.step(Telemetry(time_s=0.05 * i, pitch=-0.02, depth=1.5, elevator=0.0))
+    setpoints = [t for t in behaviour.series["thrust_setpoint"]]
+    assert all(b <= a + 1e-12 for a, b in zip(setpoints, setpoints[1:]))
+    assert behaviour.thrust_ratio == pytest.approx(0.45) and behaviour.ramp_done_s is not None
+    assert behaviour.decisions  # seeking from the start on
+
+
+def test_governed_start_settles_within_two_percent_of_the_analytic_minimum():
+    """Issue 10, product procedure, seed 2 (bench/bench_min_speed.py --predicted): the governed move
+    reaches TR* + 0.018 in about 31 s with the depth within 0.3 m, one ΔT step to TR* + 0.008, settled
+    (15 s without a change) within 70 s, no limit cycle."""
+    from companion.procedures import min_speed as procedure
+    from harness.inprocess import InProcessLink
+
+    analytic = procedure.analytic_minimum_speed("starfish")
+    tr_star = analytic["thrust_ratio_star"]
+    result = procedure.min_speed_procedure(
+        InProcessLink(seed=2), lambda: None,
+        procedure.MinSpeedProcedureConfig.governed(duration_s=90.0, settle_s=30.0), analytic=analytic)
+    assert result["status"] == "completed", result.get("abort_reason")
+    series = result["series"]
+    decided = [t for t, d in zip(series["time"], series["decision"]) if d is not None and d == d]
+    assert 25.0 <= min(decided) <= 40.0  # the move took ~31 s (today's ramp: 46 s)
+    assert tr_star <= result["thrust_ratio_final"] <= 1.02 * tr_star
+    assert result["max_depth_error_m"] <= 0.3
+    assert result["settle_time_s"] is not None and result["settle_time_s"] <= 70.0
+    assert result["reversals_last_30s"] <= 1
