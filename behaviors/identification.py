@@ -75,8 +75,12 @@ class ManoeuvreConfig:
     steadiness: SteadinessRule | None = None
     # length of the validation record after its doublet (None: post_excitation_s, as training)
     validation_post_s: float | None = None
-    # the noise-aware stopping rule (ConvergenceRule.relative_drift); None: eq. 3.39
+    # the drift stopping rule (ConvergenceRule.relative_drift, measured, not taken); None: eq. 3.39
     convergence_drift: float | None = None
+    # the noise-aware stopping rule (ConvergenceRule.noise_band) and how long after the end of the
+    # excitation it may first stop (the response still carries information for ~1/|a22| after it)
+    convergence_noise_band: float | None = None
+    convergence_delay_s: float = 0.0
 
     @property
     def actuator(self) -> str:
@@ -277,7 +281,9 @@ class IdentificationManoeuvre(Behaviour):
 
     def _new_identifier(self):
         # convergence only counts once the whole doublet has been seen (eq. 3.39 + thesis §3.3.1)
-        rule = ConvergenceRule(min_time_s=self.config.excitation_end_s, relative_drift=self.config.convergence_drift)
+        rule = ConvergenceRule(min_time_s=self.config.excitation_end_s + self.config.convergence_delay_s,
+                               relative_drift=self.config.convergence_drift,
+                               noise_band=self.config.convergence_noise_band)
         kwargs = {"p0": self.config.p0, "rule": rule, "input_hold": self.config.input_hold,
                   "output_hold": self.config.output_hold}
         if self.config.svf_bandwidth is not None:

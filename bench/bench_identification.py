@@ -98,12 +98,19 @@ def main() -> None:
     parser.add_argument("--path", choices=("inprocess", "mavlink"), default="inprocess")
     parser.add_argument("--speedup", type=float, default=50.0)
     parser.add_argument("--integral-ratio", type=float, default=None, help="PI zero at ωn/N (default: GainBounds')")
+    parser.add_argument("--damping", type=float, default=None,
+                        help="design ζ of the heading pair (default: the campaign's, GainBounds.damping)")
+    parser.add_argument("--quick", action="store_true", help="the quick procedure (CampaignConfig.quick)")
     parser.add_argument("--p0", type=float, default=None, help="RLS initial covariance scale (default: the campaign's)")
     parser.add_argument("--json", metavar="FILE", help="also write the raw rows to FILE")
     args = parser.parse_args()
     global CONFIG
     if args.integral_ratio is not None:
         CONFIG = replace(CONFIG, bounds=replace(CONFIG.bounds, integral_ratio=args.integral_ratio))
+    if args.damping is not None:
+        CONFIG = replace(CONFIG, bounds=replace(CONFIG.bounds, damping=args.damping))
+    if args.quick:
+        CONFIG = CONFIG.quick()
     if args.p0 is not None:
         CONFIG = replace(CONFIG, yaw=replace(CONFIG.yaw, p0=args.p0))
 

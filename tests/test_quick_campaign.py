@@ -35,7 +35,7 @@ def test_a_vehicle_still_accelerating_is_not_steady_and_a_settled_one_is():
 
 @pytest.mark.e2e
 def test_quick_campaign_identifies_both_axes_in_a_fraction_of_the_vehicle_time(tmp_path):
-    command = [sys.executable, "-m", "companion", "rehearse", "--quick", "--thrusts", "0.8", "--no-steps",
+    command = [sys.executable, "-m", "companion", "rehearse", "--thrusts", "0.8", "--no-steps",
                "--behaviors", "none", "--json", "--out", str(tmp_path)]
     done = subprocess.run(command, capture_output=True, text=True, timeout=300, check=False)
     summary = json.loads(done.stdout)
@@ -50,3 +50,23 @@ def test_quick_campaign_identifies_both_axes_in_a_fraction_of_the_vehicle_time(t
         accepted = [r for r in store.runs(summary["campaign_id"]) if r["accepted"]]
     assert sorted(r["axis"] for r in accepted) == ["pitch", "yaw"]
     assert all(r["r2"] >= 0.9 for r in accepted)
+
+
+def test_the_quick_procedure_is_the_default_and_the_thesis_one_is_the_configuration_unchanged():
+    from companion.cli.main import build_parser
+    from companion.numerics.gains import CAMPAIGN_DAMPING, DESIGN_DAMPING
+    from companion.procedures.campaign import CampaignConfig
+
+    base = CampaignConfig()
+    assert base.for_procedure("thesis") == base  # the seeds' timings, eq. 3.39, eq. 3.57
+    assert base.yaw.settle_s == 40.0 and base.yaw.steadiness is None and base.bounds.damping == DESIGN_DAMPING
+    quick = base.for_procedure("quick")
+    assert quick == base.quick() and quick.parallel_axes and quick.bounds.damping == CAMPAIGN_DAMPING
+    assert quick.yaw.convergence_noise_band is not None and quick.pitch.convergence_noise_band is None
+    with pytest.raises(ValueError, match="unknown procedure"):
+        base.for_procedure("fast")
+    for command in ("rehearse", "identify"):
+        parser = build_parser((command,))
+        assert parser.parse_args([command]).procedure == "quick"
+        assert parser.parse_args([command, "--procedure", "thesis"]).procedure == "thesis"
+        assert parser.parse_args([command, "--quick"]).procedure == "quick"  # the older spelling

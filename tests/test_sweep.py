@@ -71,8 +71,11 @@ def test_the_reproduce_command_is_a_valid_rehearse_command_line():
                            "noise": [1.5], "thrusts": [0.7], "axes": "yaw", "steps": False, "quick": True}).cases()[0]
     args = build_parser(("rehearse",)).parse_args(["rehearse", *case.rehearse_args()])
     assert (args.seed, args.current, args.thrusts, args.axes, args.no_steps) == (2, "0.05,-0.02", (0.7,), "yaw", True)
-    assert args.perturb == [(("mass", 1.1), ("trim", 2.0))] and args.noise == 1.5 and args.quick
+    assert args.perturb == [(("mass", 1.1), ("trim", 2.0))] and args.noise == 1.5 and args.procedure == "quick"
     assert args.behaviors == "roll,min-speed"
+    # a case without "quick" runs the thesis procedure, as the cases recorded before the option did
+    plain = spec_from_dict({"seeds": [2]}).cases()[0]
+    assert build_parser(("rehearse",)).parse_args(["rehearse", *plain.rehearse_args()]).procedure == "thesis"
 
 
 @pytest.mark.parametrize("data, words", [

@@ -25,7 +25,9 @@ SHA-256 of its inputs — names exactly what runs, and :meth:`Case.command` is t
 rehearse`` command that reproduces it alone. The speed-up is not an input: a rehearsal on the
 built-in simulator gives the same numbers at any speed-up (lockstep, README "Same seed, same
 numbers"). An option added after the first sweeps (``quick``) enters the inputs only when set, so
-the keys of cases recorded before it stay valid.
+the keys of cases recorded before it stay valid; for the same reason a case without ``quick`` runs
+the thesis procedure (``--procedure thesis``), although ``companion rehearse`` alone defaults to the
+quick one.
 """
 from __future__ import annotations
 
@@ -263,7 +265,7 @@ class Case:
     steady_state: bool = False
     schedules: tuple[str, ...] = ("heading",)
     thesis_estimator: bool = False
-    quick: bool = False  # issue 10's shorter procedure (companion rehearse --quick)
+    quick: bool = False  # issue 10's procedure (rehearse --procedure quick); False: --procedure thesis
 
     def inputs(self) -> dict:
         """The case's inputs as plain JSON (the columns of its row, and what its key hashes)."""
@@ -294,8 +296,7 @@ class Case:
             args.append("--no-steps")
         if self.thesis_estimator:
             args.append("--thesis-estimator")
-        if self.quick:
-            args.append("--quick")
+        args += ["--procedure", "quick" if self.quick else "thesis"]  # a sweep's default stays the thesis' (keys)
         if self.perturb:
             args += ["--perturb", ",".join(f"{name}={_number_text(factor)}" for name, factor in self.perturb)]
         if self.noise != 1.0:

@@ -130,6 +130,15 @@ def add_schedules_argument(parser: argparse.ArgumentParser) -> None:
                              "pitch needs the pitch axis identified)")
 
 
+def add_procedure_argument(parser: argparse.ArgumentParser) -> None:
+    """``--procedure quick|thesis`` (default quick) and ``--quick``, its older spelling."""
+    parser.add_argument("--procedure", choices=("quick", "thesis"), default="quick",
+                        help="quick (default): settle only until steady, yaw and pitch identified together, "
+                             "short validation records, the noise-aware stopping rule, heading gains for ζ = 0.75; "
+                             "thesis: the seeds' fixed timings (40 s settles, 16.5 s records), eq. 3.39 and eq. 3.57")
+    parser.add_argument("--quick", dest="procedure", action="store_const", const="quick", help=argparse.SUPPRESS)
+
+
 def print_json(value) -> None:
     from companion.records.store import json_safe
 

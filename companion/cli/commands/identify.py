@@ -5,7 +5,7 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.cli.commands._common import (add_schedules_argument, ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
+from companion.cli.commands._common import (add_procedure_argument, add_schedules_argument, ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
                                        print_json, thrust_list)
 
 
@@ -29,9 +29,7 @@ def add_parser(subparsers) -> None:
                         help="axes to identify: yaw and/or pitch (default: yaw,pitch; yaw on ArduPilot)")
     parser.add_argument("--no-steps", action="store_true", help="skip the heading-step checks")
     add_schedules_argument(parser)
-    parser.add_argument("--quick", action="store_true",
-                        help="shorter procedure: settle only until steady, short validation records, yaw and pitch "
-                             "identified together (default: the thesis' fixed timings)")
+    add_procedure_argument(parser)
     parser.add_argument("--thesis-estimator", action="store_true",
                         help="the seeds' exact estimator (P0 = 100·I, zero-order holds) instead of the defaults")
     parser.add_argument("--no-write", action="store_true", help="design the gains but do not write them")
@@ -56,8 +54,7 @@ def campaign_config(args: argparse.Namespace):
         config = replace(config, depth=args.depth)
     if args.no_steps:
         config = replace(config, step_labels=())
-    if args.quick:
-        config = config.quick()
+    config = config.for_procedure(args.procedure)
     if args.thesis_estimator:
         config = config.with_thesis_estimator()
     if args.no_write:

@@ -5,7 +5,7 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.cli.commands._common import add_schedules_argument, print_json, thrust_list
+from companion.cli.commands._common import add_procedure_argument, add_schedules_argument, print_json, thrust_list
 
 
 def add_parser(subparsers) -> None:
@@ -24,9 +24,7 @@ def add_parser(subparsers) -> None:
                         help="axes to identify: yaw and/or pitch (default: yaw,pitch; yaw on ArduPilot)")
     parser.add_argument("--no-steps", action="store_true", help="skip the heading-step checks")
     add_schedules_argument(parser)
-    parser.add_argument("--quick", action="store_true",
-                        help="issue 10's shorter procedure: settle only until steady, short validation records, "
-                             "yaw and pitch identified together (default: the thesis' fixed timings)")
+    add_procedure_argument(parser)
     parser.add_argument("--thesis-estimator", action="store_true",
                         help="the seeds' exact estimator (P0 = 100·I, zero-order holds) instead of the defaults")
     parser.add_argument("--behaviors", default=None,
@@ -118,8 +116,7 @@ def run(args: argparse.Namespace) -> int:
         campaign = replace(campaign, thrusts=args.thrusts)
     if args.no_steps:
         campaign = replace(campaign, step_labels=())
-    if args.quick:
-        campaign = campaign.quick()
+    campaign = campaign.for_procedure(args.procedure)
     if args.thesis_estimator:
         campaign = campaign.with_thesis_estimator()
     if args.behaviors is None:

@@ -50,7 +50,8 @@ def add_parser(subparsers) -> None:
     what.add_argument("--thesis-estimator", dest="thesis_estimator", action="store_const", const=True, default=None,
                       help="the seeds' exact estimator")
     what.add_argument("--quick", dest="quick", action="store_const", const=True, default=None,
-                      help="issue 10's shorter procedure (companion rehearse --quick)")
+                      help="issue 10's procedure (companion rehearse --procedure quick); without it a sweep "
+                           "runs the thesis procedure, as its earlier cases did")
     what.add_argument("--speedup", default=None, help="simulation speed-up of every case (default: 50; "
                                                       "the numbers do not depend on it)")
     what.add_argument("--timeout", default=None, metavar="S", help="wall-clock limit of one case (default: 1800)")
