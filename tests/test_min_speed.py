@@ -350,3 +350,22 @@ def test_governed_start_settles_within_two_percent_of_the_analytic_minimum():
     assert result["max_depth_error_m"] <= 0.3
     assert result["settle_time_s"] is not None and result["settle_time_s"] <= 70.0
     assert result["reversals_last_30s"] <= 1
+
+
+def test_run_behavior_start_options_choose_the_move_and_refuse_what_cannot_work():
+    """``companion run-behavior min-speed --start/--start-margin``: governed by default when the vehicle
+    data give TR* (--preset), nominal (the thesis) without; a margin alone selects the ramp."""
+    from companion.cli.commands.run_behavior import min_speed_start
+    from companion.procedures import min_speed as procedure
+
+    governed = min_speed_start(None, None, analytic=True)
+    assert (governed.start_margin, governed.start_depth_budget_m) == (0.018, 0.25)
+    assert min_speed_start(None, None, analytic=False) == procedure.MinSpeedProcedureConfig()
+    ramp = min_speed_start(None, 0.03, analytic=True)
+    assert (ramp.start_margin, ramp.start_depth_budget_m) == (0.03, None)
+    assert min_speed_start("ramp", None, analytic=True).start_margin == 0.04
+    assert min_speed_start("governed", 0.02, analytic=True, nominal_thrust=0.8).start_margin == 0.02
+    assert min_speed_start("nominal", None, analytic=True, nominal_thrust=0.8).nominal_thrust == 0.8
+    for start, margin, analytic in (("governed", None, False), ("nominal", 0.02, True), (None, float("nan"), True)):
+        with pytest.raises(ValueError):
+            min_speed_start(start, margin, analytic=analytic)

@@ -75,7 +75,9 @@ def _roll_config():
 def _min_speed_config():
     from companion.procedures.min_speed import MinSpeedProcedureConfig
 
-    return MinSpeedProcedureConfig()
+    # issue 10: the governed move to the predicted TR* (falls back to the thesis' nominal start when
+    # the vehicle data give no TR*: MinSpeedProcedure)
+    return MinSpeedProcedureConfig.governed()
 
 
 def _steady_config():

@@ -4,7 +4,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from companion.cli.commands._common import ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle
+from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_procedure_argument, add_store_argument,
+                                       connected_vehicle)
 
 
 def add_parser(subparsers) -> None:
@@ -21,7 +22,10 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--no-health", action="store_true",
                         help="do not watch the vehicle's health (passive identification against the stored models, "
                              "STATUSTEXT warning on a drift of a22 or b2)")
-    parser.add_argument("--preset", default=None, help="simulator preset (analytic minimum speed in results)")
+    parser.add_argument("--preset", default=None,
+                        help="simulator preset (analytic minimum speed: the governed start of minimum-speed seeking "
+                             "and the results)")
+    add_procedure_argument(parser)
     parser.add_argument("--max-vehicle-time", type=float, default=None, metavar="S",
                         help="stop after S seconds of vehicle time (default: run until interrupted)")
     parser.set_defaults(func=run)
@@ -30,11 +34,14 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from companion.procedures.app import vehicle_record
     from companion.link.errors import LinkError
+    from companion.procedures.campaign import CampaignConfig
+    from companion.procedures.min_speed import MinSpeedProcedureConfig
     from companion.procedures.resident import Companion, ServeConfig
     from companion.records.store import Store
 
     config = ServeConfig(schedule_gains=not args.no_scheduling, preset=args.preset, max_vehicle_s=args.max_vehicle_time,
-                         health=not args.no_health)
+                         health=not args.no_health, campaign=CampaignConfig().for_procedure(args.procedure),
+                         min_speed=MinSpeedProcedureConfig.governed())
     try:
         with connected_vehicle(args) as (link, stop), Store(args.store) as store:
             companion = Companion(link, store, vehicle_record(store, link), config, stop)

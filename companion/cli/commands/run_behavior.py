@@ -3,6 +3,7 @@ vehicle (SPEC C6, C7, C8)."""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from dataclasses import replace
 
@@ -30,15 +31,39 @@ def add_parser(subparsers) -> None:
                         help="cruise / nominal thrust ratio (default: 0.7; steady-state 0.6 on the legs, 0.5 in "
                              "the turns); on ArduRover a fraction of WP_SPEED")
     parser.add_argument("--period", type=float, default=None, help="min-speed: decision period Ts in s (default: 1)")
+    parser.add_argument("--start", choices=("governed", "ramp", "nominal"), default=None,
+                        help="min-speed: where seeking starts. governed (default with --preset): move to the analytic "
+                             "TR* + 0.018 as fast as the autopilot's depth integrator carries the pitch change (0.25 m "
+                             "depth budget); ramp: move at 0.005/s to TR* + --start-margin; nominal: seek from the "
+                             "nominal thrust (the thesis). Without --preset there is no TR*: nominal")
     parser.add_argument("--start-margin", type=float, default=None, metavar="TR",
-                        help="min-speed: move (at 0.005/s) to the analytic TR* of --preset plus this margin before "
-                             "seeking, instead of seeking from the nominal thrust (e.g. 0.04; issue 10)")
+                        help="min-speed: the margin over the analytic TR* the move aims at (default: governed 0.018, "
+                             "ramp 0.04); given alone it selects the ramp (issue 10)")
     parser.add_argument("--preset", default=None,
                         help="min-speed: simulator preset whose vehicle data give the analytic TR* and Vmin")
     parser.add_argument("--simulator-hooks", action="store_true",
                         help="roll: use the simulator's SIM_ROLL_DIST disturbance and SIM_ROLL_KICK impulses")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.set_defaults(func=run)
+
+
+def min_speed_start(start: str | None, margin: float | None, *, analytic: bool, **fields):
+    """The minimum-speed procedure's configuration for ``--start`` / ``--start-margin`` (see their help)."""
+    from companion.procedures.min_speed import MinSpeedProcedureConfig
+
+    if margin is not None and not (math.isfinite(margin) and 0.0 <= margin < 0.5):
+        raise ValueError(f"--start-margin must be in [0, 0.5), not {margin!r}")
+    if start is None:
+        start = "ramp" if margin is not None else ("governed" if analytic else "nominal")
+    if start == "nominal":
+        if margin is not None:
+            raise ValueError("--start-margin needs --start governed or ramp")
+        return MinSpeedProcedureConfig(**fields)
+    if not analytic:
+        raise ValueError(f"--start {start} needs --preset (the vehicle data that give the analytic TR*)")
+    if start == "governed":
+        return MinSpeedProcedureConfig.governed(**fields, **({"start_margin": margin} if margin is not None else {}))
+    return MinSpeedProcedureConfig(start_margin=0.04 if margin is None else margin, **fields)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -55,7 +80,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     thrust = 0.70 if args.thrust is None else args.thrust
     roll = RollProcedureConfig(thrust=thrust)
-    min_speed = MinSpeedProcedureConfig(nominal_thrust=thrust, period_s=args.period, start_margin=args.start_margin)
+    try:
+        min_speed = min_speed_start(args.start, args.start_margin, nominal_thrust=thrust, period_s=args.period,
+                                    analytic=args.preset is not None)
+    except ValueError as exc:
+        print(exc, file=sys.stderr)
+        return 2
     steady = SteadyStateConfig()
     if args.thrust is not None:
         steady = replace(steady, squares=replace(steady.squares, thrust_ratio=args.thrust),
