@@ -67,17 +67,17 @@ nominal thrust as fast as the autopilot's depth integrator can carry the level-f
 eq. 5.25–5.29/5.54–5.55 (along ``start_pitch_curve``, :func:`companion.numerics.minspeed.trim_pitch_curve`)
 with the depth error near the budget (:meth:`MinSpeedSeeking._governed`), then the fuzzy seeker takes
 over. Measured (bench/bench_min_speed.py --predicted, product procedure, seeds 1-6,
-``MinSpeedProcedureConfig.governed()``: T_R* + 0.018, 0.25 m): the move takes 30-33 s (the 0.005/s ramp to
-T_R* + 0.04: 46 s), final T_R 0.440 on every seed (+1.9 % of the analytic 0.432; today's 0.442, +2.3 %,
-is the ΔT = 0.01 grid falling at T_R* + 0.01 from T_R* + 0.04), max depth error 0.29-0.31 m, ≤ 1
-reversal, re-converges after the kick to 0.60 in 61-99 s; settled after 61-69 s on four seeds, 101 and
-180 s on two. The ≤ 60 s goal is not met, for two measured reasons: (1) the depth PI's integrator
-must move by Δθ = θ(0.44) − θ(0.70) ≈ −0.107 rad at Kiz·e, so ∫e dt ≥ 0.107/0.01 = 10.7 m·s, i.e. at
+``MinSpeedProcedureConfig.governed()``: T_R* + 0.008, 0.22 m): the move takes ~44 s, final T_R 0.440 on
+every seed (+1.9 % of the analytic 0.432; the 0.005/s ramp to T_R* + 0.04 ends at 0.442, +2.3 %, the
+ΔT = 0.01 grid falling at T_R* + 0.01), max depth error 0.27-0.29 m, ≤ 1 reversal, re-converges after
+the kick to 0.60 in 61-98 s; settled after 65-72 s on five seeds, 181 s on seed 5. The ≤ 60 s
+goal is not met, for two measured reasons: (1) the depth PI's integrator must move by Δθ = θ(0.44) − θ(0.70) ≈ −0.107 rad at Kiz·e, so ∫e dt ≥ 0.107/0.01 = 10.7 m·s, i.e. at
 least 36 s at the 0.3 m limit (a step at once lost 0.7 m = Δθ/Kpz); (2) the move ends with ≈ 0.28 m of
 depth error, and recovering it needs nose-down pitch beyond the trim while the elevator has only
 ≈ 0.014 rad left at T_R 0.44 (trim 0.246 of 0.26): it saturates, rule 3 raises the thrust to 0.46-0.47
-and the seeker comes back down 20-30 s later (seed 5 repeatedly). Tried and not better: a smaller
-budget (0.20 m: 68-98 s), a larger one (0.28 m: 37-71 s but 0.30-0.325 m), tapering the budget to
+and the seeker comes back down 20-30 s later (seed 5 repeatedly). A larger DPT_I cannot carry
+the pitch sooner: 2× and 3× made the depth loop oscillate (0.66-1.0 m of depth error, no settling,
+seeds 1-6). Tried and not better: a smaller budget (0.20 m: 68-98 s), a larger one (0.28 m: 37-71 s but 0.30-0.325 m), tapering the budget to
 0.08-0.1 m over the last 0.03-0.05 of T_R, waiting for the depth error to fall to 0.10-0.15 m before
 the first decision (the low-speed depth loop needs 25-40 s for that), and a fine cell (ΔT 0.002 once
 δs > δmax − 0.017), which the recovery transient drove below the feasible T_R (0.4375) into slow limit

@@ -332,8 +332,8 @@ def test_governed_move_falls_only_as_far_as_the_depth_integrator_allows():
 
 def test_governed_start_settles_within_two_percent_of_the_analytic_minimum():
     """Issue 10, product procedure, seed 2 (bench/bench_min_speed.py --predicted): the governed move
-    reaches TR* + 0.018 in about 31 s with the depth within 0.3 m, one ΔT step to TR* + 0.008, settled
-    (15 s without a change) within 70 s, no limit cycle."""
+    reaches TR* + 0.008 in about 44 s with the depth within 0.3 m, settled (15 s without a change)
+    within 75 s, no limit cycle."""
     from companion.procedures import min_speed as procedure
     from harness.inprocess import InProcessLink
 
@@ -345,10 +345,12 @@ def test_governed_start_settles_within_two_percent_of_the_analytic_minimum():
     assert result["status"] == "completed", result.get("abort_reason")
     series = result["series"]
     decided = [t for t, d in zip(series["time"], series["decision"]) if d is not None and d == d]
-    assert 25.0 <= min(decided) <= 40.0  # the move took ~31 s (today's ramp: 46 s)
+    assert 35.0 <= min(decided) <= 50.0  # the move took ~44 s (today's ramp to TR* + 0.04: 46 s)
     assert tr_star <= result["thrust_ratio_final"] <= 1.02 * tr_star
     assert result["max_depth_error_m"] <= 0.3
-    assert result["settle_time_s"] is not None and result["settle_time_s"] <= 70.0
+    # 71.6 s here (30 s of settling first); the 0.22 m budget trades ~5 s for the depth bound (the
+    # earlier TR* + 0.018 / 0.25 m start settled sooner but lost 0.309 m on seed 5)
+    assert result["settle_time_s"] is not None and result["settle_time_s"] <= 75.0
     assert result["reversals_last_30s"] <= 1
 
 
@@ -359,7 +361,7 @@ def test_run_behavior_start_options_choose_the_move_and_refuse_what_cannot_work(
     from companion.procedures import min_speed as procedure
 
     governed = min_speed_start(None, None, analytic=True)
-    assert (governed.start_margin, governed.start_depth_budget_m) == (0.018, 0.25)
+    assert (governed.start_margin, governed.start_depth_budget_m) == (0.008, 0.22)
     assert min_speed_start(None, None, analytic=False) == procedure.MinSpeedProcedureConfig()
     ramp = min_speed_start(None, 0.03, analytic=True)
     assert (ramp.start_margin, ramp.start_depth_budget_m) == (0.03, None)

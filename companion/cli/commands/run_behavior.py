@@ -33,11 +33,11 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--period", type=float, default=None, help="min-speed: decision period Ts in s (default: 1)")
     parser.add_argument("--start", choices=("governed", "ramp", "nominal"), default=None,
                         help="min-speed: where seeking starts. governed (default with --preset): move to the analytic "
-                             "TR* + 0.018 as fast as the autopilot's depth integrator carries the pitch change (0.25 m "
+                             "TR* + 0.008 as fast as the autopilot's depth integrator carries the pitch change (0.22 m "
                              "depth budget); ramp: move at 0.005/s to TR* + --start-margin; nominal: seek from the "
                              "nominal thrust (the thesis). Without --preset there is no TR*: nominal")
     parser.add_argument("--start-margin", type=float, default=None, metavar="TR",
-                        help="min-speed: the margin over the analytic TR* the move aims at (default: governed 0.018, "
+                        help="min-speed: the margin over the analytic TR* the move aims at (default: governed 0.008, "
                              "ramp 0.04); given alone it selects the ramp (issue 10)")
     parser.add_argument("--preset", default=None,
                         help="min-speed: simulator preset whose vehicle data give the analytic TR* and Vmin")
