@@ -63,9 +63,9 @@ def test_the_quick_procedure_is_the_default_and_the_thesis_one_is_the_configurat
     quick = base.for_procedure("quick")
     assert quick == base.quick() and quick.parallel_axes and quick.bounds.damping == CAMPAIGN_DAMPING
     assert quick.yaw.convergence_noise_band is not None and quick.pitch.convergence_noise_band is None
-    # accepted at R² ≥ 0.9 (the thesis: 0.61), the pitch validated on a doublet as large as its training one
+    # accepted at R² ≥ 0.9 (the thesis: 0.61), the pitch trained and validated on a larger doublet
     assert quick.yaw.r2_threshold == quick.pitch.r2_threshold == 0.9 and base.yaw.r2_threshold == 0.61
-    assert quick.pitch.validation_amplitude == quick.pitch.training_amplitude > base.pitch.validation_amplitude
+    assert quick.pitch.validation_amplitude == quick.pitch.training_amplitude > base.pitch.training_amplitude
     with pytest.raises(ValueError, match="unknown procedure"):
         base.for_procedure("fast")
     for command in ("rehearse", "identify"):
