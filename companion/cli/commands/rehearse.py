@@ -159,6 +159,10 @@ def _fmt(value, spec: str) -> str:
 def print_summary(summary: dict) -> None:
     print(f"rehearsal on preset {summary['preset']} at {summary['speedup']:g}x: {summary.get('status')}"
           + (f" ({summary['reason']})" if summary.get("reason") else ""))
+    phases = summary.get("vehicle_time_by_phase") or {}
+    if phases:
+        print(f"campaign: {_fmt(summary.get('vehicle_time_s'), '.0f')} s of vehicle time ("
+              + ", ".join(f"{name.replace('_', ' ')} {seconds:.0f} s" for name, seconds in phases.items()) + ")")
     rows = summary.get("runs") or []
     if rows:
         print("\nyaw models (identified vs the simulator's linearised truth) and designed gains")
