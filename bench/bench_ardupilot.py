@@ -32,18 +32,21 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--speedup", type=float, default=20.0)
     parser.add_argument("--thrusts", default=None, help="comma-separated (default: the autopilot's three)")
+    parser.add_argument("--procedure", choices=("quick", "thesis"), default="quick",
+                        help="the campaign procedure (default: quick, what identify --connect flies)")
     args = parser.parse_args()
     if not args.ardupilot_bin:
         print("no ArduPilot SITL: pass --ardupilot-bin DIR or set ARDUPILOT_SITL_BIN", file=sys.stderr)
         return 2
     preset = PRESETS[args.autopilot]
     # the campaign ``identify --connect`` flies on this autopilot: its profile's thrusts, axes, doublets
-    campaign = CampaignConfig().with_profile_defaults(get_profile(args.autopilot))
+    campaign = CampaignConfig().with_profile_defaults(get_profile(args.autopilot)).for_procedure(args.procedure)
     if args.thrusts:
         campaign = replace(campaign, thrusts=tuple(float(t) for t in args.thrusts.split(",")))
     thrusts = campaign.thrusts
     errors_a22, errors_b2, r2s, overshoot, iae, walls, vehicle_s, outcomes = [], [], [], {}, {}, [], [], []
-    print(f"{args.autopilot} SITL + preset {preset}, thrusts {thrusts}, {args.repeats} repeats at {args.speedup:g}x")
+    print(f"{args.autopilot} SITL + preset {preset}, thrusts {thrusts}, {args.repeats} repeats at {args.speedup:g}x, "
+          f"{args.procedure} procedure")
     print("errors against the simulator's linearised truth at the physics' own speed (its truth log); 'est.' is the")
     print("autopilot's speed estimate, which the schedule uses")
     print(f"{'run':>3} {'thrust':>6} {'speed':>6} {'est.':>6} {'a22 err%':>9} {'b2 err%':>8} {'R2':>6}")
