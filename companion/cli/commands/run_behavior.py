@@ -69,7 +69,6 @@ def min_speed_start(start: str | None, margin: float | None, *, analytic: bool, 
 def run(args: argparse.Namespace) -> int:
     from companion.procedures.app import vehicle_record
     from companion.procedures.app import run_named_behavior
-    from companion.procedures.min_speed import MinSpeedProcedureConfig
     from companion.procedures.roll import RollProcedureConfig
     from companion.procedures.steady_state import SteadyStateConfig
     from companion.records.store import Store
