@@ -136,6 +136,9 @@ class MinSpeedConfig:
     # the model's level-flight pitch against thrust ratio, ((T_R, θ rad), ...) with T_R ascending
     # and θ rising with T_R (minspeed.trim_pitch_curve, eq. 5.25–5.29, 5.54–5.55)
     start_pitch_curve: tuple[tuple[float, float], ...] = ()
+    # a governed move that has not lowered the set-point for this long (e.g. the vehicle is not in
+    # the level flight the curve describes, such as at the surface) continues as the ramp above
+    start_stall_s: float = 10.0
 
 
 class MinSpeedSeeking(Behaviour):
@@ -159,6 +162,8 @@ class MinSpeedSeeking(Behaviour):
         self._last_change = -math.inf  # vehicle time of the last set-point change by a decision
         self._ramp_to: float | None = None  # the predicted start the set-point is moving to
         self._ramp_clock = math.nan  # vehicle time of the last ramp step
+        self._governed_since = math.nan  # vehicle time the governed move last lowered the set-point
+        self.governed_stalled = False  # the governed move stalled and continued as the ramp
         self.ramp_done_s: float | None = None  # when the set-point reached the predicted start
         self.thrust_ratio = config.nominal_thrust
         self.series: dict[str, list[float]] = {
@@ -198,9 +203,17 @@ class MinSpeedSeeking(Behaviour):
         theta_d = self._shadow_depth_loop(now, elapsed, telemetry)
         if self._ramp_to is not None:  # moving to the predicted start: no seeking decision yet
             target = self._ramp_to
-            governed = cfg.start_depth_budget_m is not None and bool(cfg.start_pitch_curve)
+            governed = cfg.start_depth_budget_m is not None and bool(cfg.start_pitch_curve) and not self.governed_stalled
             if governed:
                 moved = self._governed(target)
+                if moved != self.thrust_ratio or not math.isfinite(self._governed_since):
+                    self._governed_since = now
+                elif now - self._governed_since >= cfg.start_stall_s:
+                    self.governed_stalled = True  # from the next sample on, the ramp
+                    self._ramp_clock = now
+                    commands.append(StatusText("minspeed: governed move stalled, ramping", 4))
+                    log.warning("governed move stalled for %.0f s at TR %.3f: continuing as the %.3f/s ramp",
+                                cfg.start_stall_s, self.thrust_ratio, cfg.start_ramp_rate)
             else:
                 step = cfg.start_ramp_rate * max(0.0, now - self._ramp_clock) if math.isfinite(self._ramp_clock) else 0.0
                 self._ramp_clock = now
@@ -358,6 +371,8 @@ class MinSpeedSeeking(Behaviour):
             "depth_setpoint_m": self._depth_setpoint if math.isfinite(self._depth_setpoint) else None,
             "reversals_last_30s": self.reversals(end - 30.0),
             "decisions": len(self.decisions),
+            "start_reached_s": self.ramp_done_s,
+            "governed_stalled": self.governed_stalled,
             "duration_s": end,
             "series": {name: clean(values) for name, values in self.series.items()},
         }

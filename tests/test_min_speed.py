@@ -330,6 +330,23 @@ def test_governed_move_falls_only_as_far_as_the_depth_integrator_allows():
     assert behaviour.decisions  # seeking from the start on
 
 
+def test_a_stalled_governed_move_continues_as_the_ramp():
+    """Where the vehicle is not in the level flight the curve describes (here: no depth error, so the
+    shadow integrator never moves), the governed move stops lowering the set-point; after
+    ``start_stall_s`` it continues as the 0.005/s ramp instead of holding the nominal thrust forever."""
+    curve = ((0.40, -0.16), (0.45, -0.12), (0.50, -0.08), (0.70, -0.02))
+    behaviour = MinSpeedSeeking(MinSpeedConfig(start_thrust=0.45, start_depth_budget_m=0.2, start_pitch_curve=curve,
+                                               depth_setpoint=2.0, duration_s=100.0))
+    stalled = None
+    for i in range(0, 20 * 30):  # 30 s at 20 Hz on the set-point depth
+        behaviour.step(Telemetry(time_s=0.05 * i, pitch=-0.02, depth=2.0, elevator=0.0))
+        if behaviour.governed_stalled and stalled is None:
+            stalled = (0.05 * i, behaviour.thrust_ratio)
+    assert stalled is not None and 10.0 <= stalled[0] <= 12.0  # the move stopped after its first second
+    assert behaviour.thrust_ratio == pytest.approx(stalled[1] - 0.005 * (29.95 - stalled[0]), abs=0.006)
+    assert behaviour.result()["governed_stalled"] is True
+
+
 def test_governed_start_settles_within_two_percent_of_the_analytic_minimum():
     """Issue 10, product procedure, seed 2 (bench/bench_min_speed.py --predicted): the governed move
     reaches TR* + 0.008 in about 44 s with the depth within 0.3 m, settled (15 s without a change)
