@@ -218,13 +218,16 @@ class _SvfRlsIdentifier:
         scale = float(np.linalg.norm(theta))
         if not scale > 0.0:
             return False
+        return all(float(np.linalg.norm(past - theta)) <= rule.relative_drift * scale
+                   for past in self._recent_thetas(elapsed - rule.drift_window_s))
+
+    def _recent_thetas(self, since_s: float):
+        """The recorded Θ (newest first) of the samples at or after ``since_s``."""
         times, thetas = self.history.time_s, self.history.theta
         index = len(times) - 1
-        while index >= 0 and times[index] >= elapsed - rule.drift_window_s:
-            if float(np.linalg.norm(np.asarray(thetas[index]) - theta)) > rule.relative_drift * scale:
-                return False
+        while index >= 0 and times[index] >= since_s:
+            yield np.asarray(thetas[index])
             index -= 1
-        return True
 
     def _within_noise(self, elapsed: float, theta: np.ndarray) -> bool:
         """The noise-aware rule (``ConvergenceRule.noise_band``): over the last ``noise_window_s``
@@ -236,13 +239,7 @@ class _SvfRlsIdentifier:
         if not np.all(np.isfinite(variances)) or np.any(variances <= 0.0):
             return False
         limits = rule.noise_band * np.sqrt(variances)
-        times, thetas = self.history.time_s, self.history.theta
-        index = len(times) - 1
-        while index >= 0 and times[index] >= elapsed - rule.noise_window_s:
-            if np.any(np.abs(np.asarray(thetas[index]) - theta) >= limits):
-                return False
-            index -= 1
-        return True
+        return all(np.all(np.abs(past - theta) < limits) for past in self._recent_thetas(elapsed - rule.noise_window_s))
 
     @property
     def theta(self) -> np.ndarray:
