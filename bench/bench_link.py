@@ -33,7 +33,7 @@ def measure(speedup: float, seconds: float, transport: str) -> dict:
             last = link.next_telemetry()
             count += 1
         elapsed = time.monotonic() - wall
-        backlog = len(link.master.mav.buf) - getattr(link.master.mav, "buf_index", 0)
+        backlog = link.transport.unparsed_bytes
         param_ms = []
         for value in (0.8, 0.9, 0.8, 0.9, 0.8):
             start = time.monotonic()

@@ -6,9 +6,13 @@ executes :class:`Command` objects; a log replayer produces the same snapshots fr
 Nothing here does I/O or reads a clock, so behaviours written against it run identically on a
 vehicle, against the simulator and over a recorded log.
 
-Units are SI throughout: metres, seconds, radians, thrust as a ratio 0..1. Angles of actuators are
-the physical deflections (rudder δr, elevator δs, rolling-mass angle α), already converted from PWM
-by the autopilot profile.
+Units are SI throughout: metres, seconds, radians. A commanded *thrust level* is a fraction 0..1 of
+the vehicle's full forward demand; what that demand is on each autopilot (a thrust ratio on our
+simulator, a fraction of WP_SPEED on ArduRover, the forward stick on ArduSub) is stated once, by
+its profile's ``thrust_meaning``, and converted once, by its strategy's ``set_thrust``. The
+telemetry's ``thrust_ratio`` is the thrust actuator's read-back (0..1 forward). Angles of actuators
+are the physical deflections (rudder δr, elevator δs, rolling-mass angle α), already converted from
+PWM by the autopilot profile.
 """
 from __future__ import annotations
 
@@ -91,7 +95,9 @@ class SetDepth(Command):
 
 @dataclass(frozen=True)
 class SetThrust(Command):
-    thrust_ratio: float  # 0..1, set-point of the holding/guided mode
+    """The holding/guided mode's forward demand, as a thrust level 0..1 (module docstring)."""
+
+    thrust_level: float
 
 
 @dataclass(frozen=True)

@@ -80,7 +80,7 @@ def dispatch(host: "_AutopilotHost", command: Command) -> None:
     elif isinstance(command, SetDepth):
         autopilot.set_depth(command.depth)
     elif isinstance(command, SetThrust):
-        autopilot.set_thrust(command.thrust_ratio)
+        autopilot.set_thrust(command.thrust_level)
     elif isinstance(command, SetRollingMass):
         autopilot.set_servo(int(autopilot.params["MASS_SERVO"]), pwm_from_fin(command.angle))
     elif isinstance(command, OverrideActuator):
@@ -228,6 +228,11 @@ class InProcessLink(_AutopilotHost):
         return sample
 
     # ------------------------------------------------------------------ ground station
+    @property
+    def ground(self) -> "InProcessLink":
+        """The ground-station side (``VehicleLink.ground``): this object answers for it."""
+        return self
+
     def on_user_command(self, callback) -> None:
         self._user_callback = callback
 
@@ -327,7 +332,7 @@ class HuginLoop:
             if isinstance(c, SetHeading):
                 self.heading_sp = c.heading
             elif isinstance(c, SetThrust):
-                self.thrust = c.thrust_ratio
+                self.thrust = c.thrust_level
             elif isinstance(c, OverrideActuator) and c.actuator == "rudder":
                 self.rudder_override = c.value
             elif isinstance(c, ReleaseActuator) and c.actuator == "rudder":

@@ -78,7 +78,7 @@ def fly_plan(link, plan: SurveyPlan, start_s: float | None = None, until_s: floa
 def record_survey_tlog(path: str | Path, plan: SurveyPlan = SurveyPlan(), *, preset: str = "starfish", seed: int = 1,
                        speedup: float = 0.0, extra_args: tuple[str, ...] = ()) -> Path:
     """Fly ``plan`` on the simulator (lockstep, ``speedup`` 0 = as fast as it goes) and save the tlog."""
-    from companion.cli.launcher import SimulatorProcess
+    from companion.rehearsal.launcher import SimulatorProcess
     from companion.link.vehicle import VehicleLink
 
     path = Path(path)
@@ -86,13 +86,12 @@ def record_survey_tlog(path: str | Path, plan: SurveyPlan = SurveyPlan(), *, pre
     with SimulatorProcess(preset=preset, speedup=speedup, seed=seed, lockstep=True,
                           extra_args=list(extra_args)) as sim:
         link = VehicleLink.connect(sim.endpoint, lockstep=True)
+        logfile = link.transport.record_to(str(path))
         try:
-            link.master.setup_logfile(str(path))
             link.arm(True)
             link.set_mode("hold")
             fly_plan(link, plan)
         finally:
-            logfile = link.master.logfile
             link.close()
             if logfile is not None and not logfile.closed:
                 logfile.close()

@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import math
 import random
-from types import SimpleNamespace
 
 import pytest
 
-from companion.cli.rehearsal import ARDUSUB_THRUSTS, ardusub_campaign
+from companion.rehearsal.rehearsal import ARDUSUB_THRUSTS, ardusub_campaign
 from companion.interface import Telemetry
 from companion.link.autopilots import ardusub
 from companion.link.autopilots.ardusub import (
@@ -20,11 +19,12 @@ from companion.link.autopilots.ardusub import (
     throttle_stick,
     unmix_vectored,
 )
-from companion.link.overrides import IGNORE_HIGH, IGNORE_LOW, OverrideTable
+from companion.link.overrides import IGNORE_HIGH, IGNORE_LOW
 from companion.procedures.campaign import CampaignConfig
 from sim.ardupilot_json import SubVectoredDecoder
 from sim.preset import load_preset
 from sim.vehicle import ActuatorDemand
+from tests.fake_ports import FakePorts
 
 NEUTRAL = [1500] * 6
 
@@ -94,174 +94,123 @@ def test_throttle_stick_maps_manual_throttle_to_rc3():
 
 
 # ---------------------------------------------------------------------- strategy
-class FakeLink:
-    """What the strategy uses of VehicleLink; overrides through the real OverrideTable."""
-
-    def __init__(self) -> None:
-        self.profile = PROFILE
-        self.custom_mode = PROFILE.modes["hold"]
-        self.overrides = OverrideTable()
-        self.vehicle_time_s = 100.0
-        self.armed = True
-        self.sent: list[list[int]] = []
-        self.attitude_targets: list = []
-        self.modes: list[str] = []
-        self.pwm = [1500.0] * 6
-        self.latest_telemetry = Telemetry(time_s=100.0, depth=2.0)
-        self.master = SimpleNamespace(messages={})
-        self.params = {"ACRO_YAW_P": 3.375}
-
-    def _send_rc_override(self, values: list[int]) -> None:
-        self.sent.append(list(values))
-
-    def _send(self) -> None:
-        self._send_rc_override(self.overrides.channel_values())
-
-    def override(self, actuator: str, value: float) -> None:
-        self.overrides.hold(self.profile.channel(actuator), self.profile.actuator_to_pwm(actuator, value))
-        self._send()
-
-    def override_raw(self, name: str, pwm: int) -> None:
-        self.overrides.hold(self.profile.channel(name), int(pwm))
-        self._send()
-
-    def release(self, actuator: str | None = None) -> None:
-        if actuator is None:
-            self.overrides.release_all()
-        else:
-            self.overrides.release(self.profile.channel(actuator))
-        self._send()
-
-    def set_mode(self, neutral: str) -> None:
-        self.modes.append(neutral)
-        self.custom_mode = self.profile.mode_number(neutral)
-        strategy.mode_changed(neutral)
-
-    def send_attitude_target(self, quaternion, thrust, *, ignore_thrust=False) -> None:
-        self.attitude_targets.append((self.vehicle_time_s, quaternion))
-
-    def send_gcs_heartbeat(self) -> None:
-        pass
-
-    def servo_pwm(self) -> list[float]:
-        return list(self.pwm)
-
-    def get_param(self, name: str, retries: int = 3) -> float:
-        return self.params[name]
-
-    def snapshot(self, dt: float = 0.02) -> Telemetry:
-        self.vehicle_time_s += dt
-        telemetry = strategy.on_snapshot(Telemetry(time_s=self.vehicle_time_s, depth=1.5))
-        if self.overrides.pending:  # the link refreshes held overrides with every snapshot
-            self._send()
-        return telemetry
-
-
-strategy: Strategy
-
-
 @pytest.fixture
-def link() -> FakeLink:
-    global strategy
-    fake = FakeLink()
-    strategy = Strategy(fake)
-    return fake
+def ports() -> FakePorts:
+    ports = FakePorts(PROFILE, Strategy, params={"ACRO_YAW_P": 3.375})
+    ports.telemetry.latest = Telemetry(time_s=100.0, depth=2.0)
+    ports.telemetry.pwm = [1500.0] * 6
+    return ports
+
+
+def _snapshot(ports: FakePorts, dt: float = 0.02) -> Telemetry:
+    return ports.snapshot(dt, depth=1.5)
 
 
 def _channel(values: list[int], name: str) -> int:
     return values[PROFILE.channel(name) - 1]
 
 
-def test_a_released_stick_is_centred_first_and_released_a_moment_later(link):
+def test_a_released_stick_is_centred_first_and_released_a_moment_later(ports):
+    strategy, held = ports.strategy, ports.overrides.active
     strategy.set_thrust(0.5)
-    assert _channel(link.sent[-1], "thrust") == 1700
+    assert _channel(ports.override_values[-1], "thrust") == 1700
     strategy.release("thrust")
-    assert _channel(link.sent[-1], "thrust") == STICK_CENTRE  # centred, still held
-    link.snapshot(RELEASE_AFTER_S / 2)
-    assert PROFILE.channel("thrust") in link.overrides.active
-    link.snapshot(RELEASE_AFTER_S)
-    assert PROFILE.channel("thrust") not in link.overrides.active
-    assert _channel(link.sent[-1], "thrust") == 0  # channels 1..8: 0 releases
+    assert _channel(ports.override_values[-1], "thrust") == STICK_CENTRE  # centred, still held
+    _snapshot(ports, RELEASE_AFTER_S / 2)
+    assert PROFILE.channel("thrust") in held
+    _snapshot(ports, RELEASE_AFTER_S)
+    assert PROFILE.channel("thrust") not in held
+    assert _channel(ports.override_values[-1], "thrust") == 0  # channels 1..8: 0 releases
 
 
-def test_a_new_thrust_cancels_a_pending_release(link):
+def test_a_new_thrust_cancels_a_pending_release(ports):
+    strategy = ports.strategy
     strategy.set_thrust(0.5)
     strategy.release(None)
     strategy.set_thrust(0.6)
-    link.snapshot(2 * RELEASE_AFTER_S)
-    assert link.overrides.active[PROFILE.channel("thrust")] == 1740
+    _snapshot(ports, 2 * RELEASE_AFTER_S)
+    assert ports.overrides.active[PROFILE.channel("thrust")] == 1740
 
 
-def test_the_doublet_switches_to_manual_holding_the_vertical_thrust_alt_hold_had(link):
-    link.pwm = [1500, 1500, 1500, 1500, 1540, 1540]  # ALT_HOLD pushing down 0.1 against buoyancy
+def test_the_doublet_switches_to_manual_holding_the_vertical_thrust_alt_hold_had(ports):
+    strategy = ports.strategy
+    ports.telemetry.pwm = [1500, 1500, 1500, 1500, 1540, 1540]  # ALT_HOLD pushing down 0.1 against buoyancy
     for _ in range(400):  # 8 s of ALT_HOLD: the mean settles
-        link.snapshot()
-    link.params["ACRO_YAW_P"] = 6.75  # MANUAL would double the yaw stick
+        _snapshot(ports)
+    ports.parameters.params["ACRO_YAW_P"] = 6.75  # MANUAL would double the yaw stick
     strategy.override("rudder", 0.07)  # 0.2 of full scale
-    assert link.modes == ["manual"]
-    held = link.overrides.active
+    assert ports.modes.changes == ["manual"]
+    held = ports.overrides.active
     assert held[PROFILE.channel("vertical")] == throttle_stick(-0.1) == 1460
     assert held[PROFILE.channel("rudder")] == 1540  # 0.1 of stick: doubled by MANUAL to 0.2
     strategy.release("rudder")  # end of the doublet: centred yaw stick, still MANUAL
-    assert held[PROFILE.channel("rudder")] == STICK_CENTRE and link.modes == ["manual"]
-    link.set_mode("hold")  # the manoeuvre re-engages: sticks centred, then given back
+    assert held[PROFILE.channel("rudder")] == STICK_CENTRE and ports.modes.changes == ["manual"]
+    ports.modes.set_mode("hold")  # the manoeuvre re-engages: sticks centred, then given back
     assert held[PROFILE.channel("vertical")] == STICK_CENTRE
-    link.snapshot(2 * RELEASE_AFTER_S)
-    assert PROFILE.channel("vertical") not in link.overrides.active
-    assert PROFILE.channel("rudder") not in link.overrides.active
+    _snapshot(ports, 2 * RELEASE_AFTER_S)
+    assert PROFILE.channel("vertical") not in held
+    assert PROFILE.channel("rudder") not in held
 
 
-def test_in_manual_the_throttle_stick_keeps_the_depth_manual_was_entered_at(link):
-    link.pwm = [1500, 1500, 1500, 1500, 1520, 1520]  # ALT_HOLD's mean: -0.05, down against buoyancy
+def test_in_manual_the_throttle_stick_keeps_the_depth_manual_was_entered_at(ports):
+    strategy = ports.strategy
+    ports.telemetry.pwm = [1500, 1500, 1500, 1500, 1520, 1520]  # ALT_HOLD's mean: -0.05, down against buoyancy
     for _ in range(1000):
-        link.snapshot()
-    link.latest_telemetry = Telemetry(time_s=link.vehicle_time_s, depth=1.5)  # entered at 1.5 m
+        _snapshot(ports)
+    ports.telemetry.latest = Telemetry(time_s=ports.clock.vehicle_time_s, depth=1.5)  # entered at 1.5 m
     strategy.override("rudder", 0.05)
     vertical = PROFILE.channel("vertical")
-    link.snapshot()  # at 1.5 m: the mean thrust alone
-    assert link.overrides.active[vertical] == throttle_stick(-0.05) == 1480
-    link.master.messages["HOME_POSITION"] = SimpleNamespace(altitude=0)
-    link.master.messages["GLOBAL_POSITION_INT"] = SimpleNamespace(alt=-1000)  # risen to 1.0 m
-    link.snapshot()
-    assert link.overrides.active[vertical] == throttle_stick(-0.05 - 0.15)  # push down: 0.3 per metre
-    link.master.messages["GLOBAL_POSITION_INT"] = SimpleNamespace(alt=-5000)  # far too deep
-    link.snapshot()
-    assert link.overrides.active[vertical] == throttle_stick(-0.05 + 0.3)  # climb, limited
+    _snapshot(ports)  # at 1.5 m: the mean thrust alone
+    assert ports.overrides.active[vertical] == throttle_stick(-0.05) == 1480
+    ports.transport.emit("HOME_POSITION", altitude=0)
+    ports.transport.emit("GLOBAL_POSITION_INT", alt=-1000)  # risen to 1.0 m
+    _snapshot(ports)
+    assert ports.overrides.active[vertical] == throttle_stick(-0.05 - 0.15)  # push down: 0.3 per metre
+    ports.transport.emit("GLOBAL_POSITION_INT", alt=-5000)  # far too deep
+    _snapshot(ports)
+    assert ports.overrides.active[vertical] == throttle_stick(-0.05 + 0.3)  # climb, limited
 
 
-def test_the_companion_stays_present_as_a_pilot_without_moving_a_stick(link):
+def test_the_companion_stays_present_as_a_pilot_without_moving_a_stick(ports):
     for _ in range(150):  # 3 s with nothing held
-        link.snapshot()
-    presence = [values for values in link.sent if set(values[:8]) == {IGNORE_LOW}]
+        _snapshot(ports)
+    presence = [values for values in ports.override_values if set(values[:8]) == {IGNORE_LOW}]
     assert len(presence) == 3 and all(set(v[8:]) == {IGNORE_HIGH} for v in presence)
-    strategy.set_thrust(0.4)
-    count = len(link.sent)
+    ports.strategy.set_thrust(0.4)
+    count = len(ports.override_values)
     for _ in range(100):
-        link.snapshot()
-    assert all(_channel(v, "thrust") == 1660 for v in link.sent[count:])  # the held override is the presence
+        _snapshot(ports)
+    assert all(_channel(v, "thrust") == 1660 for v in ports.override_values[count:])  # the held override is the presence
 
 
-def test_heading_target_refreshed_every_vehicle_second_in_alt_hold_only(link):
-    strategy.set_heading(0.5)
+def test_the_ground_station_heartbeat_goes_out_as_the_ground_station(ports):
+    for _ in range(110):  # 2.2 s
+        _snapshot(ports)
+    heartbeats = [entry for entry in ports.transport.mav.sent if entry[0] == "heartbeat_send"]
+    assert len(heartbeats) == 3 and set(ports.transport.sent_as) == {(255, 190)}
+
+
+def test_heading_target_refreshed_every_vehicle_second_in_alt_hold_only(ports):
+    ports.strategy.set_heading(0.5)
     for _ in range(160):  # 3.2 s
-        link.snapshot()
-    assert len(link.attitude_targets) == 4
-    link.custom_mode = PROFILE.modes["manual"]
+        _snapshot(ports)
+    assert len(ports.attitude_targets) == 4
+    ports.announcements.custom_mode = PROFILE.modes["manual"]
     for _ in range(150):
-        link.snapshot()
-    assert len(link.attitude_targets) == 4
+        _snapshot(ports)
+    assert len(ports.attitude_targets) == 4
 
 
-def test_depth_is_home_altitude_minus_the_vehicles(link):
-    assert link.snapshot().depth == 1.5  # before home is known: relative_alt as reported
-    link.master.messages["HOME_POSITION"] = SimpleNamespace(altitude=120)  # mm above sea level
-    link.master.messages["GLOBAL_POSITION_INT"] = SimpleNamespace(alt=-2080, relative_alt=40)
-    assert link.snapshot().depth == pytest.approx(2.2)
+def test_depth_is_home_altitude_minus_the_vehicles(ports):
+    assert _snapshot(ports).depth == 1.5  # before home is known: relative_alt as reported
+    ports.transport.emit("HOME_POSITION", altitude=120)  # mm above sea level
+    ports.transport.emit("GLOBAL_POSITION_INT", alt=-2080, relative_alt=40)
+    assert _snapshot(ports).depth == pytest.approx(2.2)
 
 
-def test_read_back_replaces_rudder_and_thrust(link):
-    link.pwm = [1240, 1360, 1760, 1640, 1500, 1500]  # forward 0.5, yaw -0.15
-    telemetry = link.snapshot()
+def test_read_back_replaces_rudder_and_thrust(ports):
+    ports.telemetry.pwm = [1240, 1360, 1760, 1640, 1500, 1500]  # forward 0.5, yaw -0.15
+    telemetry = _snapshot(ports)
     assert telemetry.thrust_ratio == pytest.approx(0.5)
     assert telemetry.rudder == pytest.approx(-0.15 * 0.35)
 

@@ -200,9 +200,10 @@ class _Mav:
 def _bare_link(**timeouts):
     from companion.link.vehicle import LinkTimeouts, VehicleLink
 
-    link = VehicleLink(SimpleNamespace(mav=_Mav()), system_id=1, autopilot_component=1, component=191,
+    master = SimpleNamespace(mav=_Mav())
+    link = VehicleLink(master, system_id=1, autopilot_component=1, component=191,
                        timeouts=LinkTimeouts(**timeouts))
-    return link, link.master.mav.sent
+    return link, master.mav.sent
 
 
 def test_a_stalled_lockstep_is_acknowledged_again_then_stepped_on():
@@ -210,16 +211,17 @@ def test_a_stalled_lockstep_is_acknowledged_again_then_stepped_on():
     vehicle time for good; the procedure died of link loss 5 s later and its restore could not
     confirm the mode (no heartbeat from a stopped vehicle) until the simulator's 30 s rule."""
     link, sent = _bare_link(lockstep_stall_s=0.5)
-    link.lockstep = True
-    link._acknowledge(1000)
-    link._attitude_period_ms = 50
-    link._last_rx_wall -= 10.0  # nothing received for 10 s
-    link._unstall_lockstep()
-    link._last_nudge_wall -= 10.0
-    link._unstall_lockstep()
+    clock = link.clock
+    clock.lockstep = True
+    clock.acknowledge(1000)
+    clock.sample_period_ms = 50
+    link.transport.last_rx_wall -= 10.0  # nothing received for 10 s
+    clock.unstall()
+    clock._last_nudge_wall -= 10.0
+    clock.unstall()
     acks = [args[1] for name, *args in sent if name == "system_time_send"]
     assert acks == [1000, 1000, 1050]  # the ack, the same again (a lost ack), then one sample on (a lost sample)
-    assert link.wall_timeouts == 2  # wall-clock decisions are counted (the run then says it was not exact)
+    assert clock.wall_timeouts == 2  # wall-clock decisions are counted (the run then says it was not exact)
 
 
 def test_an_unanswered_set_point_is_sent_again_before_it_fails():
@@ -227,15 +229,15 @@ def test_an_unanswered_set_point_is_sent_again_before_it_fails():
     from companion.link.errors import CommandFailed
 
     link, sent = _bare_link()
-    link.vehicle_time_s = 10.0
-    link.send_setpoint(178, (0.0, -1.0, 70.0))
-    link.vehicle_time_s = 11.05
-    link._check_setpoint_answers()
+    link.clock.vehicle_time_s = 10.0
+    link.commands.send_setpoint(178, (0.0, -1.0, 70.0))
+    link.clock.vehicle_time_s = 11.05
+    link.commands.check_answers()
     commands = [args for name, *args in sent if name == "command_long_send"]
     assert len(commands) == 2 and commands[1][2] == 178 and commands[1][3] == 1  # confirmation 1
-    link.vehicle_time_s = 13.2
+    link.clock.vehicle_time_s = 13.2
     with pytest.raises(CommandFailed):
-        link._check_setpoint_answers()
+        link.commands.check_answers()
 
 
 def test_the_store_of_a_case_reads_back_intact(tmp_path):

@@ -10,7 +10,7 @@ import time
 import pytest
 
 from companion.interface import SetRollingMass
-from companion.link import params as pc
+from companion.link import param_codec as pc
 from companion.link.errors import CommandFailed, ParamRefused
 from companion.link.vehicle import VehicleLink
 
@@ -49,10 +49,11 @@ def mean(values) -> float:
 
 
 def test_connect_identifies_the_simulated_vehicle(link):
-    assert link.profile.name == "sim" and link.system_id == 1 and link.component == 191
-    assert link.gcs_sysid == 255 and link.override_timeout_s == pytest.approx(3.0)
-    assert link.capabilities is not None and link.capabilities & pc.CAPABILITY_PARAM_ENCODE_C_CAST
-    assert link.int_encoding == "cast"
+    assert link.profile.name == "sim" and link.transport.system_id == 1 and link.transport.component == 191
+    assert link.ground.gcs_sysid == 255 and link.override_timeout_s == pytest.approx(3.0)
+    capabilities = link.announcements.capabilities
+    assert capabilities is not None and capabilities & pc.CAPABILITY_PARAM_ENCODE_C_CAST
+    assert link.parameters.int_encoding == "cast"
 
 
 def test_vehicle_time_runs_faster_than_wall_time(link):
@@ -103,7 +104,7 @@ def test_mode_change_is_verified_by_heartbeat(link):
 
 def test_rolling_mass_moves_and_function_channels_are_refused(link):
     with pytest.raises(CommandFailed):
-        link.set_servo(1, 1600, wait=True)  # the rudder output has a function: denied
+        link.commands.set_servo(1, 1600, wait=True)  # the rudder output has a function: denied
     link.arm(True)
     assert link.armed
     link.execute([SetRollingMass(0.2)])
@@ -118,7 +119,7 @@ def test_rudder_override_in_hold_turns_then_autopilot_takes_back(link):
     assert settle[-1].speed_water > 0.8
     assert abs(mean(s.yaw_rate for s in settle[-40:])) < 0.01
 
-    link.override("rudder", 0.15)
+    link.overrides.override("rudder", 0.15)
     held = run_for(link, 6.0)
     assert all(s.mode == "hold" for s in held)
     assert held[-1].rudder == pytest.approx(0.15, abs=0.01)  # open loop on the rudder
@@ -139,7 +140,7 @@ def test_override_expires_when_not_refreshed(link):
     try:
         link.skip_to_now()
         start = link.next_telemetry().time_s
-        link.override("rudder", 0.15, keep_alive=False)  # sent once, never refreshed
+        link.overrides.override("rudder", 0.15, keep_alive=False)  # sent once, never refreshed
         # every snapshot from the send on, queued ones included: a companion running behind on a
         # loaded machine must not skip the override's whole life (run_for drops the backlog)
         samples = [link.next_telemetry()]

@@ -13,7 +13,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from companion.interface import SetDepth, SetHeading, SetRollingMass, SetThrust  # noqa: E402
-from companion.link import params as pc  # noqa: E402
+from companion.link import param_codec as pc  # noqa: E402
 from companion.link.errors import (LinkLost, ParamRefused, ParamTimeout, ProfileError,  # noqa: E402
                                    VehicleRebooted)
 from companion.link.overrides import OverrideTable, single_shot  # noqa: E402
@@ -258,14 +258,14 @@ def fake_link():
     # the fake answers synchronously (no lag), so a try needs no minimum wall time
     link = VehicleLink(fake, system_id=1, autopilot_component=1, component=191,
                        timeouts=LinkTimeouts(min_try_wall_s=0.0))
-    link._setup(None, {}, DepthSensor())
+    link.setup(None, {}, DepthSensor())
     link.skip_to_now()  # snapshots queued during set-up
     return fake, link
 
 
 def test_setup_detects_profile_and_reads_gcs_sysid(fake_link):
     fake, link = fake_link
-    assert link.profile is SIM and link.gcs_sysid == 255 and link.override_timeout_s == 3.0
+    assert link.profile is SIM and link.ground.gcs_sysid == 255 and link.override_timeout_s == 3.0
     assert {pc.param_id_str(m.param_id) for m in fake.sent_of("PARAM_REQUEST_READ")} >= {"HDG_P", "ATC_ANG_YAW_P"}
 
 
@@ -292,8 +292,8 @@ def test_set_param_trusts_only_a_matching_echo(fake_link):
 @pytest.mark.parametrize("encoding", ["cast", "bytewise"])
 def test_set_param_integer_encodings(fake_link, encoding):
     fake, link = fake_link
-    fake.encoding = link.int_encoding = encoding
-    link.param_types.clear()
+    fake.encoding = link.parameters.int_encoding = encoding
+    link.parameters.types.clear()
     assert link.set_param("SYSID_MYGCS", 254) == 254.0
     assert fake.params["SYSID_MYGCS"][0] == 254.0
     assert link.get_params(["gcs_sysid"]) == {"gcs_sysid": 254.0}
@@ -302,7 +302,7 @@ def test_set_param_integer_encodings(fake_link, encoding):
 def test_heartbeat_on_vehicle_time_and_override_refresh(fake_link):
     fake, link = fake_link
     fake.sent.clear()
-    link.override("rudder", 0.2618)
+    link.overrides.override("rudder", 0.2618)
     start = link.next_telemetry().time_s
     while link.next_telemetry().time_s - start < 5.0:
         pass
@@ -319,7 +319,7 @@ def test_heartbeat_on_vehicle_time_and_override_refresh(fake_link):
     released = fake.sent_of("RC_CHANNELS_OVERRIDE")
     assert [m.chan1_raw for m in released] == [0, 0, 0]  # released (repeated), then no refresh
     fake.sent.clear()
-    link.override("elevator", 0.1, keep_alive=False)
+    link.overrides.override("elevator", 0.1, keep_alive=False)
     for _ in range(10):
         link.next_telemetry()
     assert len(fake.sent_of("RC_CHANNELS_OVERRIDE")) == 1  # single shot, left to expire
@@ -341,15 +341,15 @@ def test_execute_sends_set_points(fake_link):
 def test_user_commands_reach_the_callback_from_next_telemetry(fake_link):
     fake, link = fake_link
     received = []
-    link.on_user_command(lambda command, params: received.append((command, params)))
+    link.ground.on_user_command(lambda command, params: received.append((command, params)))
     fake.emit(mavlink.MAVLink_command_long_message(1, 191, 31011, 0, 0.7, 0, 0, 0, 0, 0, 0), src=255, comp=190)
     fake.emit(mavlink.MAVLink_command_long_message(1, 1, 31012, 0, 0, 0, 0, 0, 0, 0, 0), src=255, comp=190)  # for the autopilot
     link.next_telemetry()
     assert received == [(31011, (pytest.approx(0.7), 0, 0, 0, 0, 0, 0))]
-    link.send_command_ack(31011, 5, progress=40)
+    link.ground.send_command_ack(31011, 5, progress=40)
     ack = fake.sent_of("COMMAND_ACK")[-1]
     assert (ack.command, ack.result, ack.progress, ack.target_system, ack.target_component) == (31011, 5, 40, 255, 190)
-    link.on_user_command(None)
+    link.ground.on_user_command(None)
     fake.emit(mavlink.MAVLink_command_long_message(1, 191, 31010, 0, 0, 0, 0, 0, 0, 0, 0), src=255, comp=190)
     link.next_telemetry()
     assert fake.sent_of("COMMAND_ACK")[-1].result == 3  # UNSUPPORTED without a handler
@@ -361,18 +361,18 @@ def test_status_text_chunks_and_named_value(fake_link):
     texts = fake.sent_of("STATUSTEXT")
     assert [len(m.text) for m in texts] == [50, 50, 20]
     assert [m.chunk_seq for m in texts] == [0, 1, 2] and len({m.id for m in texts}) == 1 and texts[0].id != 0
-    link.named_value("b2_est", 1.08)
+    link.ground.named_value("b2_est", 1.08)
     assert fake.sent_of("NAMED_VALUE_FLOAT")[-1].value == pytest.approx(1.08)
     with pytest.raises(ValueError):
-        link.named_value("much_too_long", 1.0)
+        link.ground.named_value("much_too_long", 1.0)
 
 
 def test_every_snapshot_is_queued_in_order_during_blocking_calls(fake_link):
     fake, link = fake_link
     fake.reply_lag_ticks = 4
     link.set_param("HDG_P", 0.7)  # blocks while telemetry keeps arriving
-    assert link.pending_snapshots >= 1
-    times = [link.next_telemetry().time_s for _ in range(link.pending_snapshots + 3)]
+    assert link.telemetry.pending >= 1
+    times = [link.next_telemetry().time_s for _ in range(link.telemetry.pending + 3)]
     assert all(b - a == pytest.approx(0.05) for a, b in zip(times, times[1:]))  # no holes, in order
     link.set_param("HDG_P", 0.8)
     newest = link.latest_telemetry.time_s

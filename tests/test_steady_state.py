@@ -175,7 +175,7 @@ class KinematicVehicle:
             elif isinstance(c, SetMode):
                 self.mode = c.mode
             elif isinstance(c, SetThrust):
-                self.thrust = c.thrust_ratio
+                self.thrust = c.thrust_level
 
     def step(self, dt: float) -> Telemetry:
         if self.rudder_override is not None:

@@ -5,11 +5,12 @@ and 65535 (UINT16_MAX) leaves it alone; on the MAVLink 2 extension channels 9–
 "ignore" and 65534 releases. An override expires ``RC_OVERRIDE_TIME`` after the last message that
 set it, so active overrides are re-sent (refreshed) with every telemetry snapshot until released.
 A released channel is sent as "release" in the next ``release_repeats`` messages (UDP may drop one).
-Pure bookkeeping, no I/O.
+The table is pure bookkeeping; :class:`OverrideChannels` sends it through the autopilot's sender.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 CHANNEL_COUNT = 18
 IGNORE_LOW = 65535  # channels 1..8
@@ -72,3 +73,75 @@ def single_shot(channel: int, pwm: int) -> list[int]:
 def _check_channel(channel: int) -> None:
     if not 1 <= channel <= CHANNEL_COUNT:
         raise ValueError(f"RC channel {channel} outside 1..{CHANNEL_COUNT}")
+
+
+class OverrideChannels:
+    """The actuators the companion holds through RC overrides, refreshed with every snapshot.
+
+    Actuators are named neutrally ("rudder", "thrust", ...) and converted to channels and PWM by the
+    autopilot profile; how the values reach the vehicle is the autopilot's (``send``, given by its
+    strategy: ArduPilot takes RC_CHANNELS_OVERRIDE only from the ground station's system id)."""
+
+    def __init__(self, send: Callable[[list[int]], None] | None = None, table: OverrideTable | None = None) -> None:
+        self.table = table or OverrideTable()
+        self.send = send
+        self.profile = None  # the autopilot profile, once known
+
+    @property
+    def active(self) -> dict[int, int]:
+        """Channel → PWM held now."""
+        return self.table.active
+
+    @property
+    def pending(self) -> bool:
+        return self.table.pending
+
+    def _send_values(self, values: list[int]) -> None:
+        if self.send is None:
+            raise RuntimeError("no override sender yet (still connecting)")
+        self.send(values)
+
+    def refresh(self) -> None:
+        """Send what is held or still being released (once per snapshot: overrides expire)."""
+        if self.table.pending:
+            self._send_values(self.table.channel_values())
+
+    def override(self, actuator: str, value: float, *, keep_alive: bool = True) -> None:
+        """Drive ``actuator`` (rad for fins, ratio for thrust). With ``keep_alive`` it is refreshed
+        at every snapshot until released; without, it is sent once and expires on the vehicle."""
+        channel = self.profile.channel(actuator)
+        pwm = self.profile.actuator_to_pwm(actuator, value)
+        if keep_alive:
+            self.hold(channel, pwm)
+        else:
+            self.table.active.pop(channel, None)
+            self._send_values(single_shot(channel, pwm))
+
+    def override_raw(self, channel_name: str, pwm: int) -> None:
+        """Hold a raw PWM on the profile's channel ``channel_name`` (kept alive like an override)."""
+        self.hold(self.profile.channel(channel_name), int(pwm))
+
+    def hold(self, channel: int, pwm: int) -> None:
+        changed = self.table.active.get(channel) != pwm
+        self.table.hold(channel, pwm)
+        if changed:  # unchanged values go out with the per-snapshot refresh only
+            self.refresh()
+
+    def release(self, actuator: str | None = None) -> None:
+        """Give ``actuator`` (None = every overridden one) back to the autopilot."""
+        if actuator is None:
+            self.table.release_all()
+        else:
+            self.table.release(self.profile.channel(actuator))
+        self.refresh()
+
+    def holds(self, actuator: str) -> bool:
+        """True while ``actuator``'s channel is held."""
+        return self.profile.channel(actuator) in self.table.active
+
+    def held_pwm(self, actuator: str) -> int | None:
+        return self.table.active.get(self.profile.channel(actuator))
+
+    def no_change(self) -> None:
+        """An override that changes no channel (every value "ignore"): pilot presence, nothing moves."""
+        self._send_values(OverrideTable().channel_values())

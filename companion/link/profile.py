@@ -18,6 +18,7 @@ from companion.link.errors import ProfileError
 #: PWM values that mean "no data" in SERVO_OUTPUT_RAW / RC fields, and the plausible PWM range.
 PWM_VALID_MIN = 800
 PWM_VALID_MAX = 2200
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 
 
 
@@ -33,6 +34,34 @@ class NativeScale:
 
     def to_neutral(self, native_value: float) -> float:
         return (native_value - self.offset) / self.scale
+
+
+@dataclass(frozen=True)
+class CampaignDefaults:
+    """What a campaign on one autopilot flies unless the user says otherwise: thrust levels, axes
+    and doublet amplitudes it can fly (None: the campaign's own default)."""
+
+    thrusts: tuple[float, ...] | None = None
+    axes: tuple[str, ...] | None = None
+    training_amplitude: float | None = None  # rad (of equivalent rudder)
+    validation_amplitude: float | None = None
+
+    def __post_init__(self) -> None:
+        from companion.checks import check_thrust_levels
+
+        if self.thrusts is not None:
+            check_thrust_levels(self.thrusts, "CampaignDefaults.thrusts")
+        for name in ("training_amplitude", "validation_amplitude"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, (int, float)) and 0.0 < value < 1.0):
+                raise ValueError(f"CampaignDefaults.{name} must be in (0, 1) rad, not {value!r}")
+
+    def given(self) -> dict:
+        """The fields this autopilot sets (name → value)."""
+        return {name: value for name, value in (("thrusts", self.thrusts), ("axes", self.axes),
+                                                ("training_amplitude", self.training_amplitude),
+                                                ("validation_amplitude", self.validation_amplitude))
+                if value is not None}
 
 
 @dataclass(frozen=True)
@@ -75,10 +104,11 @@ class AutopilotProfile:
     # the autopilot's documented ranges of its native heading gains, as CascadeRules fields
     # (e.g. {"rate_ff_range": (0.0, 0.0)}); empty: ArduRover's ranges, the design's defaults
     gain_ranges: dict = field(default_factory=dict)
-    # what a campaign on this autopilot flies unless the user says otherwise (CampaignConfig fields:
-    # thrusts, axes, training_amplitude, validation_amplitude): e.g. ArduSub's thrusts that keep
-    # its vectored motors out of saturation; applied by CampaignConfig.with_profile_defaults
-    campaign_defaults: dict = field(default_factory=dict)
+    # what a campaign on this autopilot flies unless the user says otherwise: e.g. ArduSub's thrusts
+    # that keep its vectored motors out of saturation; applied once, by CampaignConfig.resolved_for
+    campaign_defaults: CampaignDefaults = field(default_factory=CampaignDefaults)
+    # what a thrust level (SetThrust, 0..1) is on this autopilot: the one statement of its unit
+    thrust_meaning: str = "the thruster's thrust ratio"
     angle_full_scale_rad: float = 0.5236  # fin angle at pwm_center ± pwm_half_range
     pwm_center: int = 1500
     pwm_half_range: int = 500
@@ -136,6 +166,12 @@ class AutopilotProfile:
             return self.modes[neutral]
         except KeyError:
             raise ProfileError(f"profile {self.name!r} has no mode {neutral!r} (has {sorted(self.modes)})") from None
+
+    def mode_command_params(self, custom_mode: int) -> tuple[float, ...]:
+        """MAV_CMD_DO_SET_MODE's parameters for a custom_mode number: (CUSTOM_MODE_ENABLED, number),
+        ArduPilot's and our simulator's form (an autopilot that packs main and sub mode differently
+        overrides this)."""
+        return (float(MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(custom_mode))
 
     def mode_name(self, custom_mode: int) -> str:
         """Neutral name of a custom_mode number, ``custom_<n>`` when the profile does not name it."""

@@ -1,18 +1,21 @@
 """The autopilot profiles the companion knows, and how one is recognised (SPEC C1, §4).
 
 Each autopilot is one module of ``companion.link.autopilots`` holding its profile (data) and its
-strategy (how it is commanded); adding an autopilot (PX4, say) is one new module there and one
-name in :data:`PROFILES`.
+strategy (how it is commanded); adding an autopilot is one new module there and one name in
+``companion.link.autopilots.MODULES``.
 """
 from __future__ import annotations
 
+from companion.link.autopilots import registered_profiles
 from companion.link.autopilots.ardurover import PROFILE as ARDUROVER
 from companion.link.autopilots.ardusub import PROFILE as ARDUSUB
 from companion.link.autopilots.sim import PROFILE as SIM
 from companion.link.errors import ProfileError
 from companion.link.profile import PWM_VALID_MAX, PWM_VALID_MIN, AutopilotProfile, NativeScale  # noqa: F401
 
-PROFILES: dict[str, AutopilotProfile] = {p.name: p for p in (SIM, ARDUSUB, ARDUROVER)}
+__all__ = ["ARDUROVER", "ARDUSUB", "SIM", "PROFILES", "get_profile", "detect_profile", "marker_params"]
+
+PROFILES: dict[str, AutopilotProfile] = {p.name: p for p in registered_profiles()}
 
 
 def get_profile(name: str) -> AutopilotProfile:
@@ -30,7 +33,7 @@ def detect_profile(param_names: set[str] | frozenset[str]) -> AutopilotProfile:
         found = [p.name for p in matches]
         raise ProfileError(
             f"cannot detect the autopilot profile from its parameters (matching: {found or 'none'}); "
-            "pass profile= explicitly")
+            "name the autopilot with --profile")
     return matches[0]
 
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 from companion.interface import Telemetry
-from companion.link.profiles import AutopilotProfile
+from companion.link.profile import AutopilotProfile
 from companion.numerics.angles import wrap_pi
 
 log = logging.getLogger(__name__)
@@ -179,7 +179,7 @@ def _unwrap_usec_ms(time_usec: float, reference_ms: float) -> float:
     """A wrapped uint32 ``time_usec`` as milliseconds of boot time, the lap nearest ``reference_ms``
     (the attitude it is paired with: ``time_boot_ms`` is a uint32 of milliseconds and wraps only
     after 49 days). Without it, after 71.6 minutes of autopilot uptime every output message looked
-    older than its attitude and was never paired (issue 9, found by the fault bench's long runs)."""
+    older than its attitude and was never paired (found by the fault bench's long runs)."""
     if not (math.isfinite(time_usec) and math.isfinite(reference_ms)):
         return math.nan
     time_ms = time_usec / 1000.0

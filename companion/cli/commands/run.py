@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         with connected_vehicle(args) as (link, stop), Store(args.store) as store:
             companion = Companion(link, store, vehicle_record(store, link), config, stop)
-            print(f"companion running on {args.connect} (system {link.system_id}, component 191, profile "
+            print(f"companion running on {args.connect} (system {link.transport.system_id}, component 191, profile "
                   f"{link.profile.name}); Ctrl-C to stop", file=sys.stderr)
             history = companion.run()
     except (ConnectFailed, LinkError) as exc:

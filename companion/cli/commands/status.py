@@ -32,7 +32,7 @@ def snapshot_record(link, telemetry) -> dict:
 
     return {
         "profile": link.profile.name,
-        "system_id": link.system_id,
+        "system_id": link.transport.system_id,
         "vehicle_time_s": telemetry.time_s,
         "mode": telemetry.mode,
         "armed": telemetry.armed,
@@ -46,8 +46,8 @@ def snapshot_record(link, telemetry) -> dict:
         "speed_ground_m_s": telemetry.speed_ground,
         "actuators": {"rudder_deg": deg(telemetry.rudder), "elevator_deg": deg(telemetry.elevator),
                       "thrust_ratio": telemetry.thrust_ratio, "mass_angle_deg": deg(telemetry.mass_angle)},
-        "gcs_sysid": link.gcs_sysid,
-        "int_encoding": link.int_encoding,
+        "gcs_sysid": link.ground.gcs_sysid,
+        "int_encoding": link.parameters.int_encoding,
     }
 
 

@@ -1,14 +1,30 @@
 """One module per autopilot: its profile (data) and its strategy (how the link commands it).
 
-``sim`` (our simulator, docs/PROTOCOL.md), ``ardurover`` (ArduRover boats) and ``ardusub``
-(ArduSub). :func:`strategy_for` builds the strategy a link uses for a profile.
+Adding an autopilot is one module here (a ``PROFILE`` and a ``Strategy`` class) and one name in
+:data:`MODULES`. ``sim`` is our simulator (docs/PROTOCOL.md), ``ardurover`` ArduRover boats and
+``ardusub`` ArduSub; ``ardupilot`` holds what the ArduPilot family shares.
 """
 from __future__ import annotations
 
 import importlib
 
+#: the registered autopilots (modules of this package); their profiles are detected in this order
+MODULES = ("sim", "ardusub", "ardurover")
+#: the MAVLink dialect connections are opened with: one that covers every registered autopilot
+#: (ArduPilot's is a superset of ``common``)
+CONNECT_DIALECT = "ardupilotmega"
 
-def strategy_for(link, profile):
-    """The strategy object of ``profile`` (its module's ``Strategy`` class) bound to ``link``."""
-    module = importlib.import_module(f"companion.link.autopilots.{profile.strategy}")
-    return module.Strategy(link)
+
+def module_of(name: str):
+    """The module of a registered autopilot."""
+    return importlib.import_module(f"companion.link.autopilots.{name}")
+
+
+def registered_profiles() -> list:
+    """The ``PROFILE`` of every registered autopilot, in :data:`MODULES` order."""
+    return [module_of(name).PROFILE for name in MODULES]
+
+
+def strategy_for(ports, profile):
+    """The strategy object of ``profile`` (its module's ``Strategy`` class) bound to the link's ports."""
+    return module_of(profile.strategy).Strategy(ports)

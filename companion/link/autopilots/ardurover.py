@@ -27,8 +27,8 @@ import math
 from typing import ClassVar
 
 from companion.interface import Telemetry
-from companion.link.autopilots.base import AutopilotStrategy, yaw_quaternion
-from companion.link.profile import AutopilotProfile, NativeScale
+from companion.link.autopilots.ardupilot import ArduPilotStrategy, yaw_quaternion
+from companion.link.profile import AutopilotProfile, CampaignDefaults, NativeScale
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +64,8 @@ PROFILE = AutopilotProfile(
     actuator_hold="zoh",
     output_lead_s=0.010,  # 25 Hz snapshots of the 50 Hz rover loop (STREAMS below)
     # yaw only (a boat has no dive plane); thrusts are fractions of WP_SPEED: 60, 80, 100 %
-    campaign_defaults={"thrusts": (0.6, 0.8, 1.0), "axes": ("yaw",)},
+    campaign_defaults=CampaignDefaults(thrusts=(0.6, 0.8, 1.0), axes=("yaw",)),
+    thrust_meaning="a speed demand: the fraction of WP_SPEED sent as SET_ATTITUDE_TARGET's thrust in GUIDED",
     train_full_window=True,
 )
 
@@ -78,12 +79,12 @@ PROFILE = AutopilotProfile(
 STREAMS = {30: 25.0, 36: 25.0, 32: 10.0, 33: 10.0, 74: 10.0}
 
 
-class Strategy(AutopilotStrategy):
+class Strategy(ArduPilotStrategy):
     streams = STREAMS
     refresh_s = 1.0  # vehicle seconds between target refreshes (Rover gives up after 3 s)
 
-    def __init__(self, link) -> None:
-        super().__init__(link)
+    def __init__(self, ports) -> None:
+        super().__init__(ports)
         self.heading = math.nan
         self.speed_fraction = math.nan
         self._sent_at = -math.inf
@@ -92,16 +93,17 @@ class Strategy(AutopilotStrategy):
         self._override_bias: dict[str, float] = {}
 
     def _in_guided(self) -> bool:
-        return self.link.custom_mode == self.profile.modes["guided"]
+        return self.in_mode("guided")
 
     def set_heading(self, heading: float) -> None:
         self.heading = heading
         self._send()
 
-    def set_thrust(self, thrust_ratio: float) -> None:
-        if not 0.0 <= thrust_ratio <= 1.0:
-            raise ValueError(f"thrust (fraction of WP_SPEED) {thrust_ratio!r} outside 0..1")
-        self.speed_fraction = thrust_ratio
+    def set_thrust(self, thrust_level: float) -> None:
+        """The thrust level is a speed demand here: a fraction of WP_SPEED (SET_ATTITUDE_TARGET's thrust)."""
+        if not 0.0 <= thrust_level <= 1.0:
+            raise ValueError(f"thrust (fraction of WP_SPEED) {thrust_level!r} outside 0..1")
+        self.speed_fraction = thrust_level
         self._send()
 
     def set_depth(self, depth: float) -> None:
@@ -112,42 +114,43 @@ class Strategy(AutopilotStrategy):
             return  # kept, and sent when GUIDED is entered
         heading = self.heading
         if not math.isfinite(heading):
-            latest = self.link.latest_telemetry
+            latest = self.latest()
             heading = latest.yaw if latest is not None and math.isfinite(latest.yaw) else 0.0
         thrust = self.speed_fraction if math.isfinite(self.speed_fraction) else 0.0
-        self.link.send_attitude_target(yaw_quaternion(heading), thrust)
-        self._sent_at = self.link.vehicle_time_s
+        self.send_attitude_target(yaw_quaternion(heading), thrust)
+        self._sent_at = self.now
 
     def override(self, actuator: str, value: float) -> None:
         if actuator == "rudder" and self._excitation is None and self._in_guided():
-            latest = self.link.latest_telemetry
+            latest = self.latest()
             throttle = latest.thrust_ratio if latest is not None and math.isfinite(latest.thrust_ratio) else None
             steering = latest.rudder if latest is not None and math.isfinite(latest.rudder) else 0.0
             if throttle is None:
                 raise self._cannot("throttle read-back (SERVO3): the speed cannot be held open loop")
-            self._excitation = {"mode": self.link.mode, "steering": steering, "held": {}}
+            self._excitation = {"mode": self.ports.announcements.mode, "steering": steering, "held": {}}
             self._hold("thrust", throttle)  # before the switch: MANUAL never sees a stopped stick
-            self.link.override(actuator, value)
-            self.link.set_mode("manual")
+            self.ports.overrides.override(actuator, value)
+            self.ports.modes.set_mode("manual")
             return
         if self._excitation is not None:
             self._excitation["held"].pop(actuator, None)  # a doublet value: its read-back is what counts
-        self.link.override(actuator, value)
+        self.ports.overrides.override(actuator, value)
 
     def release(self, actuator: str | None) -> None:
         if self._excitation is not None and actuator == "rudder":
             self._hold("rudder", self._excitation["steering"])  # open loop at the found steering
             return
         if self._excitation is not None and actuator is None:
-            self.link.set_mode(self._excitation["mode"])  # mode_changed ends the excitation, re-sends targets
-        self.link.release(actuator)
+            self.ports.modes.set_mode(self._excitation["mode"])  # mode_changed ends the excitation, re-sends targets
+        self.ports.overrides.release(actuator)
 
     def mode_changed(self, neutral: str) -> None:
-        ended = self._excitation is not None and self.link.custom_mode != self.profile.modes["manual"]
-        if self.link.custom_mode != self.profile.modes["manual"]:
+        in_manual = self.in_mode("manual")
+        ended = self._excitation is not None and not in_manual
+        if not in_manual:
             self._excitation = None  # whoever left MANUAL ended the excitation
         if ended:
-            self.link.release(None)
+            self.ports.overrides.release(None)
         self._send()
 
     # ------------------------------------------------------------------ held outputs
@@ -160,9 +163,9 @@ class Strategy(AutopilotStrategy):
         identification record and biased a22 and b2. So a held output is trimmed on its read-back
         (:meth:`_trim_held`), and the correction learnt is kept for the next excitation."""
         command = target + self._override_bias.get(actuator, 0.0)
-        self._excitation["held"][actuator] = {"target": target, "command": command, "sent_s": self.link.vehicle_time_s,
+        self._excitation["held"][actuator] = {"target": target, "command": command, "sent_s": self.now,
                                               "last_read": math.nan}
-        self.link.override(actuator, command)
+        self.ports.overrides.override(actuator, command)
 
     #: a read-back within this of its target is held as it is (about one PWM step of either channel)
     HOLD_TOLERANCE: ClassVar[dict[str, float]] = {"thrust": 0.0025, "rudder": 0.0015}
@@ -172,7 +175,7 @@ class Strategy(AutopilotStrategy):
     def _trim_held(self, telemetry: Telemetry) -> None:
         """Integral trim of each held override on its read-back, once the output has stopped moving
         (two equal read-backs) — the outputs are exact PWM read-backs, so one or two corrections do."""
-        if self._excitation is None or self.link.custom_mode != self.profile.modes["manual"]:
+        if self._excitation is None or not self.in_mode("manual"):
             return
         readings = {"thrust": telemetry.thrust_ratio, "rudder": telemetry.rudder}
         for actuator, held in self._excitation["held"].items():
@@ -188,7 +191,7 @@ class Strategy(AutopilotStrategy):
             held["sent_s"] = telemetry.time_s
             self._override_bias[actuator] = held["command"] - held["target"]
             log.debug("%s held at %.4f reads %.4f: override now %.4f", actuator, held["target"], read, held["command"])
-            self.link.override(actuator, held["command"])
+            self.ports.overrides.override(actuator, held["command"])
 
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
         if self._excitation is None and self._in_guided() and telemetry.time_s - self._sent_at >= self.refresh_s:

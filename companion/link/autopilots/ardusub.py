@@ -24,7 +24,7 @@ ArduSub habits the strategy answers for:
   channel at its **last value**: the forward channel would keep the thrust, the yaw channel a
   turn. So :meth:`Strategy.release` centres a stick (1500 µs: stop, no turn, no climb) and
   releases it ``RELEASE_AFTER_S`` later (both in one ArduSub loop leave the old value). A restore
-  that calls ``VehicleLink.release`` directly bypasses this.
+  that released the overrides directly would bypass this: it goes through the strategy.
 * ArduSub disarms after FS_PILOT_TIMEOUT (3 s) without pilot input (FS_PILOT_INPUT, "Lost manual
   control"), and after 5 s without a heartbeat from the ground station's system id
   (FS_GCS_ENABLE). While connected, the companion is the pilot: it sends a GCS heartbeat every
@@ -46,9 +46,9 @@ import math
 from dataclasses import dataclass, replace
 
 from companion.interface import Telemetry
-from companion.link.autopilots.base import AutopilotStrategy, yaw_quaternion
-from companion.link.overrides import OverrideTable
-from companion.link.profile import AutopilotProfile
+from companion.link.autopilots.ardupilot import ArduPilotStrategy, yaw_quaternion
+from companion.link.errors import ParamTimeout
+from companion.link.profile import AutopilotProfile, CampaignDefaults
 
 #: the native gain ranges the cascade design keeps to on ArduSub (AC_AttitudeControl_Sub's documented
 #: ATC_ANG_YAW_P 0–6 and ATC_RAT_YAW_I 0–0.05). ATC_RAT_YAW_FF: 0, because ArduSub 4.7 computes the
@@ -61,8 +61,8 @@ from companion.link.profile import AutopilotProfile
 #: |yaw| must stay below 1 or both are clipped (forward 0.65 leaves 0.35 of yaw, the 0.12 rad of
 #: equivalent rudder the heading loop and a 0.10 rad doublet need); yaw only (no pitch actuator).
 #: On the STARFISH physics 0.45, 0.55, 0.65 run at about 0.7, 1.0 and 1.26 m/s.
-CAMPAIGN_DEFAULTS = {"thrusts": (0.45, 0.55, 0.65), "axes": ("yaw",),
-                     "training_amplitude": 0.10, "validation_amplitude": 0.08}  # rad of equivalent rudder
+CAMPAIGN_DEFAULTS = CampaignDefaults(thrusts=(0.45, 0.55, 0.65), axes=("yaw",),
+                                     training_amplitude=0.10, validation_amplitude=0.08)  # rad of equivalent rudder
 GAIN_RANGES = {"angle_p_range": (0.0, 6.0), "rate_p_range": (0.0, 2.0), "rate_i_range": (0.0, 0.05),
                "rate_ff_range": (0.0, 0.0)}
 
@@ -95,6 +95,7 @@ PROFILE = AutopilotProfile(
     train_full_window=True,
     gain_ranges=GAIN_RANGES,
     campaign_defaults=CAMPAIGN_DEFAULTS,
+    thrust_meaning="the pilot's forward stick (RC 5, held by an override; 1 = full ahead)",
 )
 
 #: the base streams, GLOBAL_POSITION_INT (depth) and HOME_POSITION (the surface, see Strategy.depth)
@@ -158,12 +159,12 @@ def throttle_stick(throttle: float) -> int:
     return round(STICK_CENTRE + value * STICK_HALF_RANGE)
 
 
-class Strategy(AutopilotStrategy):
+class Strategy(ArduPilotStrategy):
     streams = STREAMS
     refresh_s = 1.0
 
-    def __init__(self, link) -> None:
-        super().__init__(link)
+    def __init__(self, ports) -> None:
+        super().__init__(ports)
         self.heading = math.nan
         self._sent_at = -math.inf
         self._gcs_heartbeat_at = -math.inf
@@ -173,26 +174,39 @@ class Strategy(AutopilotStrategy):
         self._manual_yaw_scale: float | None = None  # ACRO_YAW_P / 3.375
         self._release_at: dict[str, float] = {}  # centred sticks -> vehicle time to release them
         self._manual_depth = math.nan  # the depth MANUAL was entered at (the throttle stick keeps it)
+        self._home_altitude_mm: float | None = None  # HOME_POSITION.altitude (mm above sea level)
+        self._altitude_mm: float | None = None  # GLOBAL_POSITION_INT.alt
+        ports.transport.on("HOME_POSITION", self._on_home_position)
+        ports.transport.on("GLOBAL_POSITION_INT", self._on_global_position)
 
     def _in_hold(self) -> bool:
-        return self.link.custom_mode == self.profile.modes["hold"]
+        return self.in_mode("hold")
 
     def _in_manual(self) -> bool:
-        return self.link.custom_mode == self.profile.modes["manual"]
+        return self.in_mode("manual")
+
+    def _on_home_position(self, msg) -> None:
+        if self.ports.transport.from_vehicle(msg):
+            self._home_altitude_mm = msg.altitude
+
+    def _on_global_position(self, msg) -> None:
+        if self.ports.transport.from_vehicle(msg):
+            self._altitude_mm = msg.alt
 
     # ------------------------------------------------------------------ set-points
     def set_heading(self, heading: float) -> None:
         self.heading = heading
         self._send()
 
-    def set_thrust(self, thrust_ratio: float) -> None:
-        if not 0.0 <= thrust_ratio <= 1.0:
-            raise ValueError(f"thrust ratio {thrust_ratio!r} outside 0..1")
+    def set_thrust(self, thrust_level: float) -> None:
+        """The thrust level is the pilot's forward stick here (RC 5, held by an override)."""
+        if not 0.0 <= thrust_level <= 1.0:
+            raise ValueError(f"thrust level {thrust_level!r} outside 0..1")
         self._release_at.pop("thrust", None)
-        self.link.override("thrust", thrust_ratio)
+        self.ports.overrides.override("thrust", thrust_level)
 
     def set_depth(self, depth: float) -> None:
-        latest = self.link.latest_telemetry
+        latest = self.latest()
         here = latest.depth if latest is not None else math.nan
         if not (math.isfinite(here) and abs(here - depth) <= 0.5):
             raise self._cannot(f"depth target: ALT_HOLD holds the depth it is entered at ({here:.2f} m), "
@@ -201,8 +215,8 @@ class Strategy(AutopilotStrategy):
     def _send(self) -> None:
         if not self._in_hold() or not math.isfinite(self.heading):
             return
-        self.link.send_attitude_target(yaw_quaternion(self.heading), 0.5, ignore_thrust=True)
-        self._sent_at = self.link.vehicle_time_s
+        self.send_attitude_target(yaw_quaternion(self.heading), 0.5, ignore_thrust=True)
+        self._sent_at = self.now
 
     def mode_changed(self, neutral: str) -> None:
         if self._in_hold():  # MANUAL's sticks are not ALT_HOLD's: centre them, then give them back
@@ -215,23 +229,23 @@ class Strategy(AutopilotStrategy):
         self._release_at.pop(actuator, None)
         if actuator == "rudder" and self._in_hold():
             scale = self._yaw_scale()
-            latest = self.link.latest_telemetry
+            latest = self.latest()
             self._manual_depth = latest.depth if latest is not None else math.nan
             self._release_at.pop("vertical", None)
-            self.link.override_raw("vertical", throttle_stick(self._vertical_mean))  # before the switch
-            self.link.override(actuator, value / scale)
-            self.link.set_mode("manual")
+            self.ports.overrides.override_raw("vertical", throttle_stick(self._vertical_mean))  # before the switch
+            self.ports.overrides.override(actuator, value / scale)
+            self.ports.modes.set_mode("manual")
             return
         if actuator == "rudder" and self._in_manual():
             value /= self._yaw_scale()
-        self.link.override(actuator, value)
+        self.ports.overrides.override(actuator, value)
 
     def release(self, actuator: str | None) -> None:
         if actuator == "rudder" and self._in_manual():
-            self.link.override(actuator, 0.0)  # MANUAL: centred yaw stick, a known zero output
+            self.ports.overrides.override(actuator, 0.0)  # MANUAL: centred yaw stick, a known zero output
             return
         names = [actuator] if actuator is not None else [name for name in self.profile.channels
-                                                        if self.profile.channels[name] in self.link.overrides.active]
+                                                        if self.ports.overrides.holds(name)]
         for name in names:
             self._centre_and_release(name)
 
@@ -239,28 +253,25 @@ class Strategy(AutopilotStrategy):
         """Centre the stick, and release it ``RELEASE_AFTER_S`` later: ArduSub keeps a released
         override's last value, and a centring and a release that arrive within one of its loops
         leave the stick where it was (measured: a descent demand outlived its release)."""
-        channel = self.profile.channel(actuator)
-        if channel not in self.link.overrides.active:
-            self.link.release(actuator)
+        if not self.ports.overrides.holds(actuator):
+            self.ports.overrides.release(actuator)
             return
-        self.link.override_raw(actuator, STICK_CENTRE)
-        self._release_at[actuator] = self.link.vehicle_time_s + RELEASE_AFTER_S
+        self.ports.overrides.override_raw(actuator, STICK_CENTRE)
+        self._release_at[actuator] = self.now + RELEASE_AFTER_S
 
     def _release_centred(self, now: float) -> None:
         for actuator, due in list(self._release_at.items()):
             if now < due:
                 continue
             del self._release_at[actuator]
-            if self.link.overrides.active.get(self.profile.channel(actuator)) == STICK_CENTRE:
-                self.link.release(actuator)
+            if self.ports.overrides.held_pwm(actuator) == STICK_CENTRE:
+                self.ports.overrides.release(actuator)
 
     def _yaw_scale(self) -> float:
         """MANUAL's yaw scale ACRO_YAW_P / 3.375, read once (1 when the vehicle does not answer)."""
         if self._manual_yaw_scale is None:
-            from companion.link.errors import ParamTimeout
-
             try:
-                value = self.link.get_param("ACRO_YAW_P", retries=2)
+                value = self.ports.parameters.get_param("ACRO_YAW_P", retries=2)
             except ParamTimeout:
                 value = ACRO_YAW_P_DEFAULT
             self._manual_yaw_scale = value / ACRO_YAW_P_DEFAULT if value > 0 else 1.0
@@ -270,21 +281,21 @@ class Strategy(AutopilotStrategy):
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
         now = telemetry.time_s
         if now - self._gcs_heartbeat_at >= 1.0:
-            self.link.send_gcs_heartbeat()
+            self.send_gcs_heartbeat()
             self._gcs_heartbeat_at = now
-        if self.link.overrides.pending:
+        if self.ports.overrides.pending:
             self._pilot_at = now  # the link refreshes what is held with this snapshot
         elif now - self._pilot_at >= PILOT_PRESENCE_S:
             # the pilot is present, no stick moves: an override whose every channel says "ignore"
-            self.link._send_rc_override(OverrideTable().channel_values())
+            self.ports.overrides.no_change()
             self._pilot_at = now
         self._release_centred(now)
         if self._in_hold() and now - self._sent_at >= self.refresh_s:
             self._send()
-        mixed = unmix_vectored(self.link.servo_pwm())
+        mixed = unmix_vectored(self.ports.telemetry.servo_pwm())
         if mixed is None:
             return telemetry
-        if self._in_hold() and self.link.armed and math.isfinite(mixed.throttle):
+        if self._in_hold() and self.ports.announcements.armed and math.isfinite(mixed.throttle):
             self._average_vertical(now, mixed.throttle)
         depth = self.depth(telemetry.depth)
         if self._in_manual():
@@ -301,11 +312,9 @@ class Strategy(AutopilotStrategy):
         otherwise (SITL gives a fix under water: measured 0.0 m at 2 m). GLOBAL_POSITION_INT.alt is
         the origin's altitude minus that down position, so home minus it is the depth either way.
         Before home is set, relative_alt is ArduSub's depth sensor reading: ``reported`` is kept."""
-        messages = getattr(self.link.master, "messages", {})
-        home, position = messages.get("HOME_POSITION"), messages.get("GLOBAL_POSITION_INT")
-        if home is None or position is None:
+        if self._home_altitude_mm is None or self._altitude_mm is None:
             return reported
-        return (home.altitude - position.alt) / 1000.0
+        return (self._home_altitude_mm - self._altitude_mm) / 1000.0
 
     def _hold_depth(self, depth: float) -> None:
         """MANUAL with the vertical stick held by this strategy: keep the depth MANUAL was entered at
@@ -313,15 +322,14 @@ class Strategy(AutopilotStrategy):
         thrust alone let the AUV rise 1.1 m in one record (its 10 s mean still swings ±0.03 of
         throttle, 2 N against 1.9 N of buoyancy; measured), and ArduSub's EKF re-aligned its yaw
         on the magnetometer in the middle of the record (a 2° heading jump)."""
-        channel = self.profile.channel("vertical")
-        if channel not in self.link.overrides.active or "vertical" in self._release_at:
+        if not self.ports.overrides.holds("vertical") or "vertical" in self._release_at:
             return
         if not (math.isfinite(depth) and math.isfinite(self._manual_depth)):
             return
         correction = DEPTH_STICK_GAIN * (depth - self._manual_depth)  # deeper than wanted: climb
         correction = min(max(correction, -DEPTH_STICK_LIMIT), DEPTH_STICK_LIMIT)
         base = self._vertical_mean if math.isfinite(self._vertical_mean) else 0.0
-        self.link.override_raw("vertical", throttle_stick(base + correction))
+        self.ports.overrides.override_raw("vertical", throttle_stick(base + correction))
 
     def _average_vertical(self, now: float, throttle: float) -> None:
         """First-order mean (``VERTICAL_AVERAGE_S``, vehicle time) of ALT_HOLD's vertical thrust."""

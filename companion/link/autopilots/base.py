@@ -4,14 +4,26 @@ A strategy turns the product's neutral commands into what one autopilot accepts:
 and thrust set-points, open-loop actuator excitation and its release, the telemetry streams to
 ask for, and per-snapshot upkeep (targets that must be refreshed, a ground-station heartbeat the
 failsafe needs). The link (``VehicleLink``) holds no autopilot-specific branch; it calls these.
+A strategy is given the link's parts as :class:`LinkPorts` and uses nothing else.
 """
 from __future__ import annotations
 
 import logging
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 from companion.interface import Telemetry
+from companion.link.clock import VehicleClock
+from companion.link.commands import CommandChannel
+from companion.link.errors import ProfileError
+from companion.link.ground_station import GroundStation
+from companion.link.modes import ModeControl
+from companion.link.overrides import OverrideChannels
+from companion.link.parameters import ParameterChannel
+from companion.link.profile import AutopilotProfile
+from companion.link.telemetry import TelemetryFeed
+from companion.link.transport import Transport
+from companion.link.vehicle_state import VehicleAnnouncements
 
 log = logging.getLogger(__name__)
 
@@ -24,6 +36,25 @@ BASE_STREAMS: dict[int, float] = {
 }
 
 
+@dataclass
+class LinkPorts:
+    """The parts of the link a strategy may use, each owning its state (``companion.link``).
+
+    A strategy reaches the vehicle only through these: it never holds the connection object nor
+    calls a private method of another part."""
+
+    transport: Transport
+    clock: VehicleClock
+    announcements: VehicleAnnouncements
+    commands: CommandChannel
+    modes: ModeControl
+    parameters: ParameterChannel
+    overrides: OverrideChannels
+    telemetry: TelemetryFeed
+    ground: GroundStation
+    profile: AutopilotProfile | None = None
+
+
 class AutopilotStrategy:
     """Base strategy: every method says clearly what it cannot do (ProfileError), never guesses."""
 
@@ -33,12 +64,25 @@ class AutopilotStrategy:
     #: telemetry by a restore point and put back after a procedure (none by default)
     persistent_setpoints: tuple[str, ...] = ()
 
-    def __init__(self, link) -> None:
-        self.link = link
+    def __init__(self, ports: LinkPorts) -> None:
+        self.ports = ports
 
     @property
-    def profile(self):
-        return self.link.profile
+    def profile(self) -> AutopilotProfile:
+        return self.ports.profile
+
+    @property
+    def now(self) -> float:
+        """Vehicle time (s)."""
+        return self.ports.clock.vehicle_time_s
+
+    def latest(self) -> Telemetry | None:
+        """The newest telemetry snapshot."""
+        return self.ports.telemetry.latest
+
+    def in_mode(self, neutral: str) -> bool:
+        """The latest HEARTBEAT shows the profile's mode ``neutral``."""
+        return self.ports.announcements.custom_mode == self.profile.modes[neutral]
 
     # ------------------------------------------------------------------ set-points
     def set_heading(self, heading: float) -> None:
@@ -47,17 +91,24 @@ class AutopilotStrategy:
     def set_depth(self, depth: float) -> None:
         raise self._cannot("a depth set-point")
 
-    def set_thrust(self, thrust_ratio: float) -> None:
+    def set_thrust(self, thrust_level: float) -> None:
         raise self._cannot("a thrust set-point")
 
+    def set_rolling_mass(self, angle: float) -> None:
+        raise self._cannot("rolling-mass servo")
+
     # ------------------------------------------------------------------ open-loop excitation
+    def send_overrides(self, values: list[int]) -> None:
+        """Put RC channel values (``companion.link.overrides``) on the vehicle."""
+        raise self._cannot("RC override")
+
     def override(self, actuator: str, value: float) -> None:
-        """Drive ``actuator`` open loop (RC override from the GCS system id, kept alive)."""
-        self.link.override(actuator, value)
+        """Drive ``actuator`` open loop (kept alive until released)."""
+        self.ports.overrides.override(actuator, value)
 
     def release(self, actuator: str | None) -> None:
         """Give ``actuator`` (None: all) back to the autopilot."""
-        self.link.release(actuator)
+        self.ports.overrides.release(actuator)
 
     def mode_changed(self, neutral: str) -> None:
         """Called after the link switched mode (targets a new mode needs are sent here)."""
@@ -95,9 +146,7 @@ class AutopilotStrategy:
         self._servo_state = (telemetry.time_s, modelled, telemetry.rudder)
         return replace(telemetry, rudder=modelled)
 
-    def _cannot(self, what: str):
-        from companion.link.errors import ProfileError
-
+    def _cannot(self, what: str) -> ProfileError:
         return ProfileError(f"the {self.profile.name} profile has no {what}")
 
 
@@ -106,8 +155,3 @@ def _slew(position: float, target: float, max_step: float) -> float:
     if not math.isfinite(target):
         return position
     return position + max(-max_step, min(max_step, target - position))
-
-
-def yaw_quaternion(heading: float) -> list[float]:
-    """(w, x, y, z) of a level attitude at ``heading`` (rad, clockwise from north)."""
-    return [math.cos(heading / 2.0), 0.0, 0.0, math.sin(heading / 2.0)]

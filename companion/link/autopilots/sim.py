@@ -1,12 +1,14 @@
 """Our simulator's autopilot (docs/PROTOCOL.md): set-points by COMMAND_LONG, per-channel RC
-override in the holding mode, actuator positions read back from SERVO_OUTPUT_RAW, depth from
-SCALED_PRESSURE. Every set-point must be acknowledged: a refusal or a missing answer aborts the
-procedure (``VehicleLink.next_telemetry`` raises)."""
+override in the holding mode (ArduPilot's rules: from the ground station's id), the rolling mass by
+DO_SET_SERVO, actuator positions read back from SERVO_OUTPUT_RAW, depth from SCALED_PRESSURE.
+Every set-point must be acknowledged: a refusal or a missing answer aborts the procedure
+(``VehicleLink.next_telemetry`` raises)."""
 from __future__ import annotations
 
 import math
 
-from companion.link.autopilots.base import BASE_STREAMS, AutopilotStrategy
+from companion.link.autopilots.ardupilot import ArduPilotStrategy
+from companion.link.autopilots.base import BASE_STREAMS
 from companion.link.profile import AutopilotProfile
 
 MAV_CMD_CONDITION_YAW = 115
@@ -36,19 +38,21 @@ PROFILE = AutopilotProfile(
     flown=True,
     heading_schedule="heading",
     strategy="sim",
+    thrust_meaning="the simulator's thrust ratio (its thruster map, SPEC §3.5), sent as DO_CHANGE_SPEED percent",
 )
 
 
-class Strategy(AutopilotStrategy):
+class Strategy(ArduPilotStrategy):
     streams = {**BASE_STREAMS, 29: 10.0}  # + SCALED_PRESSURE (depth)
     # the holding mode keeps the last thrust and heading commanded and the mass servo its position
     persistent_setpoints = ("thrust", "heading", "rolling_mass")
 
     def set_heading(self, heading: float) -> None:
-        self.link.send_setpoint(MAV_CMD_CONDITION_YAW, (math.degrees(heading) % 360.0, 0.0, 0.0, 0.0))
+        self.ports.commands.send_setpoint(MAV_CMD_CONDITION_YAW, (math.degrees(heading) % 360.0, 0.0, 0.0, 0.0))
 
     def set_depth(self, depth: float) -> None:
-        self.link.send_setpoint(MAV_CMD_DO_CHANGE_ALTITUDE, (-depth, 0.0))
+        self.ports.commands.send_setpoint(MAV_CMD_DO_CHANGE_ALTITUDE, (-depth, 0.0))
 
-    def set_thrust(self, thrust_ratio: float) -> None:
-        self.link.send_setpoint(MAV_CMD_DO_CHANGE_SPEED, (0.0, -1.0, 100.0 * thrust_ratio))
+    def set_thrust(self, thrust_level: float) -> None:
+        """The thrust level is the simulator's thrust ratio, sent as DO_CHANGE_SPEED percent."""
+        self.ports.commands.send_setpoint(MAV_CMD_DO_CHANGE_SPEED, (0.0, -1.0, 100.0 * thrust_level))

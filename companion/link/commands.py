@@ -1,0 +1,149 @@
+"""COMMAND_LONG to the autopilot: acknowledged commands and set-points (SPEC C1, docs/PROTOCOL.md).
+
+Two kinds of command:
+
+* :meth:`CommandChannel.command` sends and waits (vehicle time, retried) for the COMMAND_ACK and
+  returns its result (mode changes, arming, servo moves that must be confirmed);
+* :meth:`CommandChannel.send_setpoint` sends a set-point without waiting; its acknowledgement is
+  awaited in the background. A set-point the vehicle refused, or left unanswered for three command
+  periods of vehicle time, fails the procedure that sent it (:meth:`check_answers` raises
+  CommandFailed at the next snapshot); one unanswered for a command period is sent again first
+  (a frame lost on the link). Set-points are absolute, so a vehicle that did get the first one is
+  not moved by the second.
+"""
+from __future__ import annotations
+
+import collections
+import logging
+import math
+from typing import Any, Sequence
+
+from companion.link.clock import VehicleClock
+from companion.link.errors import CommandFailed
+from companion.link.transport import Transport
+
+log = logging.getLogger(__name__)
+
+MAV_RESULT_ACCEPTED = 0
+MAV_RESULT_IN_PROGRESS = 5
+MAV_CMD_DO_SET_SERVO = 183
+
+
+class CommandChannel:
+    """Commands to the autopilot and what it answered (see the module docstring)."""
+
+    def __init__(self, transport: Transport, clock: VehicleClock) -> None:
+        self.transport = transport
+        self.clock = clock
+        self.acks: dict[int, tuple[int, int, int]] = {}  # command -> (result, progress, arrival counter)
+        self.ack_count = 0
+        self.rejected: collections.deque[tuple[float, int, int]] = collections.deque(maxlen=64)
+        self._awaiting: dict[int, float] = {}  # set-point command -> vehicle time it was sent
+        # set-point command -> (its latest parameters, vehicle time last sent, times sent)
+        self._sends: dict[int, tuple[tuple[float, ...], float, int]] = {}
+        self._refusals: collections.deque[str] = collections.deque(maxlen=16)
+        transport.on("COMMAND_ACK", self._on_command_ack)
+
+    @property
+    def period_s(self) -> float:
+        return self.clock.timeouts.command_s
+
+    # ------------------------------------------------------------------ acknowledged commands
+    def send(self, command: int, params: Sequence[float], *, confirmation: int = 0) -> int:
+        """Send a COMMAND_LONG; returns the acknowledgement counter to wait from."""
+        self.transport.command_long(command, tuple(params), confirmation=confirmation)
+        return self.ack_count
+
+    def answered_since(self, command: int, since: int) -> tuple[int, int] | None:
+        """(result, progress) of an acknowledgement of ``command`` that arrived after counter ``since``."""
+        ack = self.acks.get(command)
+        return (ack[0], ack[1]) if ack is not None and ack[2] > since else None
+
+    def command(self, command: int, params: Sequence[float], *, retries: int = 2) -> int:
+        """Send a COMMAND_LONG and wait (vehicle time) for its ACK; returns the MAV_RESULT.
+        Raises CommandFailed when no ACK arrives after all tries."""
+        for attempt in range(retries + 1):
+            since = self.send(command, params, confirmation=attempt)
+            if self.clock.wait_until(lambda: self.answered_since(command, since) is not None, self.period_s):
+                return self.acks[command][0]
+        raise CommandFailed(f"no COMMAND_ACK for command {command}", command=command)
+
+    def set_servo(self, output: int, pwm: int, *, wait: bool = False) -> None:
+        """DO_SET_SERVO on a spare output. With ``wait``, raise CommandFailed unless ACCEPTED."""
+        if not wait:
+            self.send(MAV_CMD_DO_SET_SERVO, (float(output), float(pwm)))
+            return
+        result = self.command(MAV_CMD_DO_SET_SERVO, (float(output), float(pwm)))
+        if result != MAV_RESULT_ACCEPTED:
+            raise CommandFailed(f"DO_SET_SERVO output {output} refused: result {result}",
+                                command=MAV_CMD_DO_SET_SERVO, result=result)
+
+    # ------------------------------------------------------------------ set-points
+    def send_setpoint(self, command: int, params: Sequence[float]) -> None:
+        """A set-point COMMAND_LONG whose ACK is awaited in the background (module docstring)."""
+        self.send(command, params)
+        now = self.clock.vehicle_time_s if math.isfinite(self.clock.vehicle_time_s) else 0.0
+        self._awaiting.setdefault(command, now)
+        self._sends[command] = (tuple(params), now, 1)
+
+    @property
+    def awaiting(self) -> tuple[int, ...]:
+        """Set-point commands sent and not yet acknowledged."""
+        return tuple(self._awaiting)
+
+    def check_answers(self) -> None:
+        """Raise CommandFailed for a refused set-point or one unanswered for 3 command periods of
+        vehicle time; send again those unanswered for one period."""
+        if self._refusals:
+            reason = self._refusals.popleft()
+            self._refusals.clear()
+            raise CommandFailed(reason)
+        now = self.clock.vehicle_time_s
+        overdue = [c for c, sent in self._awaiting.items() if now - sent > 3.0 * self.period_s]
+        if overdue:
+            self._awaiting.clear()
+            raise CommandFailed(f"the vehicle did not acknowledge command {overdue[0]}", command=overdue[0])
+        self._resend()
+
+    def _resend(self) -> None:
+        """Send again every awaited set-point last sent a command period of vehicle time ago."""
+        now = self.clock.vehicle_time_s
+        for command in list(self._awaiting):
+            params, last, sends = self._sends.get(command, ((), -math.inf, 1))
+            if params and now - last >= self.period_s:
+                log.info("command %d unanswered for %.1f s: sent again", command, now - last)
+                self.send(command, params, confirmation=min(sends, 255))
+                self._sends[command] = (params, now, sends + 1)
+
+    def await_setpoints(self) -> None:
+        """Wait (vehicle time, three command periods, sending unanswered ones again each period)
+        until every set-point sent has been acknowledged; CommandFailed on a refusal or when one
+        is still unanswered."""
+        for _period in range(3):
+            if self.clock.wait_until(lambda: not self._awaiting or bool(self._refusals), self.period_s):
+                break
+            self._resend()
+        if self._refusals:
+            reason = self._refusals.popleft()
+            self._refusals.clear()
+            self._awaiting.clear()
+            raise CommandFailed(reason)
+        if self._awaiting:
+            unanswered = sorted(self._awaiting)
+            self._awaiting.clear()
+            raise CommandFailed(f"the vehicle did not acknowledge command {unanswered[0]}", command=unanswered[0])
+
+    # ------------------------------------------------------------------ receiving
+    def _on_command_ack(self, msg: Any) -> None:
+        if not self.transport.from_vehicle(msg):
+            return
+        if not self.transport.aimed_at_us(getattr(msg, "target_system", 0), getattr(msg, "target_component", 0)):
+            return
+        self.ack_count += 1
+        self.acks[msg.command] = (msg.result, getattr(msg, "progress", 0) or 0, self.ack_count)
+        awaited = self._awaiting.pop(msg.command, None) is not None
+        if msg.result not in (MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS):
+            self.rejected.append((self.clock.vehicle_time_s, msg.command, msg.result))
+            log.warning("vehicle answered command %d with result %d", msg.command, msg.result)
+            if awaited:
+                self._refusals.append(f"the vehicle refused command {msg.command} (MAV_RESULT {msg.result})")
