@@ -6,7 +6,7 @@ not depend on the speed-up). Prints roll std open/closed and wall time.
 import argparse
 import time
 
-from companion.cli.launcher import SimulatorProcess
+from companion.rehearsal.launcher import SimulatorProcess
 from companion.link.vehicle import VehicleLink
 from companion.procedures.app import AbortFlag
 from companion.procedures.roll import RollProcedureConfig, roll_procedure
@@ -25,7 +25,7 @@ def main() -> None:
                 link = VehicleLink.connect(sim.endpoint, lockstep=lockstep)
                 link.arm(True)
                 t = time.monotonic()
-                r = roll_procedure(link, AbortFlag(), cfg, simulator=True)
+                r = roll_procedure(link, AbortFlag(), cfg, simulator=True).to_json()
                 link.close()
             print("lockstep", lockstep, "x", f"{speedup:g}", "open %.3f closed %.3f" % (r["std_open_deg"], r["std_closed_deg"]),
                   "wall %.1f" % (time.monotonic() - t))

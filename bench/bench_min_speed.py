@@ -121,7 +121,7 @@ def hold_run(harness: str, seed: int, period: float, hold: float, seconds: float
         with mock.patch.object(procedure, "MinSpeedSeeking", product):
             result = procedure.min_speed_procedure(
                 InProcessLink(seed=seed), lambda: None,
-                procedure.MinSpeedProcedureConfig(duration_s=seconds, period_s=period))
+                procedure.MinSpeedProcedureConfig(duration_s=seconds, period_s=period)).to_json()
         assert result["status"] == "completed", result.get("abort_reason")
     return made[0]
 
@@ -166,7 +166,7 @@ def predicted_run(seed: int, config: procedure.MinSpeedProcedureConfig, seconds:
     with mock.patch.object(procedure, "MinSpeedSeeking", product):
         result = procedure.min_speed_procedure(
             InProcessLink(seed=seed), lambda: None, replace(config, duration_s=seconds),
-            analytic=procedure.analytic_minimum_speed("starfish"))
+            analytic=procedure.analytic_minimum_speed("starfish")).to_json()
     assert result["status"] == "completed", result.get("abort_reason")
     return made[0]
 

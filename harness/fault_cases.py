@@ -293,10 +293,8 @@ def _run_procedure(case: Case, link, store, abort) -> tuple[str, str | None, lis
     out = run_named_behavior(case.procedure, link, store, vehicle_id=vehicle_id, campaign_id=None, abort=abort,
                              preset="starfish", simulator=True, roll_config=roll_config(),
                              min_speed_config=min_speed_config())
-    outcome = out["outcome"]
-    result = out["result"]
-    return (result["status"], result.get("abort_reason"), list(result.get("restore_problems", [])),
-            getattr(outcome, "restore", None), {})
+    return (out.result.status, out.result.reason, list(out.result.restore_problems),
+            getattr(out.outcome, "restore", None), {})
 
 
 def run_case(sim, case: Case, store_path: Path, *, connect_timeout_s: float = 20.0) -> CaseResult:
@@ -325,7 +323,7 @@ def run_case(sim, case: Case, store_path: Path, *, connect_timeout_s: float = 20
                     result.crash = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}"
                     status, reason, restore_problems, restore, kept = None, None, [], None, {}
             proxy.disarm()
-            result.wall_decisions = link.wall_timeouts
+            result.wall_decisions = link.clock.wall_timeouts
             result.status, result.reason, result.restore_problems = status, reason, restore_problems
             result.faults = proxy.summary()
             if link.overrides.active:

@@ -12,7 +12,7 @@ import pytest
 
 from behaviors.identification import IdentificationManoeuvre, ManoeuvreConfig, doublet
 from companion.procedures.app import AbortFlag, drain_campaign_events
-from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
+from companion.procedures.campaign import AttemptRecorded, CampaignConfig, IdentificationCampaign
 from companion.interface import OverrideActuator
 from companion.procedures.runner import RestorePoint, SafetyLimits, run_behavior, run_procedure
 from companion.records.store import Store
@@ -78,7 +78,7 @@ def test_campaign_writes_scheduled_gains_and_keeps_them(completed):
 
 def test_campaign_events_reach_the_store(completed, tmp_path):
     _, campaign, _, _ = completed
-    campaign.events = [{"type": "run", "attempt": a} for a in campaign.accepted]
+    campaign.events = [AttemptRecorded(a) for a in campaign.accepted]
     with Store(tmp_path / "s.sqlite") as store:
         vehicle = store.add_vehicle("v")
         cid = store.start_campaign(vehicle, "identification")

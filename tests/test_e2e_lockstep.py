@@ -9,7 +9,7 @@ import pytest
 from companion.procedures.app import AbortFlag
 from companion.procedures.roll import RollProcedureConfig, roll_procedure
 from companion.link.vehicle import VehicleLink
-from companion.cli.launcher import SimulatorProcess
+from companion.rehearsal.launcher import SimulatorProcess
 
 pytestmark = pytest.mark.e2e
 
@@ -21,7 +21,7 @@ def roll_std(speedup: float) -> tuple[float, float]:
         link = VehicleLink.connect(sim.endpoint, lockstep=True)
         try:
             link.arm(True)
-            result = roll_procedure(link, AbortFlag(), CONFIG, simulator=True)
+            result = roll_procedure(link, AbortFlag(), CONFIG, simulator=True).to_json()
         finally:
             link.close()
     assert result["status"] == "completed"

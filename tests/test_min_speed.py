@@ -267,7 +267,7 @@ def test_product_procedure_with_the_default_hold():
     from companion.procedures.min_speed import MinSpeedProcedureConfig, min_speed_procedure
     from harness.inprocess import InProcessLink
 
-    result = min_speed_procedure(InProcessLink(seed=2), lambda: None, MinSpeedProcedureConfig())
+    result = min_speed_procedure(InProcessLink(seed=2), lambda: None, MinSpeedProcedureConfig()).to_json()
     assert result["status"] == "completed"
     assert abs(result["thrust_ratio_final"] - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR
     assert result["max_depth_error_m"] <= 0.3
@@ -285,7 +285,7 @@ def test_seeking_can_start_from_the_predicted_minimum_after_a_ramp():
     tr_star = analytic["thrust_ratio_star"]
     result = procedure.min_speed_procedure(
         InProcessLink(seed=3), lambda: None,
-        procedure.MinSpeedProcedureConfig(duration_s=120.0, start_margin=0.04, settle_s=30.0), analytic=analytic)
+        procedure.MinSpeedProcedureConfig(duration_s=120.0, start_margin=0.04, settle_s=30.0), analytic=analytic).to_json()
     assert result["status"] == "completed", result.get("abort_reason")
     ramp_s = (0.70 - (tr_star + 0.04)) / 0.005
     series = result["series"]
@@ -358,7 +358,7 @@ def test_governed_start_settles_within_two_percent_of_the_analytic_minimum():
     tr_star = analytic["thrust_ratio_star"]
     result = procedure.min_speed_procedure(
         InProcessLink(seed=2), lambda: None,
-        procedure.MinSpeedProcedureConfig.governed(duration_s=90.0, settle_s=30.0), analytic=analytic)
+        procedure.MinSpeedProcedureConfig.governed(duration_s=90.0, settle_s=30.0), analytic=analytic).to_json()
     assert result["status"] == "completed", result.get("abort_reason")
     series = result["series"]
     decided = [t for t, d in zip(series["time"], series["decision"]) if d is not None and d == d]

@@ -121,7 +121,7 @@ def test_roll_procedure_on_the_autopilot_reduces_measured_std_three_times(seed):
     from companion.procedures.roll import roll_procedure
     from harness.inprocess import InProcessLink
 
-    result = roll_procedure(InProcessLink(seed=seed), AbortFlag(), simulator=True)
+    result = roll_procedure(InProcessLink(seed=seed), AbortFlag(), simulator=True).to_json()
     assert result["status"] == "completed"
     assert result["speed"] == pytest.approx(1.4, abs=0.05)
     assert result["std_closed_deg"] * 3.0 <= result["std_open_deg"], (result["std_open_deg"], result["std_closed_deg"])

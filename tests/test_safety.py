@@ -143,8 +143,9 @@ def test_a_refused_simulator_hook_keeps_the_measured_data_and_closes_the_record(
         out = run_named_behavior("roll", link, store, vehicle_id=store.add_vehicle("v"), campaign_id=None,
                                  abort=AbortFlag(), simulator=True, roll_config=config)
         # a refused write aborts the procedure with the reason (never a warning that carries on)
-        assert out["result"]["status"] == "aborted" and "SIM_ROLL_KICK" in out["result"]["abort_reason"]
-        assert out["result"]["std_open_deg"] > 0 and out["result"]["std_closed_deg"] > 0  # measured before
+        result = out.result
+        assert result.status == "aborted" and "SIM_ROLL_KICK" in result.reason
+        assert result.figures["std_open_deg"] > 0 and result.figures["std_closed_deg"] > 0  # measured before
         assert store.campaigns()[0]["status"] == "aborted"
         assert store.behavior_results()[0]["kind"] == "roll"
     assert link.autopilot.params["SIM_ROLL_DIST"] == 0.0  # the disturbance hook is switched off again
@@ -155,7 +156,7 @@ def test_roll_procedure_leaves_the_mode_it_found():
     link = InProcessLink(seed=2)
     link.autopilot.set_mode(4)  # found in GUIDED
     result = roll_procedure(link, AbortFlag(), RollProcedureConfig(settle_s=5.0, open_s=10.0, closed_s=10.0,
-                                                                     kick_deg=0.0), simulator=True)
+                                                                     kick_deg=0.0), simulator=True).to_json()
     assert result["status"] == "completed" and link.mode == "guided"
 
 
@@ -165,6 +166,10 @@ def test_a_failure_before_any_progress_is_still_acknowledged():
 
         def send_command_ack(self, command, result, progress, *_):
             self.acks.append((command, result, progress))
+
+        @property
+        def ground(self):
+            return self
 
     link = Recorder()
     GcsProgress(link, 31010).finish(RunOutcome("aborted", "link lost", {}))
@@ -183,7 +188,7 @@ def test_pilot_takeover_during_roll_stabilisation_keeps_the_pilots_mode():
 
     link.next_telemetry = pilot
     result = roll_procedure(link, AbortFlag(), RollProcedureConfig(settle_s=5.0, open_s=10.0, closed_s=30.0,
-                                                                     kick_deg=0.0), simulator=True)
+                                                                     kick_deg=0.0), simulator=True).to_json()
     assert result["status"] == "aborted" and result["pilot_has_it"]
     assert link.mode == "manual" and link.autopilot.mass_angle_demand == 0.0
 
@@ -196,8 +201,8 @@ def test_a_procedure_that_does_not_apply_refuses_with_the_reason(name, why):
     with Store(":memory:") as store:
         out = run_named_behavior(name, link, store, vehicle_id=store.add_vehicle("boat"), campaign_id=None,
                                  abort=AbortFlag(), simulator=False)
-        assert out["result"]["status"] == "refused" and why in out["result"]["abort_reason"]
-        assert out["summary"]["status"] == "refused"
+        assert out.result.status == "refused" and why in out.result.reason and out.outcome is None
+        assert out.summary["status"] == "refused"
         assert store.campaigns()[0]["status"] == "refused"
 
 
@@ -208,7 +213,7 @@ def test_a_second_companion_on_the_vehicle_stops_the_procedure_and_the_vehicle_i
     import threading
 
     from companion.link.vehicle import VehicleLink
-    from companion.procedures.registry import GAIN_SCHEDULES  # noqa: F401 - the campaign's schedules load
+    from behaviors.schedules import GAIN_SCHEDULES  # noqa: F401 - the campaign's schedules load
     from pymavlink import mavutil
 
     sim = sim_factory(speedup=20.0, seed=4)

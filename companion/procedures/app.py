@@ -12,27 +12,29 @@ a final ACCEPTED (completed) or FAILED (aborted, with the reason in a STATUSTEXT
 from __future__ import annotations
 
 import logging
-import math
 import os
 import signal
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
-from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
+from pymavlink.dialects.v20.common import (MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_IN_PROGRESS,
+                                           MAV_RESULT_TEMPORARILY_REJECTED)
+
 from companion.interface import Behavior, Telemetry
+from companion.procedures.campaign import (AttemptRecorded, CampaignConfig, DesignMade, GainsWritten,
+                                           IdentificationCampaign, StepsChecked)
+from companion.procedures.registry import PROCEDURES, ProcedureContext
+from companion.procedures.results import ProcedureResult
 from companion.procedures.runner import (RestoreGuard, RestorePoint, RunOutcome, SafetyLimits, not_started,
                                          run_procedure)
 from companion.records.store import Store
 
-log = logging.getLogger(__name__)
+__all__ = ["MAV_RESULT_ACCEPTED", "MAV_RESULT_FAILED", "MAV_RESULT_IN_PROGRESS", "MAV_RESULT_TEMPORARILY_REJECTED",
+           "AbortFlag", "ConsoleProgress", "GcsProgress", "NamedRun", "drain_campaign_events", "install_signal_handlers",
+           "run_campaign", "run_named_behavior", "run_named_procedure", "vehicle_record"]
 
-from pymavlink.dialects.v20.common import (  # noqa: E402 - the protocol's own constants
-    MAV_RESULT_ACCEPTED,
-    MAV_RESULT_FAILED,
-    MAV_RESULT_IN_PROGRESS,
-    MAV_RESULT_TEMPORARILY_REJECTED,  # noqa: F401 - re-exported for the resident loop
-)
+log = logging.getLogger(__name__)
 
 
 class AbortFlag:
@@ -122,13 +124,14 @@ class GcsProgress:
         percent = int(max(0.0, min(1.0, fraction)) * 100)
         if percent >= self._last + 5 or (percent == 100 and self._last != 100):
             self._last = percent
-            self.link.send_command_ack(self.command, MAV_RESULT_IN_PROGRESS, percent,
-                                       self.target_system, self.target_component)
+            self.link.ground.send_command_ack(self.command, MAV_RESULT_IN_PROGRESS, percent,
+                                              self.target_system, self.target_component)
 
     def finish(self, outcome: RunOutcome) -> None:
         result = MAV_RESULT_ACCEPTED if outcome.status == "completed" else MAV_RESULT_FAILED
-        self.link.send_command_ack(self.command, result, 100 if result == MAV_RESULT_ACCEPTED else max(self._last, 0),
-                                   self.target_system, self.target_component)
+        self.link.ground.send_command_ack(self.command, result,
+                                          100 if result == MAV_RESULT_ACCEPTED else max(self._last, 0),
+                                          self.target_system, self.target_component)
 
 
 class ConsoleProgress:
@@ -161,19 +164,21 @@ def vehicle_record(store: Store, link, name: str | None = None, config: dict | N
 
 
 def drain_campaign_events(store: Store, campaign_id: int, campaign: IdentificationCampaign) -> None:
-    """Write what the campaign produced since the last call (one transaction per item); an event
+    """Write what the campaign produced since the last call (one transaction per event); an event
     leaves the queue only once it is stored, so a failed write is retried at the next call.
     Records go in typed: the store serialises them (``companion.records.serialise``)."""
     while campaign.events:
         event = campaign.events[0]
-        if event["type"] == "run":
-            store.add_run(campaign_id, event["attempt"])
-        elif event["type"] == "steps":
-            store.add_behavior_result(campaign_id, "heading_steps", "completed", event["result"])
-        elif event["type"] == "gains":
-            store.add_gains(campaign_id, event["speed"], event["before"], event["after"])
-        elif event["type"] == "design":
-            store.add_design(campaign_id, event["design"])
+        if isinstance(event, AttemptRecorded):
+            store.add_run(campaign_id, event.attempt)
+        elif isinstance(event, StepsChecked):
+            store.add_behavior_result(campaign_id, "heading_steps", "completed", event.result)
+        elif isinstance(event, GainsWritten):
+            store.add_gains(campaign_id, event.speed, event.before, event.after)
+        elif isinstance(event, DesignMade):
+            store.add_design(campaign_id, event.design)
+        else:
+            raise TypeError(f"unknown campaign event {event!r}")
         campaign.events.pop(0)
 
 
@@ -227,42 +232,45 @@ def run_campaign(
     return campaign, outcome, campaign_id
 
 
-def finite_or_none(value) -> float | None:
-    return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
+@dataclass(frozen=True)
+class NamedRun:
+    """A procedure run by name: its result (as the runner saw it end), the JSON figures of that
+    result, and the runner's outcome (None when the procedure did not apply and never started)."""
+
+    result: ProcedureResult
+    summary: dict
+    outcome: RunOutcome | None
 
 
 def run_named_procedure(name: str, link, store: Store, *, vehicle_id: int, campaign_id: int | None, abort,
-                        context=None, limits: SafetyLimits = SafetyLimits()) -> dict:
+                        context: ProcedureContext | None = None, limits: SafetyLimits = SafetyLimits()) -> NamedRun:
     """Run a registered procedure (``companion.procedures.registry.PROCEDURES``) by name under one
-    restore point, store its result, return {"result", "summary", "outcome"}."""
-    from companion.procedures.registry import PROCEDURES, ProcedureContext
-    from companion.procedures.roll import finish_result
-
+    restore point and store its result."""
     spec = PROCEDURES.get(name)
     if spec is None:
         raise ValueError(f"unknown procedure {name!r} ({', '.join(PROCEDURES)})")
     own = campaign_id is None
     if own:
         campaign_id = store.start_campaign(vehicle_id, name, {"preset": getattr(context, "preset", None)})
-    result: dict = {"status": "failed", "abort_reason": "not started"}
+    result = ProcedureResult(name, "not started", "not started")
     outcome = None
     refusal = spec.applies(getattr(link, "profile", None))
     if refusal is not None:  # never "completed": the procedure does not apply to this vehicle
-        result = {"status": "refused", "abort_reason": refusal}
-        store.add_behavior_result(campaign_id, name, "refused", result)
+        result = ProcedureResult(name, "refused", refusal)
+        store.add_behavior_result(campaign_id, name, "refused", result.to_json())
         if own:
             store.finish_campaign(campaign_id, "refused", refusal)
         _tell(link, f"{name} refused: {refusal}"[:50], 4)
-        return {"result": result, "summary": spec.summary(result), "outcome": None}
+        return NamedRun(result, spec.summary(result.to_json()), None)
     try:
         procedure = spec.build(link, context or ProcedureContext())
         outcome = run_procedure(link, procedure, limits=limits, abort_requested=abort)
-        result = finish_result(procedure.result(), outcome)
-        store.add_behavior_result(campaign_id, name, result["status"], result)
+        result = procedure.result().with_outcome(outcome)
+        store.add_behavior_result(campaign_id, name, result.status, result.to_json())
     finally:
         if own:
-            store.finish_campaign(campaign_id, result["status"], result.get("abort_reason"))
-    return {"result": result, "summary": spec.summary(result), "outcome": outcome}
+            store.finish_campaign(campaign_id, result.status, result.reason)
+    return NamedRun(result, spec.summary(result.to_json()), outcome)
 
 
 def _tell(link, text: str, severity: int) -> None:
@@ -274,18 +282,14 @@ def _tell(link, text: str, severity: int) -> None:
 
 def run_named_behavior(name: str, link, store: Store, *, vehicle_id: int, campaign_id: int | None, abort,
                        preset: str | None = None, simulator: bool = True, roll_config=None,
-                       min_speed_config=None, steady_config=None) -> dict:
+                       min_speed_config=None, steady_config=None) -> NamedRun:
     """:func:`run_named_procedure` for ``roll`` / ``min_speed`` / ``steady_state`` with their configurations."""
-    from dataclasses import replace as _replace
-
-    from companion.procedures.registry import ProcedureContext
-
     context = ProcedureContext(preset=preset, simulator=simulator)
     if roll_config is not None:
-        context = _replace(context, roll=roll_config)
+        context = replace(context, roll=roll_config)
     if min_speed_config is not None:
-        context = _replace(context, min_speed=min_speed_config)
+        context = replace(context, min_speed=min_speed_config)
     if steady_config is not None:
-        context = _replace(context, steady_state=steady_config)
+        context = replace(context, steady_state=steady_config)
     return run_named_procedure(name, link, store, vehicle_id=vehicle_id, campaign_id=campaign_id, abort=abort,
                                context=context)

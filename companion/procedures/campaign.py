@@ -12,9 +12,10 @@ One behaviour (a sequence under one restore point) that runs, in order:
 5. the scheduled gains for the current speed written to the autopilot.
 
 The records travel typed: each attempt is an :class:`IdentificationAttempt`, each design a
-:class:`GainDesign` holding the very schedule whose gains are written; :attr:`events` hands them
-to the application after every step (``companion.procedures.app``), which stores them through the
-one serialiser, so nothing already measured is lost if the process dies.
+:class:`GainDesign` holding the very schedule whose gains are written; :attr:`events` hands them,
+as :data:`CampaignEvent` records, to the application after every step
+(``companion.procedures.app``), which stores them through the one serialiser, so nothing already
+measured is lost if the process dies.
 
 Outcome: SUCCESS when at least one model was accepted and every requested schedule whose axis was
 identified could be designed; FAILURE otherwise, with the reason (the runner then restores every
@@ -25,7 +26,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import asdict, dataclass, field, replace
-from typing import Sequence
+from typing import Sequence, Union
 
 import numpy as np
 
@@ -37,8 +38,10 @@ from behaviors.sequence import Deferred, Instant, ParallelBehavior, SequenceBeha
 from behaviors.steadiness import SteadinessRule
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.cascade_gains import CascadeRules, quicktune_feed_forward
+from behaviors.schedules import schedule_kind
+from companion.checks import check_thrust_levels, require_choice, require_positive
 from companion.numerics.gains import CAMPAIGN_DAMPING, GainBounds
-from companion.procedures.registry import schedule_kind
+from companion.procedures.results import ProcedureResult
 
 log = logging.getLogger(__name__)
 
@@ -64,8 +67,44 @@ QUICK_CONVERGENCE_DELAY_S = 1.5
 #: 10-13 retries), a shorter pitch record (6 s after the doublet: 9-19 retries in 20 seeds)
 QUICK_R2_THRESHOLD = 0.9
 QUICK_PITCH_DOUBLET = 0.15  # rad, the quick procedure's pitch training and validation doublet
-#: the campaign procedures: issue 10's (the application's default) and the seeds' (thesis §3.3.1)
+#: the campaign procedures: the quick one (the application's default) and the seeds' (thesis §3.3.1)
 PROCEDURES = ("quick", "thesis")
+AXES = ("yaw", "pitch")
+
+
+# --------------------------------------------------------------------------- events
+@dataclass(frozen=True)
+class AttemptRecorded:
+    """An identification attempt ended (accepted or not): stored as a run."""
+
+    attempt: IdentificationAttempt
+
+
+@dataclass(frozen=True)
+class StepsChecked:
+    """A heading-step check ended: its figures."""
+
+    result: dict
+
+
+@dataclass(frozen=True)
+class DesignMade:
+    """A gain schedule was designed from the accepted models."""
+
+    design: GainDesign
+
+
+@dataclass(frozen=True)
+class GainsWritten:
+    """The campaign's final gains went to the autopilot (``before``: what they replaced)."""
+
+    speed: float
+    before: dict
+    after: dict
+
+
+#: what the campaign hands the application to store, in order
+CampaignEvent = Union[AttemptRecorded, StepsChecked, DesignMade, GainsWritten]
 
 
 @dataclass(frozen=True)
@@ -92,12 +131,25 @@ class CampaignConfig:
     verify: "GainCheck" = field(default_factory=lambda: GainCheck())
     # identify yaw and pitch at one thrust together (their doublets staggered) instead of in turn
     parallel_axes: bool = False
+    # fields the user set explicitly: the autopilot's campaign defaults do not replace them
+    user_set: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "thrusts", check_thrust_levels(self.thrusts, "CampaignConfig.thrusts"))
+        if not self.axes or len(set(self.axes)) != len(self.axes) or any(a not in AXES for a in self.axes):
+            raise ValueError(f"CampaignConfig.axes must be yaw and/or pitch, each once, not {self.axes!r}")
+        if self.depth is not None:
+            require_positive(self, "depth")
+        for label in self.step_labels:
+            if label not in ("original", "constant", "quicktune", "scheduled"):
+                raise ValueError(f"CampaignConfig.step_labels: unknown check {label!r} "
+                                 "(original, constant, quicktune, scheduled)")
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     def quick(self) -> "CampaignConfig":
-        """Issue 10's procedure (the application's default; ``--procedure thesis`` keeps the seeds'):
+        """The quick procedure (the application's default; ``--procedure thesis`` keeps the seeds'):
 
         - settles and resettles end once the vehicle is steady (the thesis' 40/15 s become the maximum);
         - the pre-excitation is 0.5 s, validation records end 4 s after their doublet (the slowest
@@ -137,32 +189,35 @@ class CampaignConfig:
         options = {"heading": self.bounds, "cascade": self.cascade}
         return [schedule_kind(name, options.get(name)) for name in self.schedules]
 
-    def with_profile_defaults(self, profile, *, keep: tuple[str, ...] = ()) -> "CampaignConfig":
+    def with_profile_defaults(self, profile) -> "CampaignConfig":
         """This configuration with the autopilot's campaign defaults (``profile.campaign_defaults``:
-        thrusts, axes and doublet amplitudes it can fly), except the fields named in ``keep`` (what
-        the user set explicitly). Without a profile, or with no defaults, unchanged."""
-        defaults = {k: v for k, v in (getattr(profile, "campaign_defaults", None) or {}).items() if k not in keep}
+        thrusts, axes and doublet amplitudes it can fly), except the fields in ``user_set``.
+        Without a profile, or with no defaults, unchanged."""
+        defaults = getattr(profile, "campaign_defaults", None)
+        given = {k: v for k, v in (defaults.given() if defaults is not None else {}).items() if k not in self.user_set}
         config = self
-        if "thrusts" in defaults:
-            config = replace(config, thrusts=tuple(defaults["thrusts"]))
-        if "axes" in defaults:
-            config = replace(config, axes=tuple(defaults["axes"]))
-        amplitudes = {k: defaults[k] for k in ("training_amplitude", "validation_amplitude") if k in defaults}
+        if "thrusts" in given:
+            config = replace(config, thrusts=tuple(given["thrusts"]))
+        if "axes" in given:
+            config = replace(config, axes=tuple(given["axes"]))
+        amplitudes = {k: given[k] for k in ("training_amplitude", "validation_amplitude") if k in given}
         if amplitudes:
             config = replace(config, yaw=replace(config.yaw, **amplitudes))
         return config
 
     def resolved_for(self, profile) -> "CampaignConfig":
-        """This configuration for one autopilot: "heading" names the profile's heading schedule
+        """This configuration for one autopilot, applied once by ``run_campaign``: its campaign
+        defaults (:meth:`with_profile_defaults`), "heading" naming the profile's heading schedule
         (the PI on the simulator, the native cascade on ArduPilot, designed for its rudder full
         scale), no depth set-point where the autopilot has none, and QuickTune's rule as the
         comparison on cascaded autopilots."""
         if profile is None:
             return self
+        config = self.with_profile_defaults(profile)
         heading = getattr(profile, "heading_schedule", "heading")
-        schedules = tuple(heading if name == "heading" else name for name in self.schedules)
-        config = replace(self, schedules=schedules,
-                         cascade=replace(self.cascade, full_scale=profile.angle_full_scale_rad,
+        schedules = tuple(heading if name == "heading" else name for name in config.schedules)
+        config = replace(config, schedules=schedules,
+                         cascade=replace(config.cascade, full_scale=profile.angle_full_scale_rad,
                                          **getattr(profile, "gain_ranges", {})))
         if not getattr(profile, "depth_setpoint", True):
             config = replace(config, depth=None)
@@ -188,6 +243,11 @@ class GainCheck:
     max_overshoot_pct: float = 10.0
     max_oscillations: int = 1
     better_than_original: bool = True
+
+    def __post_init__(self) -> None:
+        require_positive(self, "max_overshoot_pct")
+        if not (isinstance(self.max_oscillations, int) and self.max_oscillations >= 0):
+            raise ValueError(f"GainCheck.max_oscillations must be an integer ≥ 0, not {self.max_oscillations!r}")
 
     def verdict(self, steps: Sequence[dict]) -> str | None:
         """None when the check passes, else the reason."""
@@ -218,7 +278,7 @@ class IdentificationCampaign(Behaviour):
         self.config = config
         self.kinds = config.kinds()
         self.original_gains = dict(original_gains or {})
-        self.events: list[dict] = []  # drained by the application: {"type": "run"|"steps"|"design"|"gains", ...}
+        self.events: list[CampaignEvent] = []  # drained by the application (companion.procedures.app)
         self.accepted: list[IdentificationAttempt] = []
         self.manoeuvres: list[dict] = []
         self.designs: dict[str, GainDesign] = {}
@@ -285,7 +345,7 @@ class IdentificationCampaign(Behaviour):
                 texts.append(StatusText(f"{kind.name} design skipped: {exc}"[:50], 4))
                 continue
             self.designs[kind.name] = design
-            self.events.append({"type": "design", "design": design})
+            self.events.append(DesignMade(design))
             texts.append(StatusText(f"{kind.name} schedule designed at {len(design.points)} speeds"))
         return Instant(*texts, name="design")
 
@@ -305,11 +365,12 @@ class IdentificationCampaign(Behaviour):
         if label == "constant":  # one gain tuned at the lowest identified thrust, used everywhere
             lowest = min(design.points, key=lambda point: point.thrust)
             return dict(lowest.scheduled)
-        speeds = {point.thrust: point.speed for point in design.points}
-        speed = speeds.get(thrust)
-        if speed is None:  # this thrust has no accepted model: extrapolate on the nearest speed
-            speed = min(design.points, key=lambda point: abs(point.thrust - thrust)).speed
-        return dict(self.heading_kind.gains(design.schedule, speed))
+        point = next((p for p in design.points if p.thrust == thrust), None)
+        if point is not None:  # the design point's gains, as designed (computed once, carried here)
+            return dict(point.scheduled)
+        # this thrust has no accepted model: the schedule at the nearest identified speed
+        nearest = min(design.points, key=lambda p: abs(p.thrust - thrust))
+        return dict(nearest.scheduled)
 
     def _quicktune_feed_forward(self, thrust: float) -> float | None:
         """ArduRover QuickTune's FF rule on this thrust's training data (the nearest thrust with a model)."""
@@ -366,7 +427,7 @@ class IdentificationCampaign(Behaviour):
         self.final_gains = gains
         speed = speeds[0]
         before = {k: v for k, v in self.original_gains.items() if k in gains}
-        self.events.append({"type": "gains", "speed": speed, "before": before, "after": gains})
+        self.events.append(GainsWritten(speed, before, gains))
         thrust = telemetry.thrust_ratio if telemetry.finite("thrust_ratio") else self.config.thrusts[-1]
         text = " ".join(f"{k} {v:.3f}" for k, v in gains.items())
         commands: list[Command] = [SetParameters(gains)]
@@ -384,13 +445,13 @@ class IdentificationCampaign(Behaviour):
             self.phase_times = _add_times(self.phase_times, behavior.stage_times)
             self.manoeuvres.append({k: v for k, v in behavior.result().items() if k != "attempts"})
             for attempt in behavior.attempts:
-                self.events.append({"type": "run", "attempt": attempt})
+                self.events.append(AttemptRecorded(attempt))
                 if attempt.accepted:
                     self.accepted.append(attempt)
         elif isinstance(behavior, HeadingStepTest):
             result = behavior.result()
             self.step_results.append(result)
-            self.events.append({"type": "steps", "result": result})
+            self.events.append(StepsChecked(result))
 
     def progress(self) -> float:
         """Fraction of the campaign's manoeuvres and checks completed (0..1), for COMMAND_ACK."""
@@ -425,7 +486,7 @@ class IdentificationCampaign(Behaviour):
         return commands
 
     def _count_phase_time(self, now: float) -> None:
-        """Vehicle seconds per phase of the campaign (issue 10: what the campaign costs at sea):
+        """Vehicle seconds per phase of the campaign (what the campaign costs at sea):
         identification (settles, records), checks (heading steps) and the rest (design, writes)."""
         last = getattr(self, "_phase_clock", None)
         current = self._sequence.current if self._sequence is not None else None
@@ -456,10 +517,8 @@ class IdentificationCampaign(Behaviour):
             return self._sequence.stop(self.reason or "aborted")
         return []
 
-    def result(self) -> dict:
-        return {
-            "status": {Status.SUCCESS: "completed", Status.ABORTED: "aborted"}.get(self.status, self.status.value),
-            "reason": self.reason,
+    def result(self) -> ProcedureResult:
+        figures = {
             "config": self.config.to_dict(),
             "manoeuvres": self.manoeuvres,
             "accepted": [a.summary() for a in self.accepted],
@@ -469,6 +528,7 @@ class IdentificationCampaign(Behaviour):
             "steps": [{k: v for k, v in r.items() if k != "series"} for r in self.step_results],
             "final_gains": self.final_gains,
         }
+        return ProcedureResult.of("identification", self.status, self.reason, figures)
 
 
 def _add_times(total: dict[str, float], more: dict[str, float]) -> dict[str, float]:

@@ -1,4 +1,4 @@
-"""Health monitoring inside ``companion run`` (issue 11 item 2): the application side of
+"""Health monitoring inside ``companion run``: the application side of
 :class:`behaviors.health_monitor.HealthMonitor` — its reference from the store, its commands to
 the link, its records in the store.
 

@@ -1,4 +1,4 @@
-"""Identification from a recorded mission (issue 11 item 1; ``companion identify --log FILE``).
+"""Identification from a recorded mission (``companion identify --log FILE``).
 
 The same estimator a live campaign runs (SPEC C3: the SVF + RLS of
 :class:`companion.numerics.identification.YawIdentifier`, with the campaign's P0 and holds for the

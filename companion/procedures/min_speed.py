@@ -15,8 +15,10 @@ from dataclasses import dataclass, replace
 from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking
 from behaviors.observe import Observe
 from behaviors.sequence import Instant, SequenceBehavior
+from companion.checks import require_positive, require_range
 from companion.interface import SetMode, SetThrust
-from companion.procedures.roll import _status
+from companion.procedures.results import ProcedureResult, figures_of
+from companion.procedures.runner import SafetyLimits, run_for_result
 
 log = logging.getLogger(__name__)
 
@@ -27,12 +29,19 @@ class MinSpeedProcedureConfig:
     settle_s: float = 100.0
     duration_s: float = 200.0
     period_s: float | None = None  # None: the seeker's default Ts
-    # issue 10: start seeking at the analytic TR* (eq. 5.28–5.54, the vehicle's data) plus this
+    # start seeking at the analytic TR* (eq. 5.28–5.54, the vehicle's data) plus this
     # margin instead of at the nominal thrust; None: the thesis' start (nominal thrust)
     start_margin: float | None = None
     # the move there (None: today's 0.005/s ramp): governed by the autopilot's depth integrator with
     # this depth-error budget (m) along the model's level-flight pitch curve (MinSpeedConfig doc)
     start_depth_budget_m: float | None = None
+
+    def __post_init__(self) -> None:
+        require_range(self, "nominal_thrust", 0.0, 1.0)
+        require_positive(self, "settle_s", "duration_s")
+        require_range(self, "period_s", 1e-3, 60.0, optional=True)
+        require_range(self, "start_margin", -0.5, 0.5, optional=True)
+        require_range(self, "start_depth_budget_m", 1e-3, 10.0, optional=True)
 
     @classmethod
     def governed(cls, **overrides) -> "MinSpeedProcedureConfig":
@@ -74,16 +83,15 @@ class MinSpeedProcedure(SequenceBehavior):
                           Observe(config.settle_s, label="settle"), self.seeker],
                          name="min_speed", stop_on_failure=True)
 
-    def result(self) -> dict:
-        result = dict(self.seeker.result()) if self.seeker.status.finished else {}
-        result["status"] = _status(self.status)
-        if self.reason and result["status"] != "completed":
-            result["abort_reason"] = self.reason
-        result["depth_gains_source"] = self.depth_gains_source
+    def result(self) -> ProcedureResult:
+        figures = dict(self.seeker.result()) if self.seeker.status.finished else {}
+        figures.pop("status", None)
+        figures.pop("abort_reason", None)
+        figures["depth_gains_source"] = self.depth_gains_source
         if self.analytic:
-            result.update(thrust_ratio_star=self.analytic.get("thrust_ratio_star"), v_min=self.analytic.get("v_min"),
-                          theta_star_deg=self.analytic.get("theta_star_deg"))
-        return result
+            figures.update(thrust_ratio_star=self.analytic.get("thrust_ratio_star"), v_min=self.analytic.get("v_min"),
+                           theta_star_deg=self.analytic.get("theta_star_deg"))
+        return ProcedureResult.of("min_speed", self.status, self.reason, figures)
 
 
 def read_depth_gains(link) -> dict[str, float] | None:
@@ -115,19 +123,13 @@ def analytic_minimum_speed(preset: str | None) -> dict | None:
 
 
 def min_speed_summary(result: dict) -> dict:
-    from companion.procedures.app import finite_or_none
-
-    return {key: finite_or_none(result.get(key)) for key in
-            ("thrust_ratio_final", "thrust_ratio_star", "speed_final", "v_min", "settle_time_s",
-             "max_depth_error_m", "max_depth_error_settled_m")} | {"status": result.get("status")}
+    """The JSON figures of a stored minimum-speed result."""
+    return figures_of(result, ("thrust_ratio_final", "thrust_ratio_star", "speed_final", "v_min", "settle_time_s",
+                               "max_depth_error_m", "max_depth_error_settled_m"))
 
 
 def min_speed_procedure(link, abort, config: MinSpeedProcedureConfig = MinSpeedProcedureConfig(), *,
-                        analytic: dict | None = None, limits=None) -> dict:
+                        analytic: dict | None = None, limits: SafetyLimits | None = None) -> ProcedureResult:
     """Build and run the minimum-speed procedure under one restore point (module docstring)."""
-    from companion.procedures.roll import finish_result
-    from companion.procedures.runner import SafetyLimits, run_procedure
-
     procedure = MinSpeedProcedure(config, depth_gains=read_depth_gains(link), analytic=analytic)
-    outcome = run_procedure(link, procedure, limits=limits or SafetyLimits(), abort_requested=abort)
-    return finish_result(procedure.result(), outcome)
+    return run_for_result(link, procedure, abort_requested=abort, limits=limits or SafetyLimits())

@@ -4,7 +4,7 @@ Between procedures it keeps the heading gains matched to speed with the schedule
 store's latest accepted yaw models (rate-limited, with hysteresis), and watches the vehicle's health:
 passive identification from its ordinary manoeuvres against the stored models at the same speed,
 with a STATUSTEXT warning, NAMED_VALUE_FLOATs and a store event when a parameter drifts
-(``companion.procedures.health``, issue 11). A ground station starts and
+(``companion.procedures.health``). A ground station starts and
 stops procedures with COMMAND_LONG aimed at component 191:
 
 | command | procedure |
@@ -45,13 +45,8 @@ from companion.procedures.app import (
 from companion.procedures.campaign import CampaignConfig
 from companion.procedures.health import HealthSession
 from companion.procedures.min_speed import MinSpeedProcedureConfig
-from companion.procedures.registry import (
-    ABORT_COMMAND,
-    COMMANDS,
-    IDENTIFICATION_COMMAND,
-    ProcedureContext,
-    schedule_kind,
-)
+from behaviors.schedules import schedule_kind
+from companion.procedures.registry import ABORT_COMMAND, COMMANDS, IDENTIFICATION_COMMAND, ProcedureContext
 from companion.procedures.roll import RollProcedureConfig
 from companion.procedures.runner import RestorePoint
 from companion.records.store import Store
@@ -90,7 +85,7 @@ class ServeConfig:
     schedules: tuple[str, ...] = ("heading", "pitch")  # kinds kept matched to speed, when designed
     preset: str | None = None  # simulator preset (analytic minimum speed, simulator hooks)
     max_vehicle_s: float | None = None  # stop after this much vehicle time (tests); None: until signalled
-    # health monitoring (issue 11): passive identification against the stored models between procedures
+    # health monitoring: passive identification against the stored models between procedures
     health: bool = True
     drift: DriftConfig = DriftConfig()
 
@@ -107,37 +102,37 @@ class Companion:
         self.unscheduled: RestorePoint | None = None
         self.history: list[dict] = []
         self.health = HealthSession(link, store, vehicle_id, config.drift) if config.health else None
-        link.on_user_command(self._on_user_command)
+        link.ground.on_user_command(self._on_user_command)
 
     # ------------------------------------------------------------------ ground station
     def _on_user_command(self, command: int, params: tuple[float, ...]) -> None:
         if command == ABORT_COMMAND:
             if self.procedure_abort is not None:
                 self.procedure_abort.request("ground station abort (MAV_CMD_USER_4)")
-                self.link.send_command_ack(command, MAV_RESULT_ACCEPTED)
+                self.link.ground.send_command_ack(command, MAV_RESULT_ACCEPTED)
             elif self.pending:  # a start that has not begun yet is cancelled
                 cancelled, _ = self.pending.pop(0)
-                self.link.send_command_ack(cancelled, MAV_RESULT_FAILED)
-                self.link.send_command_ack(command, MAV_RESULT_ACCEPTED)
+                self.link.ground.send_command_ack(cancelled, MAV_RESULT_FAILED)
+                self.link.ground.send_command_ack(command, MAV_RESULT_ACCEPTED)
             else:
-                self.link.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
+                self.link.ground.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
             return
         if command not in COMMANDS:
-            self.link.send_command_ack(command, MAV_RESULT_FAILED)
+            self.link.ground.send_command_ack(command, MAV_RESULT_FAILED)
             return
         if command in (self.running, *(c for c, _ in self.pending)):
             # a retransmission (the GCS did not see our first ACK): the same answer again
-            self.link.send_command_ack(command, MAV_RESULT_IN_PROGRESS, 0)
+            self.link.ground.send_command_ack(command, MAV_RESULT_IN_PROGRESS, 0)
             return
         if self.procedure_abort is not None or self.pending:
-            self.link.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
+            self.link.ground.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
             return
         if not getattr(self.link, "armed", True):
             self.link.status_text("procedure refused: the vehicle is not armed", 4)
-            self.link.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
+            self.link.ground.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
             return
         self.pending.append((command, params))
-        self.link.send_command_ack(command, MAV_RESULT_IN_PROGRESS, 0)
+        self.link.ground.send_command_ack(command, MAV_RESULT_IN_PROGRESS, 0)
 
     def _abort_requested(self) -> Callable[[], str | None]:
         return lambda: self.stop() or (self.procedure_abort() if self.procedure_abort else None)
@@ -244,13 +239,13 @@ class Companion:
                                            preset=self.config.preset, simulator=False, seconds=seconds)
                 ran = run_named_procedure(name, self.link, self.store, vehicle_id=self.vehicle_id, campaign_id=None,
                                           abort=abort, context=context)
-                status = ran["summary"]["status"]
-                self.link.send_command_ack(command, MAV_RESULT_ACCEPTED if status == "completed" else MAV_RESULT_FAILED,
+                status = ran.result.status
+                self.link.ground.send_command_ack(command, MAV_RESULT_ACCEPTED if status == "completed" else MAV_RESULT_FAILED,
                                            100 if status == "completed" else 0)
-                entry = {"procedure": name, "status": status, "summary": ran["summary"]}
+                entry = {"procedure": name, "status": status, "summary": ran.summary}
         except Exception as exc:  # noqa: BLE001 - the resident loop must survive a failed procedure
             log.exception("procedure %d failed", command)
-            self.link.send_command_ack(command, MAV_RESULT_FAILED)
+            self.link.ground.send_command_ack(command, MAV_RESULT_FAILED)
             entry = {"procedure": name, "status": "failed", "reason": str(exc)}
         finally:
             self.procedure_abort = None

@@ -19,7 +19,10 @@ from behaviors.observe import Observe
 from behaviors.roll_kick import RollKick
 from behaviors.roll_stabilisation import RollStabilisation, RollStabilisationConfig
 from behaviors.sequence import Instant, SequenceBehavior
+from companion.checks import require_non_negative, require_positive
 from companion.interface import SetMode, SetParameters, SetRollingMass, SetThrust
+from companion.procedures.results import ProcedureResult, figures_of
+from companion.procedures.runner import SafetyLimits, run_for_result
 
 
 @dataclass(frozen=True)
@@ -32,6 +35,12 @@ class RollProcedureConfig:
     kick_deg: float = 25.0  # roll_kick on the simulator; 0 skips the impulse tests
     kick_record_s: float = 15.0
     settle_band_deg: float = 2.5
+
+    def __post_init__(self) -> None:
+        require_positive(self, "thrust", "settle_s", "open_s", "closed_s", "kick_record_s", "settle_band_deg")
+        require_non_negative(self, "disturbance_nm", "kick_deg")
+        if self.thrust > 1.0:
+            raise ValueError(f"RollProcedureConfig.thrust must be a thrust level in (0, 1], not {self.thrust!r}")
 
 
 class RollProcedure(SequenceBehavior):
@@ -59,60 +68,37 @@ class RollProcedure(SequenceBehavior):
         items.append(Instant(SetRollingMass(0.0), name="centre the mass"))
         super().__init__(items, name="roll", stop_on_failure=True)
 
-    def result(self) -> dict:
+    def result(self) -> ProcedureResult:
         cfg = self.config
-        result: dict = {"behavior": "roll", "thrust": cfg.thrust, "simulator": self.simulator,
-                        "status": _status(self.status)}
-        if self.reason and self.status is not Status.SUCCESS:
-            result["abort_reason"] = self.reason
+        figures: dict = {"behavior": "roll", "thrust": cfg.thrust, "simulator": self.simulator}
         if self.simulator:
-            result["disturbance_nm"] = cfg.disturbance_nm
+            figures["disturbance_nm"] = cfg.disturbance_nm
         if self.closed_loop.done and self.closed_loop.status is Status.SUCCESS:
             closed = self.closed_loop.result()
             speeds = [v for v in self.open_loop.series["speed_water"] if math.isfinite(v)]
-            result.update(std_open_deg=self.open_loop.std_deg("roll"), std_closed_deg=closed["roll_std_deg"],
-                          speed=float(np.mean(speeds)) if speeds else None,
-                          open_series={k: self.open_loop.series[k] for k in ("time", "roll", "mass_angle")},
-                          closed_series={k: closed["series"][k] for k in ("time", "roll", "mass_angle")},
-                          gains=closed["gains"])
+            figures.update(std_open_deg=self.open_loop.std_deg("roll"), std_closed_deg=closed["roll_std_deg"],
+                           speed=float(np.mean(speeds)) if speeds else None,
+                           open_series={k: self.open_loop.series[k] for k in ("time", "roll", "mass_angle")},
+                           closed_series={k: closed["series"][k] for k in ("time", "roll", "mass_angle")},
+                           gains=closed["gains"])
         if self.kicks:
-            result["kick_deg"] = cfg.kick_deg
-            result["kick_settle_open_s"] = self.kicks[0].settle_time_s()
-            result["kick_settle_closed_s"] = self.kicks[1].settle_time_s()
-        return result
+            figures["kick_deg"] = cfg.kick_deg
+            figures["kick_settle_open_s"] = self.kicks[0].settle_time_s()
+            figures["kick_settle_closed_s"] = self.kicks[1].settle_time_s()
+        return ProcedureResult.of("roll", self.status, self.reason, figures)
 
 
 def _mean_roll(observe: Observe):
     return lambda: float(np.nanmean(np.asarray(observe.series["roll"], dtype=float))) if observe.series["roll"] else 0.0
 
 
-def _status(status: Status) -> str:
-    return {Status.SUCCESS: "completed", Status.ABORTED: "aborted", Status.FAILURE: "failed"}.get(status, status.value)
-
-
 def roll_summary(result: dict) -> dict:
-    from companion.procedures.app import finite_or_none
-
-    return {key: finite_or_none(result.get(key)) for key in
-            ("std_open_deg", "std_closed_deg", "speed", "kick_settle_open_s", "kick_settle_closed_s")} | \
-        {"status": result.get("status")}
+    """The JSON figures of a stored roll result."""
+    return figures_of(result, ("std_open_deg", "std_closed_deg", "speed", "kick_settle_open_s", "kick_settle_closed_s"))
 
 
 def roll_procedure(link, abort, config: RollProcedureConfig = RollProcedureConfig(), *, simulator: bool = False,
-                   limits=None) -> dict:
-    """Build and run the roll procedure under one restore point; its result with the restore problems."""
-    from companion.procedures.runner import SafetyLimits, run_procedure
-
-    procedure = RollProcedure(config, simulator=simulator)
-    outcome = run_procedure(link, procedure, limits=limits or SafetyLimits(), abort_requested=abort)
-    return finish_result(procedure.result(), outcome)
-
-
-def finish_result(result: dict, outcome) -> dict:
-    """A procedure's result with what the runner saw: the abort reason, a pilot takeover, restore problems."""
-    if outcome.status != "completed":
-        result["status"] = outcome.status
-        result["abort_reason"] = outcome.reason
-    result["pilot_has_it"] = outcome.pilot_has_it
-    result["restore_problems"] = outcome.restore_problems
-    return result
+                   limits: SafetyLimits | None = None) -> ProcedureResult:
+    """Build and run the roll procedure under one restore point; its result as the runner saw it end."""
+    return run_for_result(link, RollProcedure(config, simulator=simulator), abort_requested=abort,
+                          limits=limits or SafetyLimits())

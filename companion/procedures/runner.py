@@ -18,7 +18,9 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterable, Protocol, Sequence
 
 from behaviors.base import Footprint, Status, footprint_of
+from companion.checks import require_finite, require_positive, require_range
 from companion.interface import Behavior, Command, SetHeading, SetMode, SetParameters, SetRollingMass, SetThrust, Telemetry
+from companion.procedures.results import ProcedureResult
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +47,16 @@ class SafetyLimits:
     max_nan_samples: int = 40  # consecutive snapshots without attitude before aborting
     require_armed: bool = True  # a disarmed vehicle (or one disarmed during the procedure) aborts it
     mode_grace_s: float = 3.0  # vehicle seconds in a mode the procedure did not ask for before aborting
+
+    def __post_init__(self) -> None:
+        require_range(self, "max_roll", 1e-3, math.pi)
+        require_range(self, "max_pitch", 1e-3, math.pi / 2)
+        require_finite(self, "max_depth", "min_depth")
+        if self.min_depth > self.max_depth:
+            raise ValueError(f"SafetyLimits: min_depth {self.min_depth} above max_depth {self.max_depth}")
+        require_positive(self, "mode_grace_s")
+        if not (isinstance(self.max_nan_samples, int) and self.max_nan_samples >= 1):
+            raise ValueError(f"SafetyLimits.max_nan_samples must be an integer ≥ 1, not {self.max_nan_samples!r}")
 
     def violation(self, telemetry: Telemetry) -> str | None:
         if math.isfinite(telemetry.roll) and abs(telemetry.roll) > self.max_roll:
@@ -79,7 +91,7 @@ _SETPOINT_MODES = ("hold", "guided")
 
 
 class RestoreGuard:
-    """What a signal handler may do now (issue 9: a second Ctrl-C 0.01 s apart cut a parameter
+    """What a signal handler may do now (a second Ctrl-C 0.01 s apart once cut a parameter
     write of the restore and left HDG_I at 0.00584).
 
     ``interruptible`` is true only inside a procedure's step loop, where a second Ctrl-C may break a
@@ -144,7 +156,7 @@ class RestorePoint:
                     setpoints[setpoint] = float(value)
         parameters = dict(link.get_params(neutral)) if neutral else {}
         for name in unread:  # a second chance: answers lost on the link are not a missing parameter
-            try:  # (issue 9, faults: three lost PARAM_VALUEs left HDG_I out, and an abort left it changed)
+            try:  # (fault injection: three lost PARAM_VALUEs left HDG_I out, and an abort left it changed)
                 native[name] = link.get_param(name)
             except Exception as exc:  # noqa: BLE001 - a parameter this firmware lacks is not touched either
                 log.info("restore point: %s not readable (%s)", name, exc)
@@ -450,6 +462,13 @@ def run_procedure(
     finally:
         if guard is not None:
             guard.active -= 1
+
+
+def run_for_result(link: Link, procedure: Behavior, *, abort_requested: Callable[[], str | None] = lambda: None,
+                   limits: SafetyLimits = SafetyLimits()) -> ProcedureResult:
+    """:func:`run_procedure`, then the procedure's own :class:`ProcedureResult` as the runner saw it end."""
+    outcome = run_procedure(link, procedure, limits=limits, abort_requested=abort_requested)
+    return procedure.result().with_outcome(outcome)
 
 
 def not_started(exc: Exception) -> RunOutcome:

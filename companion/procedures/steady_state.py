@@ -1,4 +1,4 @@
-"""Steady-state manoeuvring characteristics under unknown current, as a procedure (SPEC C8, issue 5).
+"""Steady-state manoeuvring characteristics under unknown current, as a procedure (SPEC C8).
 
 A square pattern at fixed thrust (straight legs: eq. 7–8) and steady turns with the rudder held at
 ±12.5° (eq. 9–10), run over the link with restore points like every procedure; the recorded paths
@@ -16,12 +16,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from behaviors.steady_state import SquareConfig, SquarePattern, SteadyTurns, TurnConfig
-from companion.procedures.app import finite_or_none
-from companion.numerics.steady_state import current_direction_deg
 from behaviors.base import Status
 from behaviors.sequence import SequenceBehavior
-from companion.procedures.runner import SafetyLimits, run_procedure
+from behaviors.steady_state import SquareConfig, SquarePattern, SteadyTurns, TurnConfig
+from companion.checks import require_positive
+from companion.numerics.steady_state import current_direction_deg
+from companion.procedures.results import ProcedureResult, finite_or_none
+from companion.procedures.runner import SafetyLimits, run_for_result
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +34,9 @@ class SteadyStateConfig:
     turns: TurnConfig = field(default_factory=lambda: TurnConfig(thrust_ratio=0.5, rudder_angles=(0.218, -0.218),
                                                                   turn_s=150.0, recover_s=30.0))
     path_rate_hz: float = 1.0
+
+    def __post_init__(self) -> None:
+        require_positive(self, "path_rate_hz")
 
 
 def _decimate(data: dict[str, np.ndarray], rate_hz: float) -> dict[str, list[float]]:
@@ -52,32 +56,39 @@ class SteadyStateProcedure(SequenceBehavior):
         self.turns = SteadyTurns(config.turns)
         super().__init__([self.squares, self.turns], name="steady_state")
 
-    def result(self) -> dict:
-        result: dict = {"behavior": "steady_state",
-                        "status": "aborted" if self.status is Status.ABORTED else "completed"}
-        if self.status is Status.ABORTED:
-            result["abort_reason"] = self.reason
+    def update(self, telemetry):
+        """Both parts always run (a failed fit of one still leaves the other's figures); the
+        procedure succeeds only when both did."""
+        commands = super().update(telemetry)
+        if self.status is Status.SUCCESS:
+            failed = [part for part in (self.squares, self.turns) if part.status is not Status.SUCCESS]
+            if failed:
+                self.finish(Status.FAILURE, "; ".join(f"{part.name}: {part.reason or part.status.value}"
+                                                      for part in failed))
+        return commands
+
+    def result(self) -> ProcedureResult:
+        figures: dict = {"behavior": "steady_state"}
         if self.squares.status is not Status.INVALID:
             part = self.squares.result()
             part["path"] = _decimate(self.squares.data(), self.config.path_rate_hz)
-            result["squares"] = part
+            figures["squares"] = part
         if self.turns.status is not Status.INVALID:
             part = self.turns.result()
             part["paths"] = [_decimate(data, self.config.path_rate_hz) for data in self.turns.data()]
-            result["turns"] = part
-        return result
+            figures["turns"] = part
+        return ProcedureResult.of("steady_state", self.status, self.reason, figures)
 
 
 def steady_state_procedure(link, abort, config: SteadyStateConfig = SteadyStateConfig(), *,
-                           limits: SafetyLimits = SafetyLimits()) -> dict:
-    """Squares, then turns. Returns {"status", "squares": {...}, "turns": {...}}."""
-    procedure = SteadyStateProcedure(config)
-    run_procedure(link, procedure, limits=limits, abort_requested=abort)
-    return procedure.result()
+                           limits: SafetyLimits = SafetyLimits()) -> ProcedureResult:
+    """Squares, then turns, under one restore point."""
+    return run_for_result(link, SteadyStateProcedure(config), abort_requested=abort, limits=limits)
 
 
 def steady_summary(result: dict, true_current: tuple[float, float] | None = None) -> dict:
-    """The JSON figures of issue 5 (and the errors against a known current, on the simulator)."""
+    """The JSON figures of the squares and turns of a stored result (and the errors against a known
+    current, on the simulator)."""
     squares, turns = result.get("squares") or {}, result.get("turns") or {}
     summary: dict = {"status": result.get("status")}
     if "current_speed" in squares:

@@ -335,7 +335,7 @@ class SweepSpec:
 
     def cases(self) -> list[Case]:
         """Every case, in a fixed order (presets, seeds, currents, noise, perturbations, thrust lists)."""
-        from companion.cli.rehearsal import preset_defaults
+        from companion.rehearsal.rehearsal import preset_defaults
         from companion.procedures.campaign import CampaignConfig
 
         default_thrusts = tuple(CampaignConfig().thrusts)
@@ -421,7 +421,7 @@ def _positive(value: Any, what: str) -> float:
 
 
 def _schedules(value: Any) -> tuple[str, ...]:
-    from companion.procedures.registry import GAIN_SCHEDULES
+    from behaviors.schedules import GAIN_SCHEDULES
 
     return _names(value, "schedules", tuple(GAIN_SCHEDULES))
 

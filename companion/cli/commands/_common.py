@@ -102,20 +102,19 @@ def signing_key(args: argparse.Namespace) -> bytes | None:
 
 
 def thrust_list(text: str) -> tuple[float, ...]:
-    """'0.6,0.7' or '60,70' (percent) -> (0.6, 0.7)."""
+    """'0.6,0.7' or '60,70' (percent, the whole list) -> (0.6, 0.7) (argparse type; the rules are
+    ``companion.checks.parse_thrust_levels``)."""
+    from companion.checks import parse_thrust_levels
+
     try:
-        values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a list of numbers: {text!r}") from None
-    values = [v / 100.0 if v > 1.0 else v for v in values]
-    if not values or any(not 0.0 < v <= 1.0 for v in values):
-        raise argparse.ArgumentTypeError("thrusts must be in (0, 1] (or percent)")
-    return tuple(values)
+        return parse_thrust_levels(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def schedule_list(text: str) -> tuple[str, ...]:
     """``heading,pitch`` -> the registered gain schedules named (argparse type)."""
-    from companion.procedures.registry import GAIN_SCHEDULES
+    from behaviors.schedules import GAIN_SCHEDULES
 
     names = tuple(n.strip() for n in text.split(",") if n.strip())
     unknown = [n for n in names if n not in GAIN_SCHEDULES]

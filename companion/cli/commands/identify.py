@@ -42,7 +42,9 @@ def add_parser(subparsers) -> None:
 def campaign_config(args: argparse.Namespace):
     from companion.procedures.campaign import CampaignConfig
 
-    config = CampaignConfig(schedules=args.schedules)
+    # the autopilot's defaults (thrusts, axes, doublets it can fly) apply where the user set none
+    explicit = tuple(name for name, given in (("thrusts", args.thrusts), ("axes", args.axes)) if given)
+    config = CampaignConfig(schedules=args.schedules, user_set=explicit)
     if args.axes is not None:
         axes = tuple(a.strip() for a in args.axes.split(",") if a.strip())
         if not axes or any(a not in ("yaw", "pitch") for a in axes):
@@ -85,9 +87,6 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         with connected_vehicle(args) as (link, abort), Store(args.store) as store:
-            # the autopilot's defaults (thrusts, axes, doublets it can fly) where the user set none
-            explicit = tuple(name for name, given in (("thrusts", args.thrusts), ("axes", args.axes)) if given)
-            config = config.with_profile_defaults(link.profile, keep=explicit)
             campaign, outcome, campaign_id = run_campaign(
                 link, store, config, vehicle_id=vehicle_record(store, link), abort=abort,
                 console=ConsoleProgress("identification", enabled=not args.json))
@@ -97,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     result = {"campaign_id": campaign_id, "status": outcome.status, "reason": outcome.reason,
               "restore_problems": outcome.restore_problems, "store": args.store, "report": report,
-              **{k: v for k, v in campaign.result().items() if k in ("accepted", "design", "steps", "final_gains")}}
+              **{k: v for k, v in campaign.result().figures.items() if k in ("accepted", "design", "steps", "final_gains")}}
     if args.json:
         print_json(result)
     else:

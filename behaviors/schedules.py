@@ -1,0 +1,29 @@
+"""The gain schedules the companion can design and keep matched to speed, registered in one place.
+
+A schedule kind (``behaviors.gain_scheduling.ScheduleKind``) turns accepted models into gains per
+speed and names the autopilot parameters it writes. Adding one is its behaviour module, its
+numerics and one line in :data:`GAIN_SCHEDULES`.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+from behaviors.cascade_schedule import cascade_kind
+from behaviors.gain_scheduling import ScheduleKind
+from behaviors.heading_schedule import heading_kind
+from behaviors.pitch_schedule import pitch_kind
+
+GAIN_SCHEDULES: dict[str, Callable[..., ScheduleKind]] = {
+    "heading": heading_kind,
+    "pitch": pitch_kind,
+    "cascade": cascade_kind,  # ArduPilot's native heading gains (the ardurover/ardusub profiles' "heading")
+}
+
+
+def schedule_kind(name: str, bounds=None) -> ScheduleKind:
+    """The registered kind ``name`` (with ``bounds`` when given); ValueError for an unknown name."""
+    try:
+        factory = GAIN_SCHEDULES[name]
+    except KeyError:
+        raise ValueError(f"unknown gain schedule {name!r} (known: {', '.join(GAIN_SCHEDULES)})") from None
+    return factory(bounds) if bounds is not None else factory()

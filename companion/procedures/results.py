@@ -1,0 +1,90 @@
+"""What a procedure reports, in one type with one status vocabulary (the procedures' leaf module).
+
+A procedure (a behaviour run by ``companion.procedures.runner`` under one restore point) ends in
+one of :data:`STATUSES`:
+
+* ``completed`` — its goal was reached (a model accepted and verified, the roll loop ran ...);
+* ``failed`` — it ended without reaching its goal (no model passed validation, the seeker found
+  no decision), with the reason;
+* ``aborted`` — it was stopped from outside (a signal, the pilot, link loss, a safety limit);
+* ``refused`` — it does not apply to this vehicle and never started (a boat has no rolling mass);
+* ``not started`` / ``running`` — for records of procedures that never began or are under way.
+
+:func:`status_name` is the only mapping from a behaviour's lifecycle status to these words.
+:class:`ProcedureResult` carries the status, the reason, the procedure's figures and what the
+runner saw (a pilot's takeover, restore problems); :meth:`ProcedureResult.to_json` is the stored
+and printed form. No I/O here.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from behaviors.base import Status
+
+STATUSES = ("completed", "failed", "aborted", "refused", "not started", "running")
+
+_STATUS_NAMES = {Status.SUCCESS: "completed", Status.FAILURE: "failed", Status.ABORTED: "aborted",
+                 Status.RUNNING: "running", Status.INVALID: "not started"}
+
+
+def status_name(status: Status) -> str:
+    """The product's word for a behaviour's lifecycle status (module docstring)."""
+    return _STATUS_NAMES[status]
+
+
+def finite_or_none(value: Any) -> float | None:
+    """A finite number as a float, anything else None (JSON holds no NaN or Infinity)."""
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) \
+        else None
+
+
+def figures_of(result: dict, keys: tuple[str, ...]) -> dict:
+    """The named figures of a result, each finite or None, plus its status."""
+    return {key: finite_or_none(result.get(key)) for key in keys} | {"status": result.get("status")}
+
+
+@dataclass(frozen=True)
+class ProcedureResult:
+    """A procedure's outcome and figures (module docstring)."""
+
+    procedure: str
+    status: str
+    reason: str | None = None
+    figures: dict = field(default_factory=dict)
+    pilot_has_it: bool = False  # aborted because someone else took the vehicle
+    restore_problems: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"ProcedureResult.status must be one of {', '.join(STATUSES)}, not {self.status!r}")
+
+    @classmethod
+    def of(cls, procedure: str, status: Status, reason: str | None, figures: dict) -> "ProcedureResult":
+        """The result of a behaviour in lifecycle ``status`` (the reason kept unless it succeeded)."""
+        return cls(procedure, status_name(status), None if status is Status.SUCCESS else reason, dict(figures))
+
+    @property
+    def completed(self) -> bool:
+        return self.status == "completed"
+
+    def with_outcome(self, outcome: Any) -> "ProcedureResult":
+        """This result as the runner saw it end (``RunOutcome``): an abort or failure it reported
+        takes precedence over the procedure's own status; a takeover and restore problems are kept."""
+        status, reason = self.status, self.reason
+        if outcome.status != "completed":
+            status, reason = outcome.status, outcome.reason
+        return replace(self, status=status, reason=reason, pilot_has_it=bool(outcome.pilot_has_it),
+                       restore_problems=tuple(outcome.restore_problems))
+
+    def to_json(self) -> dict:
+        """The stored and printed form: the figures, then ``status``, ``abort_reason`` (when there is
+        a reason), ``pilot_has_it`` and ``restore_problems``."""
+        out = dict(self.figures)
+        out["status"] = self.status
+        if self.reason:
+            out["abort_reason"] = self.reason
+        out["pilot_has_it"] = self.pilot_has_it
+        out["restore_problems"] = list(self.restore_problems)
+        return out
