@@ -18,7 +18,7 @@ import tempfile
 import time
 from dataclasses import replace
 
-from companion.cli.rehearsal import RehearsalConfig, preset_defaults, rehearse
+from companion.rehearsal.rehearsal import RehearsalConfig, preset_defaults, rehearse
 from companion.link.profiles import get_profile
 from companion.procedures.campaign import CampaignConfig
 

@@ -33,7 +33,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from behaviors.identification import ManoeuvreConfig  # noqa: E402
-from companion.cli.launcher import SimulatorProcess  # noqa: E402
+from companion.rehearsal.launcher import SimulatorProcess  # noqa: E402
 from companion.interface import SetHeading, SetThrust  # noqa: E402
 from companion.procedures.campaign import CampaignConfig  # noqa: E402
 from harness.missions import SurveyPlan  # noqa: E402

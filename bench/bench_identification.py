@@ -54,7 +54,7 @@ def _rows(attempts) -> list[dict]:
 def run_mavlink(seed: int, preset: str, speedup: float) -> dict:
     from companion.procedures.app import AbortFlag, run_campaign, vehicle_record
     from companion.link.vehicle import VehicleLink
-    from companion.cli.launcher import SimulatorProcess
+    from companion.rehearsal.launcher import SimulatorProcess
     from companion.records.store import Store
 
     out = Path(f"/tmp/bench-identification-{seed}")

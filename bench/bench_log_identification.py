@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from behaviors.identification import ManoeuvreConfig  # noqa: E402
-from companion.cli.launcher import SimulatorProcess  # noqa: E402
+from companion.rehearsal.launcher import SimulatorProcess  # noqa: E402
 from companion.procedures.campaign import CampaignConfig  # noqa: E402
 from harness.missions import SurveyPlan, record_survey_tlog  # noqa: E402
 

@@ -2,7 +2,7 @@
 beside their spread over seeds. The first must be zero; the second shows what the seed moves.
 
 Runs ``companion rehearse --json`` as a user does (a child process each time) and compares the
-summaries without their wall-clock fields (``companion.cli.reproducibility``). Prints, per key
+summaries without their wall-clock fields (``companion.rehearsal.reproducibility``). Prints, per key
 figure, max − min over the repeats and over the seeds, then how many of the summary's numbers
 differ at all. ``--load N`` keeps N CPU-bound processes running beside the rehearsals (the
 condition the fix must survive on a small machine); they are ended by their process ids.
@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from companion.cli.reproducibility import comparable, differences, numeric_leaves
+from companion.rehearsal.reproducibility import comparable, differences, numeric_leaves
 
 log = logging.getLogger("bench_reproducibility")
 

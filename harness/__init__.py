@@ -3,7 +3,7 @@
 * :mod:`harness.inprocess` — the simulator's physics and autopilot in-process, driven by companion
   commands (``InProcessLink``, ``ClosedLoop``, ``HuginLoop``; one command dispatch).
 * :mod:`harness.simulator` — ``start_sim``: the simulator as a child process on loopback through
-  the companion's one launcher (:class:`companion.cli.launcher.SimulatorProcess`), with the tests'
+  the companion's one launcher (:class:`companion.rehearsal.launcher.SimulatorProcess`), with the tests'
   defaults.
 * :mod:`harness.mavlink_clients` — pymavlink clients of that simulator (``connect_client``).
 * :mod:`harness.fault_proxy` — a MAVLink-aware TCP proxy that injects link faults (drop, delay,

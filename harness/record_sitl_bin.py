@@ -43,7 +43,7 @@ sys.exit(sitl.run())
 def record_sitl_bin(out: str | Path, plan: SurveyPlan = BOAT_PLAN, *, bin_dir: str | None = None, seed: int = 1,
                     speedup: float = 10.0) -> Path:
     """Fly ``plan`` on ArduRover SITL + the boat physics and copy the DataFlash log it wrote to ``out``."""
-    from companion.cli.rehearsal import arm_when_ready, preset_vehicle
+    from companion.rehearsal.rehearsal import arm_when_ready, preset_vehicle
     from companion.link.vehicle import VehicleLink
 
     bin_dir = bin_dir or os.environ.get("ARDUPILOT_SITL_BIN")

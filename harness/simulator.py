@@ -1,5 +1,5 @@
 """The simulator as a child process for tests and bench scripts, through the companion's one
-launcher (:class:`companion.cli.launcher.SimulatorProcess`).
+launcher (:class:`companion.rehearsal.launcher.SimulatorProcess`).
 
 Direction of the endpoints (get this right or nothing arrives):
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from companion.cli.launcher import SimulatorError, SimulatorProcess
+from companion.rehearsal.launcher import SimulatorError, SimulatorProcess
 
 __all__ = ["DEFAULT_SPEEDUP", "READY_TIMEOUT_S", "SimPool", "SimulatorError", "SimulatorProcess", "start_sim"]
 

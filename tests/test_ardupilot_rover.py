@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 
 from behaviors.identification import ManoeuvreConfig
-from companion.cli.launcher import SimulatorProcess
-from companion.cli.rehearsal import arm_when_ready, preset_vehicle, simulator_truth, true_speed
+from companion.rehearsal.launcher import SimulatorProcess
+from companion.rehearsal.rehearsal import arm_when_ready, preset_vehicle, simulator_truth, true_speed
 from companion.procedures.app import AbortFlag, run_campaign
 from companion.procedures.campaign import CampaignConfig
 from companion.records.store import Store

@@ -80,8 +80,8 @@ def test_the_store_holds_the_models_and_the_written_gains(rehearsal):
 def sub():
     """ArduSub SITL + STARFISH physics, connected, holding its depth and armed (shared by the abort
     tests below; each leaves it as found)."""
-    from companion.cli.launcher import SimulatorProcess
-    from companion.cli.rehearsal import ARDUSUB_SIM_ARGS, ARDUSUB_VEHICLE, arm_ardusub_when_ready
+    from companion.rehearsal.launcher import SimulatorProcess
+    from companion.rehearsal.rehearsal import ARDUSUB_SIM_ARGS, ARDUSUB_VEHICLE, arm_ardusub_when_ready
     from companion.link.vehicle import VehicleLink
 
     with SimulatorProcess("starfish", 20.0, 1, (0.0, 0.0), autopilot="ardusub", ardupilot_bin=BIN, lockstep=False,

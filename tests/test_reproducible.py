@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.cli.reproducibility import comparable, differences
+from companion.rehearsal.reproducibility import comparable, differences
 
 pytestmark = pytest.mark.e2e
 
@@ -44,7 +44,7 @@ def test_same_seed_gives_the_same_summary_bit_for_bit(tmp_path):
 
 
 def test_the_record_says_what_could_have_varied():
-    from companion.cli.reproducibility import reproducibility_record
+    from companion.rehearsal.reproducibility import reproducibility_record
 
     real = reproducibility_record("ardusub", False, None, 0)
     assert real["exact"] is False and "ArduPilot" in real["varied"][0]

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from companion.cli.launcher import parse_ready
+from companion.rehearsal.launcher import parse_ready
 from sim.autopilot import (
     MODE_ALT_HOLD,
     MODE_GUIDED,

@@ -15,11 +15,13 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from companion.cli.launcher import SimulatorError, SimulatorProcess  # noqa: F401 - re-exported
-from companion.cli.reproducibility import reproducibility_record
-from companion.procedures.app import AbortFlag, ConsoleProgress, finite_or_none, run_campaign, vehicle_record
+from companion.rehearsal.launcher import SimulatorError, SimulatorProcess  # noqa: F401 - re-exported
+from companion.rehearsal.reproducibility import reproducibility_record
+from companion.checks import is_number, require_non_negative, require_positive
 from companion.link.autopilots.ardusub import CAMPAIGN_DEFAULTS as ARDUSUB_CAMPAIGN
+from companion.procedures.app import AbortFlag, ConsoleProgress, run_campaign, vehicle_record
 from companion.procedures.campaign import CampaignConfig
+from companion.procedures.results import finite_or_none
 from companion.procedures.runner import SafetyLimits
 from companion.records.store import Store, json_safe
 
@@ -80,6 +82,15 @@ class RehearsalConfig:
     noise: float = 1.0  # factor on every sensor σ of the preset
     report: bool = True  # write report.html (a sweep's cases skip it)
 
+    def __post_init__(self) -> None:
+        require_non_negative(self, "speedup")
+        require_positive(self, "noise")
+        if not (isinstance(self.current, tuple) and len(self.current) == 2 and all(is_number(v) for v in self.current)):
+            raise ValueError(f"RehearsalConfig.current must be (north, east) in m/s, not {self.current!r}")
+        unknown = set(self.behaviors) - {"roll", "min_speed"}
+        if unknown:
+            raise ValueError(f"RehearsalConfig.behaviors: unknown {', '.join(sorted(unknown))} (roll, min_speed)")
+
     @property
     def variant(self) -> bool:
         """Whether the simulator flies a variant of the preset rather than the preset itself."""
@@ -102,7 +113,7 @@ def preset_defaults(preset: str) -> dict:
 
 #: ArduSub's campaign defaults (thrusts and doublets that keep its motors out of saturation) live in
 #: its profile: ``companion.link.autopilots.ardusub.CAMPAIGN_DEFAULTS``
-ARDUSUB_THRUSTS = ARDUSUB_CAMPAIGN["thrusts"]
+ARDUSUB_THRUSTS = ARDUSUB_CAMPAIGN.thrusts
 #: what the companion is told about the AUV under ArduSub: nothing beyond the profile; its equivalent
 #: rudder is the thrusters' yaw differential, no fin servo (sim.ardupilot_sitl.FRAME_LIMITS)
 ARDUSUB_VEHICLE: dict = {}
@@ -148,7 +159,7 @@ def _retrier(link, start: float, patience_s: float):
                 return
             except (CommandFailed, ModeChangeFailed) as exc:
                 if not link.vehicle_time_s - start < patience_s:
-                    texts = [t for _, _, t in list(link.statustexts)[-3:]]
+                    texts = [t for _, _, t in list(link.announcements.statustexts)[-3:]]
                     raise type(exc)(f"{exc}; the vehicle said: {texts}") from exc
                 for _ in range(40):
                     link.next_telemetry()
@@ -263,7 +274,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
             if outcome.status == "completed" and config.steady_state:
                 extra["steady_state"] = _run_steady_state(link, store, config, campaign_id, abort, summary)
         finally:
-            snapshots_dropped, wall_timeouts = link.snapshots_dropped, link.wall_timeouts
+            snapshots_dropped, wall_timeouts = link.telemetry.snapshots_dropped, link.clock.wall_timeouts
             link.close()
         truth, speeds = {}, {}
         for attempt in campaign.accepted:
@@ -288,9 +299,9 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
 
             write_report(store, campaign_id, out, truth={k: v for k, v in truth.items() if v}, extra_results=extra,
                          summary={k: v for k, v in summary.items() if k != "design"},
-                         delta_max=config.campaign.yaw.training_amplitude)
+                         delta_max=campaign.config.yaw.training_amplitude)
         summary["wall_time_s"] = round(time.monotonic() - started, 2)
-    # after the simulator stopped: its exit report says whether lockstep held (issue 12)
+    # after the simulator stopped: its exit report says whether lockstep held
     summary["reproducibility"] = reproducibility_record(config.autopilot, simulator.lockstep, simulator.stats,
                                                         snapshots_dropped, wall_timeouts)
     if not summary["reproducibility"]["exact"]:
@@ -300,18 +311,19 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
 
 
 def _run_steady_state(link, store, config: RehearsalConfig, campaign_id: int, abort: AbortFlag, summary: dict) -> dict:
-    """Squares and turns (issue 5), scored against the current the simulator was started with."""
+    """Squares and turns, scored against the current the simulator was started with."""
     from companion.procedures.app import run_named_procedure
     from companion.procedures.steady_state import steady_summary
 
     ran = run_named_procedure("steady_state", link, store, vehicle_id=0, campaign_id=campaign_id, abort=abort)
-    summary["steady_state"] = steady_summary(ran["result"], config.current)
-    return ran["result"]
+    stored = ran.result.to_json()
+    summary["steady_state"] = steady_summary(stored, config.current)
+    return stored
 
 
 def _run_behaviors(link, store, config: RehearsalConfig, vehicle_id: int, campaign_id: int, abort: AbortFlag,
                    summary: dict, sim_preset: str | None = None) -> dict:
-    """Roll stabilisation and minimum-speed seeking after the campaign (issue 4); ``sim_preset`` is
+    """Roll stabilisation and minimum-speed seeking after the campaign; ``sim_preset`` is
     the vehicle data the analytic figures come from (a variant's file, or the preset)."""
     extra: dict = {}
     if not config.behaviors:
@@ -319,9 +331,8 @@ def _run_behaviors(link, store, config: RehearsalConfig, vehicle_id: int, campai
     from companion.procedures.app import run_named_behavior
 
     for name in config.behaviors:
-        result = run_named_behavior(name, link, store, vehicle_id=vehicle_id, campaign_id=campaign_id, abort=abort,
-                                    preset=sim_preset or config.preset)
-        if result is not None:
-            extra[name] = result["result"]
-            summary[name] = result["summary"]
+        ran = run_named_behavior(name, link, store, vehicle_id=vehicle_id, campaign_id=campaign_id, abort=abort,
+                                 preset=sim_preset or config.preset)
+        extra[name] = ran.result.to_json()
+        summary[name] = ran.summary
     return extra

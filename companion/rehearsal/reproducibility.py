@@ -1,10 +1,10 @@
-"""What a rehearsal can say about its own reproducibility (issue 12, "same seed, same numbers").
+"""What a rehearsal can say about its own reproducibility ("same seed, same numbers").
 
 On the built-in simulator in lockstep a rehearsal is a function of its seed and options alone: the
 same command gives the same summary, bit for bit, apart from ``wall_time_s``
 (``tests/test_reproducible.py``, ``bench/bench_reproducibility.py``). That holds only if lockstep
 held for the whole run, which the simulator reports at exit (its ``STATS`` line,
-``companion.cli.launcher``). This module turns that report into the summary's ``reproducibility``
+``companion.rehearsal.launcher``). This module turns that report into the summary's ``reproducibility``
 record: ``exact`` and, when it is not, ``varied`` says what could have varied and why.
 
 A real autopilot (ArduPilot SITL) is never exact: it runs its own scheduler, and when the

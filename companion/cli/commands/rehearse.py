@@ -83,7 +83,7 @@ def noise_factor(text: str) -> float:
 def run(args: argparse.Namespace) -> int:
     from companion.procedures.app import AbortFlag, install_signal_handlers
     from companion.procedures.campaign import CampaignConfig
-    from companion.cli.rehearsal import RehearsalConfig, SimulatorError, preset_defaults, rehearse
+    from companion.rehearsal.rehearsal import RehearsalConfig, SimulatorError, preset_defaults, rehearse
 
     args.axes_given = args.axes is not None
     axes = tuple(a.strip() for a in (args.axes or "yaw,pitch").split(",") if a.strip())
@@ -106,12 +106,10 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, AssertionError):
         print("--current takes VN,VE in m/s", file=sys.stderr)
         return 2
-    campaign = CampaignConfig(axes=axes, schedules=args.schedules)
-    if args.autopilot != "builtin":  # the profile's thrusts, axes and doublets (ArduRover: fractions of WP_SPEED)
-        from companion.link.profiles import get_profile
-
-        explicit = ("axes",) if args.axes_given else ()
-        campaign = campaign.with_profile_defaults(get_profile(args.autopilot), keep=explicit)
+    # the autopilot's thrusts, axes and doublets (ArduRover: fractions of WP_SPEED) where the user set none:
+    # applied once, by the campaign (CampaignConfig.resolved_for)
+    explicit = tuple(name for name, given in (("axes", args.axes_given), ("thrusts", bool(args.thrusts))) if given)
+    campaign = CampaignConfig(axes=axes, schedules=args.schedules, user_set=explicit)
     if args.thrusts:
         campaign = replace(campaign, thrusts=args.thrusts)
     if args.no_steps:
