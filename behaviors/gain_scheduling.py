@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Sequence
 
 from behaviors.base import Behaviour, Footprint, Status
+from companion.checks import require_non_negative, require_positive, require_range
 from companion.interface import Command, NamedValue, SetParameters, StatusText, Telemetry
 
 
@@ -96,6 +97,11 @@ class SchedulingConfig:
     trim_hysteresis: float = 0.005  # rad
     min_interval_s: float = 10.0  # vehicle time between two writes
     duration_s: float | None = None  # None: run until aborted
+
+    def __post_init__(self) -> None:
+        require_positive(self, "speed_time_constant_s", "min_interval_s")
+        require_non_negative(self, "relative_hysteresis", "trim_hysteresis")
+        require_range(self, "duration_s", 1e-3, 1e9, optional=True)
 
 
 def gains_differ(new: dict[str, float], old: dict[str, float] | None, config: SchedulingConfig) -> bool:

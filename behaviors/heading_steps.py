@@ -15,6 +15,7 @@ from scipy.integrate import trapezoid
 from scipy.signal import savgol_filter
 
 from behaviors.base import Behaviour, Footprint, Status
+from companion.checks import require_positive, require_range
 from companion.interface import Command, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.angles import wrap_pi
 
@@ -35,6 +36,10 @@ class StepTestConfig:
     step: float = math.radians(20.0)
     settle_s: float = 20.0
     hold_s: float = 25.0
+
+    def __post_init__(self) -> None:
+        require_range(self, "step", math.radians(1.0), math.radians(180.0))
+        require_positive(self, "settle_s", "hold_s")
 
 
 def smooth_heading(times: np.ndarray, heading: np.ndarray, window_s: float = 1.0) -> np.ndarray:

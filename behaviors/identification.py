@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Callable, Sequence
 
 from behaviors.base import Behaviour, Footprint, Status
+from companion.checks import require_choice, require_non_negative, require_positive, require_range
 from companion.interface import (
     Command,
     NamedValue,
@@ -70,7 +71,7 @@ class ManoeuvreConfig:
     input_hold: str = "foh"
     output_hold: str = "foh"
     live_value_period_s: float = 0.25  # NAMED_VALUE_FLOAT rate of the live estimates
-    # issue 10: None settles and resettles for the fixed times above (the thesis); a rule ends them
+    # None settles and resettles for the fixed times above (the thesis); a rule ends them
     # as soon as the vehicle is steady (behaviors/steadiness.py), the fixed times being the maximum
     steadiness: SteadinessRule | None = None
     # length of the validation record after its doublet (None: post_excitation_s, as training)
@@ -81,6 +82,23 @@ class ManoeuvreConfig:
     # excitation it may first stop (the response still carries information for ~1/|a22| after it)
     convergence_noise_band: float | None = None
     convergence_delay_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        require_choice(self, "axis", ("yaw", "pitch"))
+        require_positive(self, "settle_s", "doublet_period_s", "post_excitation_s", "resettle_s", "p0",
+                         "live_value_period_s")
+        require_non_negative(self, "pre_excitation_s", "convergence_delay_s")
+        require_range(self, "training_amplitude", 1e-4, 1.0)
+        require_range(self, "validation_amplitude", 1e-4, 1.0)
+        require_range(self, "r2_threshold", -1.0, 1.0)
+        if not (isinstance(self.max_attempts, int) and 1 <= self.max_attempts <= 10):
+            raise ValueError(f"ManoeuvreConfig.max_attempts must be an integer in 1..10, not {self.max_attempts!r}")
+        require_choice(self, "input_hold", ("foh", "zoh"))
+        require_choice(self, "output_hold", ("foh", "zoh"))
+        require_range(self, "svf_bandwidth", 1e-3, 100.0, optional=True)
+        require_range(self, "validation_post_s", 0.0, 600.0, optional=True)
+        require_range(self, "convergence_drift", 1e-6, 1.0, optional=True)
+        require_range(self, "convergence_noise_band", 1e-3, 100.0, optional=True)
 
     @property
     def actuator(self) -> str:

@@ -98,6 +98,8 @@ from typing import Sequence
 
 import numpy as np
 
+from companion.checks import require_finite, require_non_negative, require_positive, require_range
+
 from companion.interface import Command, NamedValue, SetThrust, StatusText, Telemetry
 from behaviors.base import Behaviour, Footprint, Status
 from companion.numerics.fuzzy_seeker import LowPass, SeekerConfig, decide, hold_decision, next_thrust
@@ -122,14 +124,14 @@ class MinSpeedConfig:
     settle_window_s: float = 15.0
     transient_s: float = 5.0
     duration_s: float | None = None  # None: seek until aborted
-    # issue 10: the set-point the seeking starts from (None: the nominal thrust, the thesis); the
+    # the set-point the seeking starts from (None: the nominal thrust, the thesis); the
     # procedure passes the model's predicted TR* plus a margin, so the seeker only fine-tunes
     start_thrust: float | None = None
     # how fast the set-point moves from the nominal thrust to ``start_thrust`` (1/s of thrust ratio);
     # a step there at once lost 0.7 m of depth in the speed transient, 0.01/s 0.44 m, 0.005/s 0.30 m
     # (bench/bench_min_speed.py --predicted); no decision meanwhile
     start_ramp_rate: float = 0.005
-    # issue 10, the governed move (None: today's ramp at ``start_ramp_rate``): the set-point falls
+    # the governed move (None: the ramp at ``start_ramp_rate``): the set-point falls
     # as fast as the autopilot's depth integrator can carry the pitch change while the depth error
     # stays near this budget (m); needs ``start_pitch_curve``, see :meth:`MinSpeedSeeking._governed`
     start_depth_budget_m: float | None = None
@@ -139,6 +141,20 @@ class MinSpeedConfig:
     # a governed move that has not lowered the set-point for this long (e.g. the vehicle is not in
     # the level flight the curve describes, such as at the surface) continues as the ramp above
     start_stall_s: float = 10.0
+
+    def __post_init__(self) -> None:
+        require_range(self, "nominal_thrust", 0.0, 1.0)
+        require_range(self, "thrust_floor", 0.0, 1.0)
+        require_range(self, "thrust_ceiling", 0.0, 1.0)
+        if self.thrust_floor > self.thrust_ceiling:
+            raise ValueError(f"MinSpeedConfig: thrust_floor {self.thrust_floor} above thrust_ceiling {self.thrust_ceiling}")
+        require_finite(self, "depth_p", "depth_i")
+        require_positive(self, "pitch_max", "init_average_s", "settle_window_s", "start_ramp_rate", "start_stall_s")
+        require_non_negative(self, "transient_s")
+        require_range(self, "duration_s", 1e-3, 1e6, optional=True)
+        require_range(self, "start_thrust", 0.0, 1.0, optional=True)
+        require_range(self, "start_depth_budget_m", 1e-3, 10.0, optional=True)
+        require_range(self, "depth_setpoint", -10.0, 11000.0, optional=True)
 
 
 class MinSpeedSeeking(Behaviour):

@@ -20,6 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
+from companion.checks import require_non_negative, require_positive, require_range
 from behaviors.base import Behaviour, Footprint, Status
 from companion.interface import Command, SetRollingMass, StatusText, Telemetry
 from companion.numerics.roll import RollPI, RollPIGains, RollVehicle, linearise, rate_feedback_gains
@@ -37,6 +38,13 @@ class RollStabilisationConfig:
     duration_s: float | None = None  # None: until aborted
     record_stride: int = 1  # keep every n-th sample in the series
     stats_after_s: float = 10.0  # roll/mass statistics skip the switch-on transient (steady state, Table 4.3)
+
+    def __post_init__(self) -> None:
+        require_positive(self, "command_quantum")
+        require_non_negative(self, "stats_after_s")
+        require_range(self, "duration_s", 1e-3, 1e6, optional=True)
+        if not (isinstance(self.record_stride, int) and self.record_stride >= 1):
+            raise ValueError(f"RollStabilisationConfig.record_stride must be an integer ≥ 1, not {self.record_stride!r}")
 
 
 class RollStabilisation(Behaviour):

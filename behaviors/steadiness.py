@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.checks import require_positive
 from companion.numerics.angles import wrap_pi
 
 
@@ -31,6 +32,9 @@ class SteadinessRule:
     rate: float = math.radians(0.3)  # rad/s, mean over the last 2 s
     heading: float = math.radians(1.0)  # rad from the held course (yaw)
     rate_window_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        require_positive(self, "window_s", "min_s", "speed_slope", "rate", "heading", "rate_window_s")
 
 
 class SteadinessDetector:

@@ -23,6 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
+from companion.checks import require_positive, require_range
 from behaviors.base import Behaviour, Footprint, Status
 from companion.interface import (
     Command,
@@ -104,6 +105,12 @@ class SquareConfig:
     rate_tol: float = math.radians(0.5)  # transient cutting: |heading rate| below this on a leg
     speed_tol: float = 0.02  # m/s: body velocity over ground settled within this
     min_leg_s: float = 20.0
+
+    def __post_init__(self) -> None:
+        require_range(self, "thrust_ratio", 1e-3, 1.0)
+        require_positive(self, "leg_s", "rate_tol", "speed_tol", "min_leg_s")
+        if not (isinstance(self.legs, int) and 1 <= self.legs <= 16):
+            raise ValueError(f"SquareConfig.legs must be an integer in 1..16, not {self.legs!r}")
 
 
 class SquarePattern(Behaviour):
@@ -206,6 +213,13 @@ class TurnConfig:
     depth: float | None = None
     rate_tol: float = math.radians(0.3)  # transient cutting: heading rate settled within this
     min_steady_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        require_range(self, "thrust_ratio", 1e-3, 1.0)
+        require_positive(self, "turn_s", "recover_s", "rate_tol", "min_steady_s")
+        if not self.rudder_angles or any(not (isinstance(a, (int, float)) and 0 < abs(a) <= 1.0)
+                                         for a in self.rudder_angles):
+            raise ValueError(f"TurnConfig.rudder_angles must be non-zero angles within ±1 rad, not {self.rudder_angles!r}")
 
 
 class SteadyTurns(Behaviour):

@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from companion.checks import require_interval, require_positive
 from .identification import YawModel
 
 
@@ -42,6 +43,11 @@ class CascadeRules:
     rate_p_range: tuple[float, float] = (0.0, 2.0)
     rate_i_range: tuple[float, float] = (0.0, 2.0)
     rate_ff_range: tuple[float, float] = (0.0, 3.0)
+
+    def __post_init__(self) -> None:
+        require_positive(self, "full_scale", "rate_bandwidth", "integral_ratio")
+        for name in ("angle_p_range", "rate_p_range", "rate_i_range", "rate_ff_range"):
+            require_interval(self, name)
 
 
 @dataclass

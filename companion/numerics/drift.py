@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from companion.checks import require_choice, require_non_negative, require_positive
 from .angles import wrap_pi
 from .svf import DEFAULT_BANDWIDTH, StateVariableFilter
 
@@ -58,6 +59,13 @@ class DriftConfig:
     tolerance: float = 0.06  # ε, relative
     allowance: float = 1.0  # k (in units of z)
     threshold: float = 3.5  # h: one window with z ≥ 4.5 (a 27 % shift at ε = 6 %) alarms at once
+
+    def __post_init__(self) -> None:
+        require_positive(self, "window_s", "bandwidth", "warm_up_s", "max_gap_s", "hac_lag_s", "speed_tolerance",
+                         "min_rudder_std", "min_heading_span_deg", "max_relative_sigma", "tolerance", "threshold")
+        require_non_negative(self, "reference_margin", "allowance")
+        require_choice(self, "output_hold", ("foh", "zoh"))
+        require_choice(self, "input_hold", ("foh", "zoh"))
 
 
 @dataclass

@@ -44,6 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.checks import require_non_negative, require_positive, require_range
+
 DECREASE = -1
 KEEP = 0
 INCREASE = 1
@@ -68,6 +70,13 @@ class SeekerConfig:
     filter_r: float = 0.95  # r of eq. 5.64 at the reference sample interval
     filter_reference_dt: float = 0.05  # s, the sample interval r was chosen for (20 Hz)
     hold_after_change_s: float = 4.0  # s, keep for this long after every change (0: thesis law; see module doc)
+
+    def __post_init__(self) -> None:
+        require_positive(self, "theta_e_threshold", "delta_max", "step", "period_s", "filter_reference_dt")
+        require_non_negative(self, "fin_budget", "theta_e_ramp", "delta_ramp", "hold_after_change_s")
+        require_range(self, "filter_r", 0.0, 0.9999)
+        if self.saturation_sign not in (1.0, -1.0):
+            raise ValueError(f"SeekerConfig.saturation_sign must be +1 or -1, not {self.saturation_sign!r}")
 
     @property
     def delta_crossover(self) -> float:

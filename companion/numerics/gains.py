@@ -39,6 +39,7 @@ import logging
 import math
 from dataclasses import dataclass
 
+from companion.checks import require_non_negative, require_positive, require_range
 from .identification import YawModel
 
 logger = logging.getLogger(__name__)
@@ -60,6 +61,13 @@ class GainBounds:
     trim_limit: float = 0.15  # |trim| ≤ this (rad); the rudder limit is ~0.26–0.52 rad
     integral_ratio: float = 100.0  # N: PI zero at ωn/N (see module docstring)
     damping: float = DESIGN_DAMPING  # ζ of the dominant pair (eq. 3.57: 0.7071; see module docstring)
+
+    def __post_init__(self) -> None:
+        require_non_negative(self, "kp_min", "ki_min", "trim_limit")
+        require_positive(self, "kp_max", "ki_max", "integral_ratio")
+        require_range(self, "damping", 0.1, 5.0)
+        if self.kp_min > self.kp_max or self.ki_min > self.ki_max:
+            raise ValueError(f"GainBounds: a lower bound above its upper bound ({self})")
 
 
 @dataclass
