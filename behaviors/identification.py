@@ -70,7 +70,7 @@ class ManoeuvreConfig:
     input_hold: str = "foh"
     output_hold: str = "foh"
     live_value_period_s: float = 0.25  # NAMED_VALUE_FLOAT rate of the live estimates
-    # issue 10: None settles and resettles for the fixed times above (the thesis); a rule ends them
+    # settle until steady: None settles and resettles for the fixed times above (the thesis); a rule ends them
     # as soon as the vehicle is steady (behaviors/steadiness.py), the fixed times being the maximum
     steadiness: SteadinessRule | None = None
     # length of the validation record after its doublet (None: post_excitation_s, as training)
@@ -184,7 +184,7 @@ class IdentificationManoeuvre(Behaviour):
         self._overriding = False
         self._training_time_s = math.nan
         self._steadiness: SteadinessDetector | None = None
-        self.stage_times: dict[str, float] = {}  # vehicle seconds spent per stage (issue 10)
+        self.stage_times: dict[str, float] = {}  # vehicle seconds spent per stage (the campaign's cost)
         self.outcome: str | None = None  # "accepted", "rejected", "aborted"
 
     @property
