@@ -1,4 +1,4 @@
-"""Heading steps to check a set of heading gains (thesis Fig. 3.16; issue: ±20° at each thrust).
+"""Heading steps to check a set of heading gains (thesis Fig. 3.16; the campaign flies ±20° at each thrust).
 
 At one thrust: write the gains, settle on course, command +step, hold, command the original course
 (−step), hold. Each step is scored by its overshoot (percent of the step) and its 90 % rise time.

@@ -1,4 +1,4 @@
-"""Health monitoring while the vehicle works (issue 11 item 2): passive yaw identification from
+"""Health monitoring while the vehicle works: passive yaw identification from
 ordinary manoeuvres compared with the stored model at the same speed
 (:mod:`companion.numerics.drift`: windowed SVF least squares with a HAC covariance, two-sided
 CUSUMs of a22 and b2 scaled by it).

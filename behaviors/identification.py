@@ -202,7 +202,7 @@ class IdentificationManoeuvre(Behaviour):
         self._overriding = False
         self._training_time_s = math.nan
         self._steadiness: SteadinessDetector | None = None
-        self.stage_times: dict[str, float] = {}  # vehicle seconds spent per stage (issue 10)
+        self.stage_times: dict[str, float] = {}  # vehicle seconds spent per stage (the campaign's cost)
         self.outcome: str | None = None  # "accepted", "rejected", "aborted"
 
     @property

@@ -61,7 +61,7 @@ better on three seeds. Ts = 2-3 s settles at 0.44 in 90-160 s without reversals 
 give bounded limit cycles (as the lake trials did for 0.40). The default stays the seed's Ts = 1 s,
 with the 4 s hold above.
 
-Governed start (issue 10; ``start_depth_budget_m``, with ``start_thrust`` from the procedure's
+Governed start (``start_depth_budget_m``, with ``start_thrust`` from the procedure's
 predicted T_R* + margin; None keeps today's ramp at ``start_ramp_rate``): the set-point falls from the
 nominal thrust as fast as the autopilot's depth integrator can carry the level-flight pitch change of
 eq. 5.25–5.29/5.54–5.55 (along ``start_pitch_curve``, :func:`companion.numerics.minspeed.trim_pitch_curve`)
@@ -269,7 +269,7 @@ class MinSpeedSeeking(Behaviour):
 
     # ------------------------------------------------------------------ internals
     def _governed(self, target: float) -> float:
-        """The set-point of the governed move to ``target`` (issue 10), never rising.
+        """The set-point of the governed move to ``target``, never rising.
 
         In level flight the pitch θ(T_R) is fixed by the thrust (eq. 5.25–5.29: the slower, the more
         nose-down), and the autopilot's depth PI, θd = Kpz·e + I, holds it at zero depth error only

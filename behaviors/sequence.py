@@ -141,7 +141,7 @@ class SequenceBehavior(Behaviour):
 
 
 class ParallelBehavior(Behaviour):
-    """Children stepped on the same telemetry, their commands concatenated (issue 10: the yaw and
+    """Children stepped on the same telemetry, their commands concatenated (the quick procedure: the yaw and
     pitch identifications at one thrust run together — the axes are decoupled in the model and
     their doublets are staggered, so each estimator sees an input the other does not drive).
 

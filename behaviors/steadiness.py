@@ -1,4 +1,4 @@
-"""Settle only as long as needed (issue 10): is the vehicle steady enough to start a record?
+"""Settle only as long as needed (the quick procedure): is the vehicle steady enough to start a record?
 
 The thesis settles a fixed 40 s before each manoeuvre (and 15 s between records). Most of that time
 the vehicle is already steady — always so for the second axis at the same thrust. This detector

@@ -1,4 +1,4 @@
-"""Figures of the campaign on the real ArduPilot firmware (issue 14): identification error against
+"""Figures of the campaign on the real ArduPilot firmware: identification error against
 the simulator's linearised truth, validation R², and ±20° heading-step overshoot and step error
 (IAE) for the vehicle's default gains, Rover QuickTune's FF rule and the designed schedule.
 

@@ -1,7 +1,7 @@
-"""Issue 10's campaign goals, today's procedure beside the new one, in one run.
+"""The quick procedure's campaign goals: the thesis procedure beside the quick one, in one run.
 
 "thesis" is the seeds' procedure (``companion rehearse --procedure thesis``: fixed 40/15 s settles,
-16.5 s records, eq. 3.39, eq. 3.57 gains); "quick" is issue 10's (the default: settle until steady,
+16.5 s records, eq. 3.39, eq. 3.57 gains); "quick" is the quick procedure (the default: settle until steady,
 yaw and pitch together, short validation records, the noise-aware stopping rule, gains for ζ = 0.75).
 Same seeds for both.
 

@@ -1,4 +1,4 @@
-"""Faults tried and survived (issue 9, "fault-injection suite"): the matrix fault kind × phase × seed,
+"""Faults tried and survived (the fault-injection suite): the matrix fault kind × phase × seed,
 one fault per case, each through ``harness.fault_proxy.FaultProxy`` between the companion and a
 ``--lockstep`` simulator (``harness/fault_cases.py`` runs and checks a case).
 

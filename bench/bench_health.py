@@ -1,4 +1,4 @@
-"""Health monitoring over MAVLink (issue 11): detection delay of a 30 % loss of fin effectiveness and
+"""Health monitoring over MAVLink: detection delay of a 30 % loss of fin effectiveness and
 false alarms in fault-free missions, measured with ``companion run``'s resident loop.
 
 1. The reference: a live identification campaign (yaw, thrusts 0.6/0.7/0.8, no step checks) on the

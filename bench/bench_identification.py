@@ -1,4 +1,4 @@
-"""Identification accuracy, convergence and heading-step overshoot over many seeds (issue 3).
+"""Identification accuracy, convergence and heading-step overshoot over many seeds.
 
 Runs the whole campaign (five thrusts, yaw) per seed and compares every accepted model with the
 simulator's linearised truth at the measured speed. Two paths:
@@ -12,7 +12,7 @@ Prints, per thrust and overall: median / 90th percentile of |a22| and |b2| relat
 R², median convergence time (eq. 3.39 held for 20 samples: when training stops), the median time
 from which eq. 3.39 held ("from med", the thesis' Fig. 3.11 figure: "met from 12 s onward"), and the median time after which the estimates stay within 2 %
 of their final values ("2% med"), and the heading-step overshoot with the scheduled gains against one
-constant gain tuned at 60 % thrust. Goals (issue 3): median error ≤ 5 %, R² ≥ 0.9, convergence
+constant gain tuned at 60 % thrust. Goals: median error ≤ 5 %, R² ≥ 0.9, convergence
 ≤ 10 s (the seed: 12 s), overshoot ≤ 6 % everywhere.
 
     python bench/bench_identification.py --seeds 20

@@ -1,4 +1,4 @@
-"""Identification from a recorded mission against the live campaign on the same vehicle (issue 11).
+"""Identification from a recorded mission against the live campaign on the same vehicle.
 
 Per seed: (1) the live campaign (doublets, ``run_campaign``, yaw, thrusts 0.6/0.8/1.0) on the
 simulator; (2) a survey mission on the same vehicle — course changes by its own heading hold at the

@@ -12,7 +12,7 @@ settle time, max |depth error| after 5 s, reversals in the last 30 s; and in a s
 whose thrust set-point is kicked to 0.60 at 150 s, the re-convergence time (from the kick to the
 last change before 15 s without one) and the TR at 300 s. No asserts.
 
-``--predicted`` (issue 10): in one run, per seed 1-6 and as a summary beside the goal, today's
+``--predicted``: in one run, per seed 1-6 and as a summary beside the goal, today's
 procedure from TR 0.70, today's predicted start (a 0.005/s ramp to the analytic TR* + 0.04) and the
 new governed move to TR* + 0.008 (MinSpeedProcedureConfig.governed()): settle time, final TR and its %
 over TR*, max |depth error|, reversals in the last 30 s, re-convergence after a kick to 0.60 (~20 s).
@@ -172,7 +172,7 @@ def predicted_run(seed: int, config: procedure.MinSpeedProcedureConfig, seconds:
 
 
 def predicted_table() -> None:
-    """Issue 10: today's procedure (from TR 0.70, and from the predicted TR* + 0.04 after a 0.005/s
+    """Today's procedure (from TR 0.70, and from the predicted TR* + 0.04 after a 0.005/s
     ramp) beside the new one (the governed move to TR* + 0.008), per seed and as a summary."""
     tr_star = procedure.analytic_minimum_speed("starfish")["thrust_ratio_star"]
     goal = "≤ 60 s | ≤ +2.0 % | ≤ 0.30 m | ≤ 1 | re-converges"
@@ -223,7 +223,7 @@ def main() -> None:
     parser.add_argument("--hold", action="store_true", help="the thesis law against the hold after every change")
     parser.add_argument("--predicted", action="store_true",
                         help="today's procedure (from TR 0.70; from TR* + 0.04 after a ramp) beside the "
-                             "governed move to TR* + 0.008 (issue 10), per seed and summary")
+                             "governed move to TR* + 0.008, per seed and summary")
     args = parser.parse_args()
     if args.predicted:
         start = time.time()

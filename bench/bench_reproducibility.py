@@ -1,4 +1,4 @@
-"""Same seed, same numbers (issue 12): the spread of a rehearsal's results over repeats of one seed,
+"""Same seed, same numbers: the spread of a rehearsal's results over repeats of one seed,
 beside their spread over seeds. The first must be zero; the second shows what the seed moves.
 
 Runs ``companion rehearse --json`` as a user does (a child process each time) and compares the

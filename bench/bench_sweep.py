@@ -1,4 +1,4 @@
-"""Sweep throughput on Dask (issue 13): cases per minute with 1 and 2 local workers, and the per-task
+"""Sweep throughput on Dask: cases per minute with 1 and 2 local workers, and the per-task
 overhead of the engine against running the very same cases in a plain loop.
 
 The cases are those ``companion sweep`` runs (one isolated ``companion rehearse`` child process each,

@@ -1,6 +1,6 @@
 """Fault-injection cases: a procedure run through :class:`harness.fault_proxy.FaultProxy` with a
-schedule of faults, then checked against the vehicle as it was found (issue 9, "fault-injection
-suite"). Shared by ``tests/test_fault_injection.py`` (grouped schedules that cover every fault kind
+schedule of faults, then checked against the vehicle as it was found (the
+fault-injection suite). Shared by ``tests/test_fault_injection.py`` (grouped schedules that cover every fault kind
 at every phase) and ``bench/bench_faults.py`` (the matrix kind × phase × seed, one fault per case).
 
 A case, on a ``--lockstep`` simulator served over TCP:

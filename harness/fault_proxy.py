@@ -1,5 +1,5 @@
 """A MAVLink-aware TCP proxy that injects link faults between the companion and the vehicle
-(issue 9, "fault-injection suite").
+(the fault-injection suite).
 
 The proxy listens on a loopback port (bound to port 0: the OS picks it) and opens one upstream TCP
 connection to the vehicle (the simulator's ``tcpin`` port) for each companion that connects. It

@@ -1,5 +1,5 @@
 """Ordinary missions flown on the simulator, for the log identification and health monitoring
-tests and bench (issue 11): course changes by the autopilot's own heading hold at a few thrusts,
+tests and bench: course changes by the autopilot's own heading hold at a few thrusts,
 never a doublet.
 
 * :class:`SurveyPlan` — a survey pattern as a pure function of vehicle time: at each thrust a

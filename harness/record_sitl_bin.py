@@ -1,4 +1,4 @@
-"""Record an ArduPilot DataFlash ``.bin`` of ordinary manoeuvres on the real firmware (issue 11):
+"""Record an ArduPilot DataFlash ``.bin`` of ordinary manoeuvres on the real firmware, for log identification:
 ArduRover SITL flying our boat physics (``sim.ardupilot_sitl``) through a survey — course changes
 by its own GUIDED heading hold at a few speeds (fractions of WP_SPEED), no doublet — flown over
 MAVLink with :class:`companion.link.vehicle.VehicleLink`. SITL writes the log itself (``logs/`` of

@@ -39,7 +39,7 @@ CLIENT_FORMS = {"tcp": "tcpin", "udp": "udpin"}
 
 
 def listen_endpoint(text: str) -> str:
-    """``--listen``: a listening endpoint (issue 9 item 7: ``tcp:HOST:PORT`` connected out, with a
+    """``--listen``: a listening endpoint (``tcp:HOST:PORT`` once connected out, with a
     traceback). Client forms get the listening form to write instead; anything else, the forms."""
     kind, _, address = text.partition(":")
     host, _, port = address.rpartition(":")

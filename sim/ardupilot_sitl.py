@@ -1,4 +1,4 @@
-"""The real ArduPilot firmware as the autopilot of our simulated vehicle (issue 14).
+"""The real ArduPilot firmware as the autopilot of our simulated vehicle.
 
 ``python -m sim run --autopilot ardurover|ardusub --ardupilot-bin DIR`` starts ArduPilot's SITL
 binary (``DIR/ardurover`` or ``DIR/ardusub``, built from ArduPilot's sources by the user; never

@@ -122,7 +122,7 @@ class Autopilot:
                 self.heading_pi.reset()
                 # bumpless entry, as a real autopilot's depth hold does (ArduSub ALT_HOLD captures the
                 # current state): the desired pitch starts at the current pitch and the elevator where
-                # it is, so entering the mode in trimmed flight causes no depth transient (issue 4:
+                # it is, so entering the mode in trimmed flight causes no depth transient (before,
                 # a reset integrator made the vehicle pitch to 0 and climb for ~60 s on every entry)
                 self.depth_pitch.initialize(state.pitch, self.vehicle.elevator)
             log.info("mode %s -> %s at t=%.2f", self.mode_name, MODE_NAMES[custom_mode], self.time_s)

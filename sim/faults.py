@@ -1,4 +1,4 @@
-"""Fault injection: a vehicle property that changes at a given vehicle time (issue 11).
+"""Fault injection: a vehicle property that changes at a given vehicle time (for health monitoring).
 
 A :class:`Fault` scales one physical property of the simulated vehicle by ``factor`` from vehicle
 time ``at_s`` on, for the rest of the run:

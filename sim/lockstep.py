@@ -1,5 +1,5 @@
 """Lockstep with the companion: vehicle time advances only as the companion acknowledges it
-(docs/PROTOCOL.md, "Lockstep"; issue 12 "same seed, same numbers").
+(docs/PROTOCOL.md, "Lockstep"; docs/reproducibility.md, "same seed, same numbers").
 
 The companion (component 191) acknowledges the sample it has finished acting on with SYSTEM_TIME
 (``time_boot_ms``). The simulator may then run one attitude period past it — to the next sample —

@@ -495,7 +495,7 @@ class SimServer:
             mass_output = int(self.params["MASS_SERVO"])
             servos[mass_output - 1] = pwm_from_fin(m.mass_angle)
             # time_usec is a uint32 (micros() on ArduPilot): it wraps every 71.6 minutes; unwrapped it
-            # could not be packed after 4295 s and the outputs vanished from telemetry (issue 9 bench)
+            # could not be packed after 4295 s and the outputs vanished from telemetry (the fault bench)
             return mavlink.MAVLink_servo_output_raw_message((ms * 1000) & 0xFFFFFFFF, 0, *servos)
         if msg_id == mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
             m = self._measurements()

@@ -1,5 +1,5 @@
 """The simulator's TCP clients: several at once, as an autopilot serves a GCS and a companion on
-different ports and MAVProxy serves several outputs (issue 9, item 7).
+different ports and MAVProxy serves several outputs.
 
 Every connected client gets the whole stream (heartbeats, telemetry, replies), has its own MAVLink
 parser (a frame never spans two clients' bytes) and its own queue of whole frames not yet accepted

@@ -1,4 +1,4 @@
-"""The product against the real ArduRover firmware (issue 14): ArduPilot SITL built from ArduPilot's
+"""The product against the real ArduRover firmware: ArduPilot SITL built from ArduPilot's
 sources flies our boat physics through its JSON backend; the companion talks MAVLink to the
 firmware on loopback exactly as it would to a boat.
 
@@ -160,7 +160,7 @@ def test_rehearse_exits_zero_only_with_verified_gains_and_reports_math_free_json
 
 
 def test_steady_state_squares_and_turns_against_the_connected_firmware(tmp_path):
-    """``companion run-behavior steady-state --connect`` on ArduRover (issue 14): the turns (rudder and
+    """``companion run-behavior steady-state --connect`` on ArduRover: the turns (rudder and
     throttle held in MANUAL) find a known current; the squares fly GUIDED, whose speed loop holds the
     speed over ground, so their current estimate is only reported (README: a known limitation)."""
     import json

@@ -1,7 +1,7 @@
 """The identification campaign state machine on the in-process simulator: results and abort paths.
 
 Every abort path must leave the autopilot as it was found: overrides released, the original mode
-and the original heading gains (SPEC C4, issue 3).
+and the original heading gains (SPEC C4).
 """
 from __future__ import annotations
 

@@ -112,7 +112,7 @@ def test_user_4_aborts_the_campaign(companion, mav_client):
 
 
 def test_a_stranger_cannot_start_a_procedure(companion, mav_client):
-    """Issue 9: procedure commands are obeyed only from the ground station's system id; another
+    """Procedure commands are obeyed only from the ground station's system id; another
     system gets DENIED and a STATUSTEXT, and nothing starts."""
     sim, process = companion
     gcs = mav_client(sim.endpoint)

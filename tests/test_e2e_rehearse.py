@@ -1,5 +1,5 @@
 """End to end: ``companion rehearse`` runs the simulator as a child process and the whole product over
-MAVLink on loopback, sped up (issue 3: "companion rehearse on a fresh clone produces the report and
+MAVLink on loopback, sped up (the goal: "companion rehearse on a fresh clone produces the report and
 the JSON summary"). A reduced campaign (two thrusts, yaw, no step checks) keeps it short."""
 from __future__ import annotations
 
@@ -67,7 +67,7 @@ def test_report_and_store_are_written(rehearsal):
 
 
 def test_hugin_rehearsal_recovers_the_current_from_squares_and_turns(tmp_path):
-    """Issue 5: the steady-state manoeuvres inside the rehearsal on the HUGIN-like preset, scored
+    """The steady-state manoeuvres inside the rehearsal on the HUGIN-like preset, scored
     against the known current the simulator was started with (14 mm/s towards 300°)."""
     command = [sys.executable, "-m", "companion", "rehearse", "--preset", "hugin", "--out", str(tmp_path),
                "--thrusts", "0.8", "--axes", "yaw", "--no-steps", "--seed", "2", "--speedup", "100", "--json"]

@@ -1,4 +1,4 @@
-"""Fault injection (issue 9, "Done when"): a MAVLink-aware proxy between the companion and the simulator
+"""Fault injection: a MAVLink-aware proxy between the companion and the simulator
 drops, delays, duplicates, reorders and corrupts frames and cuts the link, at every phase of a
 campaign and of each behaviour; every case must end without an escaping exception, with the
 vehicle as found (parameters, mode, thrust, heading set-point, no RC override held) and the store

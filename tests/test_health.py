@@ -1,4 +1,4 @@
-"""Health monitoring (issue 11 item 2): passive estimates, their HAC covariance, the CUSUM, the
+"""Health monitoring: passive estimates, their HAC covariance, the CUSUM, the
 monitor on synthetic data, and ``companion run``'s resident loop flagging a 30 % loss of fin
 effectiveness injected into the simulator (in-process), with its STATUSTEXT, NAMED_VALUE_FLOATs,
 store records and drift plot."""

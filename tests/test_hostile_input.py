@@ -1,4 +1,4 @@
-"""Hostile and careless input (issue 9): every case gets one clear sentence and a non-zero exit, or a
+"""Hostile and careless input: every case gets one clear sentence and a non-zero exit, or a
 correct answer; never a traceback, a silent wrong answer, NaN in JSON, or a modified file that is
 not ours.
 
@@ -162,7 +162,7 @@ def test_a_read_only_store_is_refused_for_writing_but_readable(tmp_path, capsys)
 
 
 def test_results_opens_read_only_and_never_writes(tmp_path, capsys):
-    """The issue's probe: a reading command switched a foreign file to WAL and added tables. Now a
+    """The probe that found it: a reading command switched a foreign file to WAL and added tables. Now a
     store of ours is read in ``mode=ro`` too: its journal mode and every byte stay as they were."""
     path = tmp_path / "s.sqlite"
     with Store(path) as store:
@@ -241,7 +241,7 @@ def test_a_good_turn_still_fits(tmp_path, capsys):
 @pytest.mark.parametrize("kind", ["turns", "squares"])
 def test_yaw_in_degrees_is_refused(tmp_path, capsys, kind):
     columns = turn_columns()[0] if kind == "turns" else square_columns()
-    columns["yaw"] = np.degrees(columns["yaw"])  # the issue's probe: R 0.15 m and 191.6°/s, exit 0
+    columns["yaw"] = np.degrees(columns["yaw"])  # the probe that found it: R 0.15 m and 191.6°/s, exit 0
     write_csv(tmp_path / "deg.csv", columns)
     code, out, err = run_cli(capsys, "analyze", kind, "--input", str(tmp_path / "deg.csv"), "--json")
     assert_clear_error(code, err, "degrees")
@@ -294,7 +294,7 @@ def test_velocities_or_positions_in_other_units_are_refused(tmp_path, capsys, co
 
 
 def test_a_near_straight_log_is_not_fitted_as_a_turn(tmp_path, capsys):
-    """The issue's probe: a near-straight log was fitted as a 45.9 km turn with exit 0."""
+    """The probe that found it: a near-straight log was fitted as a 45.9 km turn with exit 0."""
     t = np.arange(0.0, 600.0)
     yaw = 0.3 + 1e-4 * t
     write_csv(tmp_path / "straight.csv", nav_columns(t, 1.5 * t * np.cos(0.3), 1.5 * t * np.sin(0.3), yaw, u=1.5))

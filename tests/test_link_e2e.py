@@ -193,7 +193,7 @@ def test_status_command_fails_clearly_when_nothing_answers(capsys):
 
 
 def test_a_simulator_killed_under_a_tcp_link_is_link_loss_not_a_print_loop(sim_factory, capfd):
-    """Issue 9: EOF on TCP becomes LinkLost at once; pymavlink prints nothing to stdout."""
+    """EOF on TCP becomes LinkLost at once; pymavlink prints nothing to stdout."""
     import os
     import signal
 

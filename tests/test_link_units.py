@@ -68,7 +68,7 @@ def test_profiles_name_modes_channels_and_units():
 
 
 def test_ardupilot_profiles_name_their_native_heading_gains_one_to_one():
-    """No PI-to-cascade translation any more (issue 14): each native gain has its own neutral name."""
+    """No PI-to-cascade translation any more: each native gain has its own neutral name."""
     assert ARDUROVER.natives_touched(["heading_angle_p", "heading_rate_ff"]) == ("ATC_STR_ANG_P", "ATC_STR_RAT_FF")
     assert ARDUSUB.natives_touched(["heading_rate_p", "nonexistent"]) == ("ATC_RAT_YAW_P",)
     assert "heading_p" not in ARDUROVER.params and "rudder_trim" not in ARDUROVER.params  # never write SERVO1_TRIM

@@ -1,4 +1,4 @@
-"""Identification from recorded missions (issue 11 item 1): tlog from our simulator (ordinary course
+"""Identification from recorded missions: tlog from our simulator (ordinary course
 changes by the autopilot's heading hold, no doublet), ArduPilot DataFlash .bin, PX4 .ulg and CSV
 fixtures written here, the segment verdicts, the unit checks, the command line and the store."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Identification from an ArduPilot DataFlash log recorded by the real firmware (issue 11): ArduRover
+"""Identification from an ArduPilot DataFlash log recorded by the real firmware: ArduRover
 SITL flies our boat physics through ordinary course changes at three speeds (no doublet) and writes
 its own .bin; ``identify --log`` must give yaw models within 5 % of the physics' linearised truth.
 

@@ -276,7 +276,7 @@ def test_product_procedure_with_the_default_hold():
 
 
 def test_seeking_can_start_from_the_predicted_minimum_after_a_ramp():
-    """Issue 10: the procedure moves (0.005/s, no decision meanwhile) to the analytic TR* + 0.04 and
+    """The predicted start: the procedure moves (0.005/s, no decision meanwhile) to the analytic TR* + 0.04 and
     seeks from there; it ends near TR* with the depth held (in-process simulator, seed 3)."""
     from companion.procedures import min_speed as procedure
     from harness.inprocess import InProcessLink
@@ -295,7 +295,7 @@ def test_seeking_can_start_from_the_predicted_minimum_after_a_ramp():
     assert result["max_depth_error_m"] <= 0.35
 
 
-# ------------------------------------------------------------------ issue 10: the governed move to the predicted start
+# ------------------------------------------------------------------ the governed move to the predicted start
 def test_trim_pitch_curve_is_the_level_flight_balance():
     """eq. 5.25–5.29, 5.54–5.55: at T_R* the curve gives θ*; the pitch falls (nose down) as T_R falls."""
     from companion.numerics.minspeed import trim_pitch_curve
@@ -348,7 +348,7 @@ def test_a_stalled_governed_move_continues_as_the_ramp():
 
 
 def test_governed_start_settles_within_two_percent_of_the_analytic_minimum():
-    """Issue 10, product procedure, seed 2 (bench/bench_min_speed.py --predicted): the governed move
+    """The governed start, product procedure, seed 2 (bench/bench_min_speed.py --predicted): the governed move
     reaches TR* + 0.008 in about 44 s with the depth within 0.3 m, settled (15 s without a change)
     within 75 s, no limit cycle."""
     from companion.procedures import min_speed as procedure

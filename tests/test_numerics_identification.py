@@ -175,7 +175,7 @@ def test_pitch_with_attitude_noise_and_nan():
 
 
 def test_the_drift_rule_stops_once_the_estimate_stays_put_and_never_before_the_excitation_ends():
-    """ConvergenceRule.relative_drift (issue 10's noise-aware alternative to eq. 3.39): converged when Θ
+    """ConvergenceRule.relative_drift (a noise-aware alternative to eq. 3.39): converged when Θ
     stayed within the fraction of ‖Θ‖ over the window; never before min_time_s + the window."""
     true = YawModel(*TABLE_3_1[2])
     times, heading, rudder = yaw_record(true, seed=1, noise=HEADING_NOISE)
@@ -190,7 +190,7 @@ def test_the_drift_rule_stops_once_the_estimate_stays_put_and_never_before_the_e
 
 
 def test_the_noise_band_rule_stops_earlier_than_eq_3_39_where_theta_stays_within_its_own_standard_error():
-    """ConvergenceRule.noise_band (issue 10, the quick procedure's yaw rule): converged once every
+    """ConvergenceRule.noise_band (the quick procedure's yaw rule): converged once every
     parameter stayed within band·σ_i (σ_i from σ̂²·P) of its current value over the window, never
     before min_time_s + the window; on 5 models × 3 seeds it stops before eq. 3.39 does, and the
     estimate it stops at is as accurate as eq. 3.39's bound (5 %)."""

@@ -1,4 +1,4 @@
-"""Issue 10's quick procedure: settle until steady (behaviors/steadiness.py), short validation
+"""The quick procedure: settle until steady (behaviors/steadiness.py), short validation
 records, yaw and pitch identified together. Same accuracy, a fraction of the vehicle time."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Typed records end to end (issue 8): the schedule the campaign fits is the one written, stored,
+"""Typed records end to end: the schedule the campaign fits is the one written, stored,
 reported, and read back by ``companion run`` — one serialiser, one fit, no re-packing on the way."""
 from __future__ import annotations
 

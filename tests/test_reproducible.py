@@ -1,4 +1,4 @@
-"""Issue 12, same seed, same numbers: a rehearsal is a function of its seed and options alone.
+"""Same seed, same numbers: a rehearsal is a function of its seed and options alone.
 
 Two runs of one short rehearsal, at 50x (the simulator paced on the wall clock, so the companion's
 messages arrive while it is between two samples) and at 100x (the simulator as fast as the companion

@@ -114,7 +114,7 @@ def test_kick_of_25_degrees_at_rest_settles_within_4_s():
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_roll_procedure_on_the_autopilot_reduces_measured_std_three_times(seed):
-    """Issue 4 goal through the product's procedure on the simulator's autopilot (in-process): the
+    """The roll goal through the product's procedure on the simulator's autopilot (in-process): the
     std of the *measured* (noisy) roll, open loop vs closed loop at 1.4 m/s with SIM_ROLL_DIST, ≥ 3×;
     the closed-loop 25° kick at cruise settles within 4 s."""
     from companion.procedures.app import AbortFlag

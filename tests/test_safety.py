@@ -208,7 +208,7 @@ def test_a_procedure_that_does_not_apply_refuses_with_the_reason(name, why):
 
 def test_a_second_companion_on_the_vehicle_stops_the_procedure_and_the_vehicle_is_restored(sim_factory, mav_client,
                                                                                           tmp_path):
-    """Issue 9 item 5: two companions flying one vehicle. Another onboard controller's HEARTBEAT on our
+    """Two companions flying one vehicle. Another onboard controller's HEARTBEAT on our
     component id (191) aborts the procedure with that reason; everything is put back as found."""
     import threading
 

@@ -1,4 +1,4 @@
-"""Signals against the restore (issue 9 item 2): two Ctrl-C 0.01 s apart used to cut a parameter write
+"""Signals against the restore: two Ctrl-C 0.01 s apart used to cut a parameter write
 of the restore (HDG_I left at 0.00584). Now a restore is never interrupted, each item is retried, and
 only a third signal exits — after printing what is still unrestored."""
 from __future__ import annotations

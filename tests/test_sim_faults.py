@@ -1,4 +1,4 @@
-"""Fault injection in the simulator (issue 11 item 3): a property scaled from a vehicle time on."""
+"""Fault injection in the simulator: a property scaled from a vehicle time on."""
 from __future__ import annotations
 
 import json

@@ -1,4 +1,4 @@
-"""The simulator's lockstep (sim/lockstep.py, docs/PROTOCOL.md "Lockstep"; issue 12): vehicle time
+"""The simulator's lockstep (sim/lockstep.py, docs/PROTOCOL.md "Lockstep"): vehicle time
 waits at its start for the companion, and input acts at the last tick the companion allowed, never
 at whatever tick the simulator happened to read it — so a rehearsal is a function of its seed."""
 from __future__ import annotations

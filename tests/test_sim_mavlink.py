@@ -362,7 +362,7 @@ def test_two_udp_clients_both_served(shared_sim, mav_client):
 
 
 def test_several_tcp_clients_are_served_at_once(sim_factory, mav_client):
-    """Issue 9 item 7: a second TCP client (the first one idle, not closed) hears the vehicle at
+    """A second TCP client (the first one idle, not closed) hears the vehicle at
     once and gets the whole stream, as from ArduPilot's serial ports or MAVProxy's outputs; what
     one client sends to another component is routed to the others."""
     sim = sim_factory(transport="tcp", speedup=30)
@@ -396,7 +396,7 @@ def test_an_idle_tcp_client_does_not_freeze_the_others(sim_factory, mav_client):
 
 @pytest.mark.parametrize("cli", [["-m", "sim", "run"], ["-m", "companion", "sim"]])
 def test_listen_takes_listening_forms_and_says_what_to_write(cli):
-    """Issue 9 item 7: ``--listen tcp:HOST:PORT`` tried to connect out, with a traceback."""
+    """``--listen tcp:HOST:PORT`` once tried to connect out, with a traceback."""
     import subprocess
     import sys
 

@@ -1,4 +1,4 @@
-"""Issue 13, ``companion sweep`` on Dask: specs, variants, rows, the store table, the report, and
+"""``companion sweep`` on Dask: specs, variants, rows, the store table, the report, and
 real sweeps — on the local default and on a ``dask scheduler`` + 2 ``dask worker`` processes started
 here on loopback — that give the same rows as each other and as a single ``companion rehearse`` of
 a case; Ctrl-C keeps the finished rows, a rerun resumes, a failing case is recorded with its reason

@@ -1,4 +1,4 @@
-"""Passive yaw identification and drift detection for health monitoring (issue 11 item 2; the
+"""Passive yaw identification and drift detection for health monitoring (the
 thesis' future work §6.2.1: faults seen as drift of the identified parameters). Pure numerics.
 
 **Passive estimates.** The heading and the rudder pass, sample by sample, through the same

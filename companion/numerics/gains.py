@@ -23,7 +23,7 @@ models give the same normalised loop), so the figures below hold for every model
 The price is a slow integrator (integral time N/ωn ≈ 100 s for |a22| ≈ 1.4): it trims only slow
 residual offsets, while the identified δ0 feed-forward removes the known one at once.
 
-Damping margin (issue 10): ``GainBounds.damping`` generalises eq. 3.57 to any ζ of the pair,
+Damping margin (the quick procedure): ``GainBounds.damping`` generalises eq. 3.57 to any ζ of the pair,
 **Kp = a22²/(4·ζ²·b2)**, ωn = |a22|/(2ζ) (ζ = 0.7071 gives eq. 3.57 exactly, the default here). A
 doublet-identified |a22| carries the vehicle's quadratic yaw damping at the doublet's yaw rates, so
 it is a few % larger than the damping that acts as a heading step comes to rest, where the overshoot

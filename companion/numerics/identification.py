@@ -52,14 +52,14 @@ class ConvergenceRule:
     tolerance: float = 1e-3
     consecutive: int = 20
     min_time_s: float = 6.0
-    # issue 10, a noise-aware alternative: converged once Θ has moved by less than this fraction of
+    # the drift rule, a noise-aware alternative: converged once Θ has moved by less than this fraction of
     # ‖Θ‖ over the last ``drift_window_s`` (measurement noise keeps the per-sample ‖ΔΘ‖ of eq. 3.39
     # near 10⁻³ long after the estimates settled); None: eq. 3.39 as above
     relative_drift: float | None = None
     drift_window_s: float = 1.5
-    # issue 10, the noise-aware rule taken by the quick procedure: converged once, over the last
+    # the noise-band rule, taken by the quick procedure: converged once, over the last
     # ``noise_window_s``, every parameter stayed within ``noise_band``·σ_i of its current value, σ_i
-    # the standard error the RLS covariance predicts (σ̂²·P, eq. 3.38's P): Θ then moves by less than
+    # the standard error the RLS covariance predicts (σ̂²·P, P of the RLS recursion): Θ then moves by less than
     # its own noise floor, and more samples of a decayed response cannot move it further. None: eq. 3.39
     noise_band: float | None = None
     noise_window_s: float = 1.0

@@ -186,7 +186,7 @@ def seed_gains(model: RollLinearModel, limit: float = math.radians(20.0),
 
 
 #: loop gains |k|·kp (s⁻²) and |k|·kd (s⁻¹) of the default rate-feedback design (kp ≈ 6.5, kd ≈ 13
-#: on the Table 4.1 plant). Chosen on the nonlinear simulator (issue 4) by the *measured* roll std
+#: on the Table 4.1 plant). Chosen on the nonlinear simulator by the *measured* roll std
 #: (0.3° attitude noise included, as the thesis measured it) at 1.4 m/s with the random roll moment
 #: through the roll procedure: loop gains (4.6, 9.2) gave 2.2–3.3× lower std than open loop over
 #: seeds 1/2/3/7, (10, 20) 3.4–5.0× over seeds 1–5; beyond that the 0.5 s servo lag and the sensor

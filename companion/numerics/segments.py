@@ -1,4 +1,4 @@
-"""Usable segments of a recorded mission for yaw identification (issue 11): steady speed with
+"""Usable segments of a recorded mission for yaw identification: steady speed with
 actuator activity. Pure functions of arrays (no I/O).
 
 The record is cut into candidate segments and each one gets a verdict, in this order:

@@ -1,4 +1,4 @@
-"""What yaw identification needs from the logs users already have (issue 11): heading, rudder and
+"""What yaw identification needs from the logs users already have: heading, rudder and
 speed on one vehicle-time base, in SI units, with the checks that were made on the way.
 
 Formats (chosen by content, not by the name alone: a DataFlash log starts with its FMT header

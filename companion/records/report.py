@@ -5,7 +5,7 @@ overlays with R² (Fig. 3.9), b2 against u² with the fitted law (Fig. 3.8), tur
 U-turn time against speed (Fig. 3.13), heading steps with the original, one constant and the
 scheduled gains (Fig. 3.16), thrust and speed during minimum-speed seeking (Fig. 5.22), roll
 open against closed loop (Fig. 4.8) and, for a ``companion run`` session, the drift of the passive
-estimates with their CUSUM (issue 11). Regenerate any time with ``companion results --report``.
+estimates with their CUSUM. Regenerate any time with ``companion results --report``.
 """
 from __future__ import annotations
 
@@ -295,7 +295,7 @@ def plot_steady_state(result: dict, path: Path) -> str | None:
 
 
 def plot_health(result: dict, path: Path) -> str | None:
-    """The drift of the passive estimates (issue 11): a22 and b2 over their reference at the same
+    """The drift of the passive estimates: a22 and b2 over their reference at the same
     speed per window (±σ, with the tolerance band), and the CUSUM statistics against the threshold."""
     windows = [w for w in result.get("windows") or [] if w.get("used")]
     if not windows:

@@ -10,7 +10,7 @@ leaves every completed write on disk and no half-written row; a campaign that ne
 Schema changes go in ``MIGRATIONS`` (one SQL script per version, applied in order, tracked by
 ``PRAGMA user_version``); never edit a released migration.
 
-Opening is careful with files that are not ours (issue 9, item 6). Our stores carry
+Opening is careful with files that are not ours. Our stores carry
 ``PRAGMA application_id`` = :data:`APPLICATION_ID` (a store written before the mark existed is
 recognised by its tables and marked on its next writable open). Before anything is written the
 file is inspected: a directory, a non-SQLite or corrupt file, a read-only file (for writing), an
@@ -107,7 +107,7 @@ MIGRATIONS: tuple[str, ...] = (
     CREATE INDEX runs_campaign ON runs(campaign_id);
     CREATE INDEX models_campaign ON models(campaign_id);
     """,
-    # version 2: one row per case of a parameter sweep (issue 13), keyed by the hash of its inputs
+    # version 2: one row per case of a parameter sweep, keyed by the hash of its inputs
     """
     CREATE TABLE sweep_cases (
         id INTEGER PRIMARY KEY,

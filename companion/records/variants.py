@@ -1,6 +1,6 @@
 """Vehicle variants: a shipped simulator preset with some parameters scaled, written as a preset file.
 
-A parameter sweep (issue 13) varies the vehicle as well as the sea: ±10 % mass, ±20 % rudder
+A parameter sweep varies the vehicle as well as the sea: ±10 % mass, ±20 % rudder
 effectiveness, another trim, noisier sensors. A variant is the base preset's JSON (read as data,
 never imported: the companion does not import the simulator, SPEC §5) with named groups of fields
 multiplied by factors, written to a file that ``python -m sim run --preset FILE.json`` and

@@ -1,6 +1,6 @@
 """Vehicle data files: the simulator's presets read as data (never imported) and user JSON files.
 
-A dive-plane vehicle file is checked against a schema before it is used (issue 9: ``{}``, wrong
+A dive-plane vehicle file is checked against a schema before it is used (``{}``, wrong
 types or ``rho: -1000`` once gave defaults or nonsense silently). The file is a JSON object, either
 
 * a simulator preset: a ``dive_plane`` section (or ``minspeed``…) holding the parameters; the

@@ -1,4 +1,4 @@
-"""Parameter sweeps: many independent rehearsals on a Dask cluster (issue 13, ``companion sweep``).
+"""Parameter sweeps: many independent rehearsals on a Dask cluster (``companion sweep``).
 
 * :mod:`companion.sweep.spec` — what varies (presets, seeds, currents, noise, vehicle perturbations,
   thrust lists, procedure options), read from a JSON/YAML file or flags, expanded into cases, each

@@ -1,4 +1,4 @@
-"""What a sweep varies, and the cases it expands into (issue 13).
+"""What a sweep varies, and the cases it expands into.
 
 A :class:`SweepSpec` comes from a small JSON or YAML file (``companion sweep --spec FILE``) and/or
 flags; every axis is a list and the cases are their cross product, in a fixed order::
@@ -265,7 +265,7 @@ class Case:
     steady_state: bool = False
     schedules: tuple[str, ...] = ("heading",)
     thesis_estimator: bool = False
-    quick: bool = False  # issue 10's procedure (rehearse --procedure quick); False: --procedure thesis
+    quick: bool = False  # the quick procedure (rehearse --procedure quick); False: --procedure thesis
 
     def inputs(self) -> dict:
         """The case's inputs as plain JSON (the columns of its row, and what its key hashes)."""

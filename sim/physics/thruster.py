@@ -15,7 +15,7 @@ def thrust_force(thruster: ThrusterMap, thrust_ratio: float) -> float:
 
 
 def thrust_ratio_for_force(thruster: ThrusterMap, force: float) -> float:
-    """Inverse map: the smallest thrust ratio above the dead zone that gives ``force`` (SPEC eq. 5.55).
+    """Inverse map: the smallest thrust ratio above the dead zone that gives ``force`` (thesis eq. 5.55).
 
     Solves a·TR² + b·TR + (c − Ft) = 0 for its larger root (the branch above the dead zone).
     """

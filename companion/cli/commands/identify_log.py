@@ -1,4 +1,4 @@
-"""``companion identify --log FILE``: identification from a recorded mission (issue 11 item 1).
+"""``companion identify --log FILE``: identification from a recorded mission.
 
 Reads the log (:mod:`companion.records.flight_logs`), finds the usable segments, identifies and
 cross-validates each one and designs the gain schedules

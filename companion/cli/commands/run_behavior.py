@@ -38,7 +38,7 @@ def add_parser(subparsers) -> None:
                              "nominal thrust (the thesis). Without --preset there is no TR*: nominal")
     parser.add_argument("--start-margin", type=float, default=None, metavar="TR",
                         help="min-speed: the margin over the analytic TR* the move aims at (default: governed 0.008, "
-                             "ramp 0.04); given alone it selects the ramp (issue 10)")
+                             "ramp 0.04); given alone it selects the ramp")
     parser.add_argument("--preset", default=None,
                         help="min-speed: simulator preset whose vehicle data give the analytic TR* and Vmin")
     parser.add_argument("--simulator-hooks", action="store_true",

@@ -1,4 +1,4 @@
-"""``companion sweep``: many independent rehearsals on Dask, one summary row per case (issue 13).
+"""``companion sweep``: many independent rehearsals on Dask, one summary row per case.
 
 What varies comes from ``--spec FILE`` (JSON or YAML, :mod:`companion.sweep.spec`) and/or the flags
 below (a flag overrides the file's field). The cases run on a local Dask cluster by default or on
@@ -50,7 +50,7 @@ def add_parser(subparsers) -> None:
     what.add_argument("--thesis-estimator", dest="thesis_estimator", action="store_const", const=True, default=None,
                       help="the seeds' exact estimator")
     what.add_argument("--quick", dest="quick", action="store_const", const=True, default=None,
-                      help="issue 10's procedure (companion rehearse --procedure quick); without it a sweep "
+                      help="the quick procedure (companion rehearse --procedure quick); without it a sweep "
                            "runs the thesis procedure, as its earlier cases did")
     what.add_argument("--speedup", default=None, help="simulation speed-up of every case (default: 50; "
                                                       "the numbers do not depend on it)")
