@@ -45,7 +45,7 @@ class MinSpeedProcedureConfig:
 
     @classmethod
     def governed(cls, **overrides) -> "MinSpeedProcedureConfig":
-        """Issue 10's start: the governed move to the analytic T_R* + 0.008 with a 0.22 m depth budget.
+        """The governed start: the move to the analytic T_R* + 0.008 with a 0.22 m depth budget.
 
         Why +0.008 (+1.85 %): that is inside what the goal and the simulator allow (STARFISH holds depth
         down to T_R 0.4375, +1.3 % of the analytic 0.432, and the goal is +2 %: a window narrower than
