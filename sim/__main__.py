@@ -94,7 +94,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "vehicle time (the autopilot's estimate of it is not the truth)")
     run.set_defaults(func=_run)
 
-    lin = sub.add_parser("linearize", help="the preset's linearised yaw parameters (truth)")
+    lin = sub.add_parser("linearize", help="the preset's linearised yaw parameters (truth; Nomoto's K, T1, T2, T3 "
+                                           "too for a 3-DOF vessel)")
     lin.add_argument("--preset", required=True, help="vehicle preset or a preset file PATH.json")
     group = lin.add_mutually_exclusive_group(required=True)
     group.add_argument("--speed", type=float, help="water speed U (m/s)")
@@ -200,8 +201,12 @@ def _linearize(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    speed = args.speed if args.speed is not None else steady_speed(preset, args.thrust)
-    result = dict(linearized_yaw(preset, speed))
+    try:
+        speed = args.speed if args.speed is not None else steady_speed(preset, args.thrust)
+        result = dict(linearized_yaw(preset, speed))
+    except ValueError as exc:  # a 3-DOF vessel: no straight run at that speed, or not course-stable
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     if args.thrust is not None:
         result["thrust_ratio"] = args.thrust
     print(json.dumps(result))

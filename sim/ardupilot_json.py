@@ -17,6 +17,9 @@ Servo outputs become our actuators through a :class:`FrameDecoder` per autopilot
 
 * :class:`RoverBoatDecoder` — ArduRover boat (``FRAME_CLASS 2``): SERVO1 ground steering, SERVO3
   throttle (1500 µs = stop for boats; reverse is not simulated and reads as zero thrust).
+* :class:`RoverSkidDecoder` — ArduRover skid-steered boat: SERVO1 ThrottleLeft (function 73), SERVO3
+  ThrottleRight (74), each 1000–2000 µs with 1500 = stop and below it astern: the two motor demands
+  of a twin-thruster vessel (``AP_MotorsUGV::output_skid_steering`` mixed them; ``sim.skid_mixer``).
 * :class:`SubVectoredDecoder` — ArduSub vectored frame: the six thruster outputs are un-mixed into
   yaw, forward and vertical demands (``AP_Motors6DOF`` factors); yaw acts as an equivalent rudder
   and the vertical demand as a heave force.
@@ -95,6 +98,23 @@ class RoverBoatDecoder:
                               mass_angle=previous.mass_angle), 0.0
 
 
+@dataclass(frozen=True)
+class RoverSkidDecoder:
+    """ArduRover skid steering: SERVO1 ThrottleLeft, SERVO3 ThrottleRight → motor demands ±1
+    ((pwm − 1500)/500; a disabled output, PWM 0, stops its motor)."""
+
+    left_channel: int = 1
+    right_channel: int = 3
+    name: str = "ardurover-skid"
+
+    def demand(self, pwm: Sequence[int], previous: ActuatorDemand) -> tuple[ActuatorDemand, float]:
+        left = _normalised(pwm[self.left_channel - 1])
+        right = _normalised(pwm[self.right_channel - 1])
+        return ActuatorDemand(rudder=0.0, elevator=0.0, thrust_ratio=0.0, mass_angle=previous.mass_angle,
+                              motor_left=0.0 if left is None else left,
+                              motor_right=0.0 if right is None else right), 0.0
+
+
 # AP_Motors6DOF SUB_FRAME_VECTORED factors: (roll, pitch, yaw, throttle, forward, lateral) per motor
 _VECTORED = (
     (0.0, 0.0, 1.0, 0.0, -1.0, 1.0),
@@ -161,6 +181,8 @@ class SubVectoredDecoder:
 
 
 DECODERS: dict[str, type] = {"ardurover": RoverBoatDecoder, "ardusub": SubVectoredDecoder}
+#: the decoder of an autopilot flying a twin-thruster (skid-steered) preset instead
+SKID_DECODERS: dict[str, type] = {"ardurover": RoverSkidDecoder}
 
 
 class JsonPhysics:

@@ -11,6 +11,9 @@ Everything runs on loopback: SITL's MAVLink port is ``5760 + 10·instance`` on 1
 instance is chosen), its servo frames go to our UDP port (bound to port 0, passed with
 ``--sim-port-out``). The parameter file written for SITL is this vehicle's configuration
 (``sim/ardupilot/*.parm``), plus any ``--param NAME=VALUE`` given.
+
+A twin-thruster preset (``boat-skid``) flies ArduRover with skid steering: its own parameter file
+(``ardurover-skid.parm``: SERVO1/3_FUNCTION 73/74) and frame decoder (``RoverSkidDecoder``).
 """
 from __future__ import annotations
 
@@ -24,9 +27,9 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
-from sim.ardupilot_json import DECODERS, JsonBridge, JsonPhysics
-from sim.preset import load_preset
-from sim.vehicle import Vehicle
+from sim.ardupilot_json import DECODERS, SKID_DECODERS, JsonBridge, JsonPhysics
+from sim.build import build_vehicle
+from sim.preset import Preset, load_preset
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +38,8 @@ AUTOPILOTS = {
     "ardurover": ("ardurover", "ardurover-boat.parm", "boat"),
     "ardusub": ("ardusub", "ardusub-vectored.parm", "starfish"),
 }
+#: autopilot -> parameter file of a twin-thruster (skid-steered) preset
+SKID_PARAMETER_FILES = {"ardurover": "ardurover-skid.parm"}
 #: actuator limits (sim.vehicle.ActuatorLimits fields) an autopilot's frame imposes instead of the
 #: preset's fin servos: ArduSub's equivalent rudder is the thrusters' yaw differential, which follows
 #: the mix within a physics step (a 0.5 rad/s fin servo would lag it by 0.2-0.4 s in a doublet)
@@ -84,9 +89,25 @@ def free_instance(limit: int = 50) -> int:
     raise RuntimeError(f"no free SITL instance among the first {limit}")
 
 
+def preset_of(config: SitlConfig) -> Preset:
+    """The preset SITL flies: ``config.preset``, else the autopilot's default."""
+    return load_preset(config.preset or AUTOPILOTS[config.autopilot][2])
+
+
+def frame_of(autopilot: str, preset: Preset) -> tuple[str, type]:
+    """(parameter file, frame decoder class) for this autopilot flying this preset: a skid-steered
+    vessel gets ArduRover's skid-steering outputs, everything else the autopilot's own frame."""
+    if preset.is_skid:
+        if autopilot not in SKID_DECODERS:
+            raise ValueError(f"{autopilot} cannot fly the twin-thruster preset {preset.name!r} "
+                             f"(skid steering: {', '.join(SKID_DECODERS)})")
+        return SKID_PARAMETER_FILES[autopilot], SKID_DECODERS[autopilot]
+    return AUTOPILOTS[autopilot][1], DECODERS[autopilot]
+
+
 def parameter_file(config: SitlConfig, folder: Path) -> Path:
     """This vehicle's parameters for SITL (``--defaults``), with the ``--param`` overrides appended."""
-    name = AUTOPILOTS[config.autopilot][1]
+    name = frame_of(config.autopilot, preset_of(config))[0]
     text = (resources.files("sim") / "ardupilot" / name).read_text(encoding="utf-8")
     extra = "".join(f"{key} {value:g}\n" for key, value in config.params.items())
     path = folder / name
@@ -111,13 +132,13 @@ class ArduPilotSitl:
     def __init__(self, config: SitlConfig, on_ready=None) -> None:
         self.config = config
         self.binary = find_binary(config)
-        preset = load_preset(config.preset or AUTOPILOTS[config.autopilot][2])
-        self.vehicle = Vehicle(preset, seed=config.seed, current_north=config.current[0],
-                               current_east=config.current[1], depth=config.depth, speed=0.0,
-                               faults=config.faults)
+        preset = preset_of(config)
+        factory = frame_of(config.autopilot, preset)[1]
+        self.vehicle = build_vehicle(preset, seed=config.seed, current_north=config.current[0],
+                                     current_east=config.current[1], depth=config.depth, speed=0.0,
+                                     faults=config.faults)
         for name, value in FRAME_LIMITS.get(config.autopilot, {}).items():
             setattr(self.vehicle.limits, name, value)
-        factory = DECODERS[config.autopilot]
         decoder = factory.for_preset(preset) if hasattr(factory, "for_preset") else factory()
         self._truth_file = open(config.truth_log, "w", encoding="utf-8") if config.truth_log else None  # noqa: SIM115
         self.bridge = JsonBridge(JsonPhysics(self.vehicle, decoder, truth_log=self._truth_file))

@@ -7,18 +7,24 @@ overrides are accepted only from ``SYSID_MYGCS`` and expire ``RC_OVR_TIME`` seco
 after the last message that set them. DO_SET_SERVO moves only the rolling mass (``MASS_SERVO``);
 channels with a function are denied, as in ArduPilot. Disarmed: zero thrust, fins centred.
 
+A skid-steered vessel (twin thrusters, ``Vessel3Dof.skid``) has no rudder: the heading PI's output,
+or RC channel 1, is a steering demand s = δ/0.5236 (±1) that ArduRover's skid mix
+(``sim.skid_mixer``) turns, with the throttle (set-point or RC channel 3), into left/right motor
+demands; a steering stick (RC channel 1) is first shrunk with the throttle as Rover's MANUAL does.
+
 Everything runs on the vehicle clock (``Vehicle.time_s``); the server owns the wall clock.
 """
 from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 from typing import Any, Sequence
 
 from sim.controllers import DepthPitchCascade, HeadingPI
 from sim.params import FULL_SCALE_RAD, ParamTable, SetResult
+from sim.skid_mixer import pilot_skid_limit, skid_mix
 from sim.vehicle import ActuatorDemand, Vehicle
 from sim.vehicle import wrap_angle as wrap_pi  # the simulator's one wrap (sim.server imports it from here)
 
@@ -96,6 +102,7 @@ class Autopilot:
             elevator_max=params["ELEV_MAX"],
         )
         self.demand = ActuatorDemand(rudder=0.0, elevator=0.0, thrust_ratio=0.0, mass_angle=0.0)
+        self.skid = bool(getattr(vehicle, "skid", False))  # twin thrusters: steering is mixed, not a rudder
         for name in params:
             self._apply(name)
 
@@ -302,10 +309,30 @@ class Autopilot:
         thrust = thrust_from_pwm(thr.pwm) if thr is not None else self.thrust_setpoint
         return ActuatorDemand(rudder=rudder, elevator=elevator, thrust_ratio=thrust, mass_angle=mass)
 
+    def _steering_from_rc(self) -> bool:
+        """Whether the steering demand comes from a pilot's stick (RC channel 1) this step."""
+        return self.armed and (self.mode == MODE_MANUAL
+                               or (self.mode == MODE_ALT_HOLD and RUDDER_CHANNEL in self._overrides))
+
+    def _skid_demand(self, demand: ActuatorDemand) -> ActuatorDemand:
+        """Steering (the rudder demand / 0.5236, ±1) and throttle mixed to motor demands as ArduRover
+        does (``sim.skid_mixer``); disarmed, both motors stop (ArduPilot outputs the 1500 µs trim)."""
+        if not self.armed:
+            return replace(demand, motor_left=0.0, motor_right=0.0)
+        steering = max(-1.0, min(1.0, demand.rudder / FULL_SCALE_RAD))
+        throttle = demand.thrust_ratio
+        if self._steering_from_rc():
+            steering, throttle = pilot_skid_limit(steering, throttle)
+        left, right = skid_mix(steering, throttle)
+        return replace(demand, rudder=steering * FULL_SCALE_RAD, thrust_ratio=throttle, motor_left=left,
+                       motor_right=right)
+
     def step(self, dt: float) -> None:
         """Advance autopilot and vehicle by ``dt`` seconds of vehicle time."""
         self._expire_overrides()
         self.demand = self._compute_demand(dt)
+        if self.skid:
+            self.demand = self._skid_demand(self.demand)
         self.vehicle.step(dt, self.demand)
 
     def status(self) -> dict[str, Any]:

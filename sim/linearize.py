@@ -3,6 +3,11 @@
 ``linearized_yaw`` differentiates the simulator's own yaw-acceleration function numerically (central
 differences at r = 0), so it stays correct if the yaw law changes; ``steady_speed`` solves the
 level-flight equilibrium of the dive-plane model (thesis eq. 5.18) with scipy.
+
+A 3-DOF surface vessel (a preset with a ``hull``) is linearised about its straight run instead
+(``sim/nomoto.py``): Nomoto's 2nd-order model of the sway–yaw linearisation and its first-order
+approximation K, T = T1 + T2 − T3 (+ the propeller lag of a skid vessel), a22 = −1/T, b2 = K/T; its
+steady speed comes from the surge balance (``sim/physics/straight_run.py``).
 """
 from __future__ import annotations
 
@@ -14,7 +19,14 @@ _STEP = 1e-6
 
 
 def linearized_yaw(preset: Preset, speed: float) -> dict:
-    """{"a22", "b2", "delta0", "speed"} with ṙ ≈ a22·r + b2·(δr − δ0) at water speed ``speed``, r = 0."""
+    """{"a22", "b2", "delta0", "speed"} with ṙ ≈ a22·r + b2·(δr − δ0) at water speed ``speed``, r = 0.
+
+    A 3-DOF preset adds "K", "T", "T1", "T2", "T3", "T_lag", "thrust_ratio", "model", "input" (and
+    "b2_per_steering" for a skid vessel): see :func:`sim.nomoto.linearized_3dof`."""
+    if preset.is_3dof:
+        from sim.nomoto import linearized_3dof
+
+        return linearized_3dof(preset, speed)
     c = YawConstants.from_preset(preset.yaw, preset.sway)
     a22 = (yaw_acceleration(c, speed, _STEP, 0.0) - yaw_acceleration(c, speed, -_STEP, 0.0)) / (2 * _STEP)
     b2 = (yaw_acceleration(c, speed, 0.0, _STEP) - yaw_acceleration(c, speed, 0.0, -_STEP)) / (2 * _STEP)
@@ -23,5 +35,10 @@ def linearized_yaw(preset: Preset, speed: float) -> dict:
 
 
 def steady_speed(preset: Preset, thrust_ratio: float) -> float:
-    """Level-flight steady water speed (m/s) for a thrust ratio (0 in the thruster dead zone)."""
+    """Steady water speed (m/s) for a thrust ratio (0 in the thruster dead zone): level flight of the
+    dive plane, or a 3-DOF vessel's straight run (both motors at ``thrust_ratio`` for a skid vessel)."""
+    if preset.is_3dof:
+        from sim.physics.straight_run import straight_run_at_thrust
+
+        return straight_run_at_thrust(preset, thrust_ratio).speed
     return level_trim_at_thrust(preset, thrust_ratio).speed

@@ -14,6 +14,13 @@ import math
 from dataclasses import dataclass
 from typing import Any, Iterator
 
+from sim.skid_mixer import (
+    FUNCTION_GROUND_STEERING,
+    FUNCTION_THROTTLE,
+    FUNCTION_THROTTLE_LEFT,
+    FUNCTION_THROTTLE_RIGHT,
+)
+
 FULL_SCALE_RAD = 0.5236  # ±30° = PWM 1000…2000 on fin and mass channels (PROTOCOL.md)
 
 
@@ -64,7 +71,7 @@ def default_specs(preset: Any = None) -> list[ParamSpec]:
     elev_max, elev_rate = act("elevator_max", 0.26), act("elevator_rate", 0.5)
     mass_max = act("mass_max", 0.349)
     fs = FULL_SCALE_RAD
-    return [
+    specs = [
         ParamSpec("SYSID_THISMAV", 1, "", 1, 255, "vehicle system id", integer=True),
         ParamSpec("SYSID_MYGCS", 255, "", 1, 255, "system id allowed to override RC", integer=True),
         ParamSpec("HDG_P", hdg_p, "rad/rad", 0.0, 20.0, "heading P gain"),
@@ -90,6 +97,25 @@ def default_specs(preset: Any = None) -> list[ParamSpec]:
         ParamSpec("SIM_CUR_VE", 0.0, "m/s", -5.0, 5.0, "water current, east"),
         ParamSpec("SIM_ROLL_KICK", 0.0, "deg", -90.0, 90.0, "one-shot roll angle (reads back 0)"),
         ParamSpec("SIM_ROLL_DIST", 0.0, "N m", 0.0, 100.0, "random roll disturbance amplitude"),
+    ]
+    return specs + _servo_function_specs(preset)
+
+
+def _servo_function_specs(preset: Any) -> list[ParamSpec]:
+    """A boat's actuation, discoverable as on ArduRover: SERVO1/3_FUNCTION 26/70 (ground steering,
+    throttle) with a rudder, 73/74 (throttle left/right) with twin thrusters. Read-only (bounds = the
+    value); appended after the other parameters so their indices stay; none for an underwater vehicle."""
+    if not getattr(preset, "surface", False):
+        return []
+    if getattr(preset, "twin_thrusters", None) is not None:
+        first, third = FUNCTION_THROTTLE_LEFT, FUNCTION_THROTTLE_RIGHT
+    else:
+        first, third = FUNCTION_GROUND_STEERING, FUNCTION_THROTTLE
+    return [
+        ParamSpec("SERVO1_FUNCTION", first, "", first, first, "output 1 function (ArduPilot numbers, read-only)",
+                  integer=True),
+        ParamSpec("SERVO3_FUNCTION", third, "", third, third, "output 3 function (ArduPilot numbers, read-only)",
+                  integer=True),
     ]
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -28,6 +28,9 @@ class ThrusterMap:
     quadratic: float
     linear: float
     constant: float
+    # first-order lag (s) of the propeller shaft behind the demand; 0 = none. Used by the 3-DOF
+    # vessels only (sim/vessel3dof.py); optional in a preset file
+    time_constant: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -120,6 +123,59 @@ class Roll:
 
 
 @dataclass(frozen=True)
+class Hull:
+    """A surface vessel's surge–sway–yaw hull (``sim/physics/hull3dof.py``; Fossen's symbols).
+
+    Added masses are Fossen's derivatives (negative: M_A = −[[X_u̇,0,0],[0,Y_v̇,Y_ṙ],[0,N_v̇,N_ṙ]]).
+    Each linear sway/yaw derivative has a constant part and a part per unit of water speed U
+    (``*_speed``: the linear maneuvering model's ∝ U form), e.g. N_r(U) = ``n_r`` + ``n_r_speed``·U.
+    """
+
+    length: float  # L (m), for reference
+    mass: float  # m (kg)
+    inertia_yaw: float  # I_z about the CG (kg·m²)
+    x_g: float  # CG ahead of the body origin (m)
+    x_udot: float  # X_u̇ (kg)
+    y_vdot: float  # Y_v̇ (kg)
+    y_rdot: float  # Y_ṙ (kg·m)
+    n_vdot: float  # N_v̇ (kg·m)
+    n_rdot: float  # N_ṙ (kg·m²)
+    x_u: float  # X_u (N·s/m)
+    x_uu: float  # X_|u|u (N·s²/m²)
+    y_v: float  # Y_v (N·s/m)
+    y_v_speed: float  # Y_v per m/s of U (N·s²/m²)
+    y_r: float  # Y_r (N·s)
+    y_r_speed: float  # (N·s²/m)
+    y_vv: float  # Y_|v|v (N·s²/m²)
+    n_v: float  # N_v (N·s)
+    n_v_speed: float  # (N·s²/m)
+    n_r: float  # N_r (N·m·s)
+    n_r_speed: float  # (N·s²)
+    n_rr: float  # N_|r|r (N·m·s²)
+
+
+@dataclass(frozen=True)
+class Rudder:
+    """A stern rudder of a 3-DOF vessel (``sim/physics/propulsion3dof.py``): Y = −lift·u|u|·(δ − offset)
+    at x = ``x_r`` (< 0), drag −``drag``·u²·(δ − offset)²."""
+
+    x_r: float  # m, negative: behind the CG
+    lift: float  # ½ρ·A_R·C_Lα, N/(rad·(m/s)²)
+    drag: float  # N/(rad²·(m/s)²)
+    offset: float  # misalignment (rad): the straight-course rudder δ0
+
+
+@dataclass(frozen=True)
+class TwinThrusters:
+    """Two thrusters at y = ∓``y_arm`` (skid steering, no rudder; ``sim/physics/propulsion3dof.py``).
+    Each motor has the preset's ``thruster`` map ahead and ``reverse_efficiency`` × it astern."""
+
+    y_arm: float  # m
+    reverse_efficiency: float  # astern / ahead thrust at the same demand
+    right_efficiency: float  # right motor / left motor (≤ 1: a mismatch, hence a steering trim)
+
+
+@dataclass(frozen=True)
 class ActuatorDefaults:
     """Default actuator limits (rad, rad/s); the autopilot overwrites them from its parameters."""
 
@@ -165,9 +221,9 @@ class Preset:
     name: str
     description: str
     thruster: ThrusterMap
-    dive_plane: DivePlane
-    yaw: Yaw
-    sway: Sway
+    dive_plane: DivePlane | None  # None for a 3-DOF vessel (``hull``)
+    yaw: Yaw | None  # None for a 3-DOF vessel
+    sway: Sway | None  # None for a 3-DOF vessel
     roll: Roll
     actuators: ActuatorDefaults
     autopilot: AutopilotDefaults
@@ -175,6 +231,21 @@ class Preset:
     surface: bool = False  # a surface vessel: depth, pitch and heave held at 0 (no dive plane)
     # faults injected at their vehicle time (sim/faults.py; optional "faults" list of a preset file)
     faults: tuple = ()
+    # a 3-DOF surface vessel (sim/vessel3dof.py) instead of the first-order yaw laws: its hull and
+    # either a stern rudder or twin thrusters (skid steering)
+    hull: Hull | None = None
+    rudder: Rudder | None = None
+    twin_thrusters: TwinThrusters | None = None
+
+    @property
+    def is_3dof(self) -> bool:
+        """A surge–sway–yaw hull (``hull``) rather than the first-order yaw laws (``yaw``, ``sway``)."""
+        return self.hull is not None
+
+    @property
+    def is_skid(self) -> bool:
+        """Twin thrusters, no rudder: steering by differential thrust (ArduRover skid steering)."""
+        return self.twin_thrusters is not None
 
     @property
     def attitude_noise(self) -> float:
@@ -192,6 +263,10 @@ _SECTIONS = {
     "autopilot": AutopilotDefaults,
     "sensors": SensorNoise,
 }
+#: the first-order model's sections, which a 3-DOF vessel (``hull``) has no use for
+_FIRST_ORDER_SECTIONS = ("dive_plane", "yaw", "sway")
+#: the 3-DOF vessel's sections: a hull and exactly one of the two propulsions
+_HULL_SECTIONS = {"hull": Hull, "rudder": Rudder, "twin_thrusters": TwinThrusters}
 
 
 def preset_names() -> list[str]:
@@ -202,7 +277,8 @@ def preset_names() -> list[str]:
 
 def _section(cls: type, data: dict[str, Any], where: str) -> Any:
     names = {f.name for f in fields(cls)}
-    missing = names - data.keys()
+    optional = {f.name for f in fields(cls) if f.default is not MISSING}
+    missing = names - optional - data.keys()
     unknown = data.keys() - names
     if missing or unknown:
         raise ValueError(f"preset section {where!r}: missing {sorted(missing)}, unknown {sorted(unknown)}")
@@ -210,11 +286,28 @@ def _section(cls: type, data: dict[str, Any], where: str) -> Any:
 
 
 def preset_from_dict(data: dict[str, Any]) -> Preset:
-    """Build a :class:`Preset` from its JSON dictionary, checking every field is present."""
-    sections = {key: _section(cls, data[key], key) for key, cls in _SECTIONS.items()}
+    """Build a :class:`Preset` from its JSON dictionary, checking every field is present.
+
+    A 3-DOF surface vessel has a ``hull`` section and one of ``rudder`` / ``twin_thrusters``, and then
+    no ``dive_plane``, ``yaw`` or ``sway`` (those are the first-order model's)."""
+    hull_model = "hull" in data
+    sections = {key: (None if hull_model and key in _FIRST_ORDER_SECTIONS else _section(cls, data[key], key))
+                for key, cls in _SECTIONS.items()}
+    if hull_model:
+        extra = [key for key in _FIRST_ORDER_SECTIONS if key in data]
+        if extra:
+            raise ValueError(f"a preset with a 'hull' (3-DOF vessel) has no use for {extra}")
+        propulsions = [key for key in ("rudder", "twin_thrusters") if key in data]
+        if len(propulsions) != 1:
+            raise ValueError("a preset with a 'hull' needs exactly one of 'rudder' and 'twin_thrusters'")
+        sections.update({key: _section(cls, data[key], key) for key, cls in _HULL_SECTIONS.items() if key in data})
+    elif any(key in data for key in ("rudder", "twin_thrusters")):
+        raise ValueError("'rudder' and 'twin_thrusters' belong to a 3-DOF vessel, which needs a 'hull'")
     surface = data.get("surface", False)
     if not isinstance(surface, bool):
         raise ValueError(f"preset field 'surface' must be true or false, not {surface!r}")
+    if hull_model and not surface:
+        raise ValueError("a preset with a 'hull' (3-DOF vessel) must be a surface vessel (\"surface\": true)")
     from sim.faults import faults_from_json
 
     return Preset(name=str(data["name"]), description=str(data.get("description", "")), surface=surface,

@@ -39,11 +39,12 @@ from sim.autopilot import (  # noqa: E402
     pwm_from_thrust,
     wrap_pi,
 )
+from sim.build import build_vehicle  # noqa: E402
 from sim.lockstep import Lockstep  # noqa: E402
 from sim.params import ParamTable  # noqa: E402
 from sim.preset import load_preset  # noqa: E402
+from sim.skid_mixer import pwm_from_motor  # noqa: E402
 from sim.tcp_clients import TcpClient, TcpClients  # noqa: E402
-from sim.vehicle import Vehicle  # noqa: E402
 
 log = logging.getLogger(__name__)
 mavlink = mavutil.mavlink
@@ -125,7 +126,7 @@ class SimServer:
             result = self.params.set(name, value)
             if not result.accepted:
                 raise ValueError(f"--current: {result.message}")
-        self.vehicle = Vehicle(
+        self.vehicle = build_vehicle(
             preset,
             seed=config.seed,
             current_north=config.current_north,
@@ -489,9 +490,13 @@ class SimServer:
         if msg_id == mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
             m = self._measurements()
             servos = [0] * 16
-            servos[0] = pwm_from_fin(m.rudder)
+            if self.autopilot.skid:  # ArduRover skid steering: ThrottleLeft on 1, ThrottleRight on 3
+                servos[0] = pwm_from_motor(m.motor_left)
+                servos[2] = pwm_from_motor(m.motor_right)
+            else:
+                servos[0] = pwm_from_fin(m.rudder)
+                servos[2] = pwm_from_thrust(m.thrust_ratio)
             servos[1] = pwm_from_fin(m.elevator)
-            servos[2] = pwm_from_thrust(m.thrust_ratio)
             mass_output = int(self.params["MASS_SERVO"])
             servos[mass_output - 1] = pwm_from_fin(m.mass_angle)
             # time_usec is a uint32 (micros() on ArduPilot): it wraps every 71.6 minutes; unwrapped it

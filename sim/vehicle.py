@@ -41,12 +41,17 @@ def wrap_angle(angle: float) -> float:
 
 @dataclass
 class ActuatorDemand:
-    """What the autopilot asks of the actuators (rad, ratio)."""
+    """What the autopilot asks of the actuators (rad, ratio).
+
+    ``motor_left``/``motor_right`` (±1) drive a twin-thruster (skid-steered) vessel instead of
+    ``rudder`` and ``thrust_ratio`` (sim/vessel3dof.py); other vehicles ignore them."""
 
     rudder: float = 0.0
     elevator: float = 0.0
     thrust_ratio: float = 0.0
     mass_angle: float = 0.0
+    motor_left: float = 0.0
+    motor_right: float = 0.0
 
 
 @dataclass
@@ -86,6 +91,8 @@ class VehicleState:
     elevator: float
     thrust_ratio: float
     mass_angle: float
+    motor_left: float = 0.0  # commanded motor demands (±1) of a twin-thruster vessel, else 0
+    motor_right: float = 0.0
 
 
 @dataclass(frozen=True)
