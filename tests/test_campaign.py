@@ -173,7 +173,7 @@ def test_refused_gain_write_aborts_and_restores():
 def test_rejected_validation_is_repeated_then_given_up():
     """An impossible threshold: every attempt is rejected, the manoeuvre gives up after max_attempts."""
     link = InProcessLink(seed=4)
-    config = ManoeuvreConfig(settle_s=10.0, resettle_s=8.0, r2_threshold=1.01, max_attempts=2)
+    config = ManoeuvreConfig(settle_s=10.0, resettle_s=8.0, r2_threshold=1.0, max_attempts=2)
     manoeuvre = IdentificationManoeuvre(config, thrust=0.7)
     outcome = run_behavior(link, manoeuvre)
     result = manoeuvre.result()

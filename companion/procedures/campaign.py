@@ -39,7 +39,7 @@ from behaviors.steadiness import SteadinessRule
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.cascade_gains import CascadeRules, quicktune_feed_forward
 from behaviors.schedules import schedule_kind
-from companion.checks import check_thrust_levels, require_choice, require_positive
+from companion.checks import check_thrust_levels, require_choice, require_non_negative, require_positive
 from companion.numerics.gains import CAMPAIGN_DAMPING, GainBounds
 from companion.procedures.results import ProcedureResult
 
@@ -245,7 +245,7 @@ class GainCheck:
     better_than_original: bool = True
 
     def __post_init__(self) -> None:
-        require_positive(self, "max_overshoot_pct")
+        require_non_negative(self, "max_overshoot_pct")
         if not (isinstance(self.max_oscillations, int) and self.max_oscillations >= 0):
             raise ValueError(f"GainCheck.max_oscillations must be an integer ≥ 0, not {self.max_oscillations!r}")
 
