@@ -77,6 +77,16 @@ def body_from_ned(roll: float, pitch: float, yaw: float, vector: Sequence[float]
             (cr * sp * cy + sr * sy) * n + (cr * sp * sy - sr * cy) * e + cr * cp * d]
 
 
+def body_rates(roll: float, pitch: float, roll_rate: float, pitch_rate: float, yaw_rate: float) -> list[float]:
+    """Body rates (p, q, r) of Euler-angle rates (φ̇, θ̇, ψ̇): what a gyro reads. Our physics integrate
+    the Euler angles from these rates, so the gyro must carry their body-axis equivalent for an
+    estimator's attitude to follow ours once the vehicle pitches or rolls."""
+    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
+    return [roll_rate - yaw_rate * sp,
+            pitch_rate * cr + yaw_rate * sr * cp,
+            -pitch_rate * sr + yaw_rate * cr * cp]
+
+
 def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> list[float]:
     """(w, x, y, z) of body-to-NED, ZYX Euler angles (MAVLink's and PX4's convention)."""
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
@@ -150,13 +160,14 @@ def hil_sensor_fields(state: VehicleState, accel_ned: Sequence[float], home: Hom
     """HIL_SENSOR fields of a state (``noise``: 10 additive values in field order, or None).
 
     Accelerometer: specific force (acceleration − gravity) in body FRD, so level at rest reads
-    (0, 0, −g). Gyro: body rates. Magnetometer: the field in body axes. Absolute pressure: the air
+    (0, 0, −g). Gyro: body rates (:func:`body_rates`). Magnetometer: the field in body axes. Absolute pressure: the air
     at the surface plus the water column above the vehicle (a boat reads the surface pressure)."""
     s = state
     specific_force = body_from_ned(s.roll, s.pitch, s.yaw, [accel_ned[0], accel_ned[1], accel_ned[2] - GRAVITY])
     mag = body_from_ned(s.roll, s.pitch, s.yaw, magnetic.ned())
     pressure = absolute_pressure_hpa(s.depth, home.alt_m)
-    values = [*specific_force, s.roll_rate, s.pitch_rate, s.yaw_rate, *mag, pressure]
+    gyro = body_rates(s.roll, s.pitch, s.roll_rate, s.pitch_rate, s.yaw_rate)
+    values = [*specific_force, *gyro, *mag, pressure]
     if noise is not None:
         values = [v + n for v, n in zip(values, noise)]
     return dict(
@@ -192,9 +203,10 @@ def hil_state_quaternion_fields(state: VehicleState, accel_ned: Sequence[float],
     s = state
     lat, lon, alt = home.global_position(s.north, s.east, s.depth)
     accel_body = body_from_ned(s.roll, s.pitch, s.yaw, [accel_ned[0], accel_ned[1], accel_ned[2] - GRAVITY])
+    p, q, r = body_rates(s.roll, s.pitch, s.roll_rate, s.pitch_rate, s.yaw_rate)
     return dict(
         time_usec=time_usec(s.time_s), attitude_quaternion=quaternion_from_euler(s.roll, s.pitch, s.yaw),
-        rollspeed=s.roll_rate, pitchspeed=s.pitch_rate, yawspeed=s.yaw_rate,
+        rollspeed=p, pitchspeed=q, yawspeed=r,
         lat=int(round(lat * 1e7)), lon=int(round(lon * 1e7)), alt=int(round(alt * 1000.0)),
         vx=int(round(s.vel_north * 100.0)), vy=int(round(s.vel_east * 100.0)), vz=int(round(s.vel_down * 100.0)),
         ind_airspeed=0, true_airspeed=0,
