@@ -228,15 +228,15 @@ class Px4Sitl:
         """Step the physics (PX4 boots on our clock) until PX4's onboard MAVLink link is up."""
         deadline = time.monotonic() + timeout_s
         marker = f"on udp port {self.port} remote port"
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise RuntimeError(f"PX4 exited ({self.process.returncode}): {self.log_tail()}")
-            if not self.endpoint_hil.step_once():
-                raise RuntimeError(f"PX4 closed the simulator connection: {self.log_tail()}")
-            if self.endpoint_hil.stats.steps % 20 == 0 and marker in self.log_path.read_text(errors="replace"):
-                return
-            time.sleep(self.physics.dt / max(self.config.speedup, 1.0))
-        raise RuntimeError(f"PX4 did not open its onboard MAVLink port within {timeout_s:.0f} s: {self.log_tail()}")
+        self.endpoint_hil.run(alive=lambda: self.process.poll() is None and time.monotonic() < deadline,
+                              until=lambda: marker in self.log_path.read_text(errors="replace"))
+        if self.process.poll() is not None:
+            raise RuntimeError(f"PX4 exited ({self.process.returncode}): {self.log_tail()}")
+        if self.endpoint_hil.closed:
+            raise RuntimeError(f"PX4 closed the simulator connection: {self.log_tail()}")
+        if marker not in self.log_path.read_text(errors="replace"):
+            raise RuntimeError(f"PX4 did not open its onboard MAVLink port within {timeout_s:.0f} s: "
+                               f"{self.log_tail()}")
 
     def log_tail(self, lines: int = 15) -> str:
         try:
