@@ -541,9 +541,10 @@ class HilEndpoint:
         """Step until stopped, PX4 disconnects or ``alive()`` turns False; paced at ``speedup`` (0: as
         fast as PX4 answers), at most ``free_speedup_max`` while running free. ``until()``, asked every
         ``every`` steps, ends the run when it returns True."""
-        wall0, sim0 = time.monotonic(), self.physics.vehicle.time_s
+        start_s = self.physics.vehicle.time_s
+        wall0, sim0 = time.monotonic(), start_s
         while not self._stop and alive():
-            if duration_s is not None and self.physics.vehicle.time_s - sim0 >= duration_s:
+            if duration_s is not None and self.physics.vehicle.time_s - start_s >= duration_s - 1e-6:
                 break
             if not self.step_once():
                 log.info("PX4 closed the HIL connection")
