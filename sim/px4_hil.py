@@ -449,6 +449,7 @@ class HilEndpoint:
         self._missed = 0
         self._latest_output_usec = -1
         self._pace_speedup = -1.0
+        self._free_seen = 0  # actuator messages counted when the outputs last stopped
         self._stop = False
         self.closed = False
 
@@ -472,7 +473,8 @@ class HilEndpoint:
     def stop(self) -> None:
         self._stop = True
 
-    def _send(self, messages) -> None:
+    def _send(self, messages) -> bool:
+        """Send whole messages; False when the connection is gone."""
         data = b"".join(m.pack(self.mav) for m in messages)
         view = memoryview(data)
         while view:
@@ -481,7 +483,10 @@ class HilEndpoint:
             except BlockingIOError:
                 select.select([], [self.conn], [], 1.0)
                 continue
+            except OSError:
+                return False
             view = view[sent:]
+        return True
 
     def _receive(self, timeout_s: float) -> bool:
         """Read what PX4 sent within ``timeout_s``; False when the connection closed."""
@@ -508,7 +513,8 @@ class HilEndpoint:
         False when PX4 closed the connection."""
         self.physics.step()
         sent_usec = time_usec(self.physics.vehicle.time_s)
-        self._send(self.physics.messages(self.mav))
+        if not self._send(self.physics.messages(self.mav)):
+            return False
         self.stats.steps += 1
         if self._flowing:
             deadline = time.monotonic() + self.actuator_timeout_s
@@ -527,12 +533,12 @@ class HilEndpoint:
                 if self._missed >= self.free_after_missed:
                     log.debug("PX4 outputs stopped at %.2f s: running free", self.physics.vehicle.time_s)
                     self._flowing = False
+                    self._free_seen = self.stats.actuator_messages
         else:
-            before = self.stats.actuator_messages
             if not self._receive(0.0):
                 return False
             self.stats.free_steps += 1
-            if self.stats.actuator_messages > before:
+            if self.stats.actuator_messages > self._free_seen:  # outputs came (here or while pacing)
                 self._flowing = True
                 self._missed = 0
         return True
