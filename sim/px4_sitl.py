@@ -71,6 +71,7 @@ ONBOARD_BASE_PORT = 14580
 #: UDP ports PX4 binds per instance (px4-rc.mavlink): GCS, onboard, payload, gimbal
 UDP_BASE_PORTS = (18570, ONBOARD_BASE_PORT, 14280, 13030)
 LOCK_FILE = "/tmp/px4_lock-{instance}"  # PX4's per-instance server lock (platforms/posix main.cpp)
+SOCKET_FILE = "/tmp/px4-sock-{instance}"  # its command socket (px4_daemon/sock_protocol.cpp)
 ENV_BIN = "PX4_SITL_BIN"
 
 
@@ -264,6 +265,11 @@ class Px4Sitl:
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()
+        if self.process is not None and _lock_free(self.instance):
+            try:  # PX4 stopped by a signal leaves its command socket behind
+                os.unlink(SOCKET_FILE.format(instance=self.instance))
+            except OSError:
+                pass
         if getattr(self, "_log_file", None) is not None:
             self._log_file.close()
         self.endpoint_hil.close()
