@@ -79,18 +79,23 @@ def build_parser() -> argparse.ArgumentParser:
                      help="never run more than one attitude period ahead of the vehicle time the companion "
                           "acknowledged (SYSTEM_TIME from component 191): closed-loop results then do not "
                           "depend on --speedup (docs/PROTOCOL.md)")
-    run.add_argument("--autopilot", choices=("builtin", "ardurover", "ardusub"), default="builtin",
+    run.add_argument("--autopilot", choices=("builtin", "ardurover", "ardusub", "px4-rover", "px4-uuv"),
+                     default="builtin",
                      help="builtin: our own autopilot (default); ardurover/ardusub: the real ArduPilot firmware "
-                          "(SITL, JSON backend) flying our physics, MAVLink on its TCP port")
+                          "(SITL, JSON backend) flying our physics, MAVLink on its TCP port; px4-rover/px4-uuv: "
+                          "the real PX4 firmware (SITL, MAVLink HIL simulator) flying our boat/AUV, MAVLink on its "
+                          "onboard UDP port")
     run.add_argument("--ardupilot-bin", metavar="DIR", default=None,
                      help="folder of the ArduPilot SITL binaries (build/sitl/bin); default $ARDUPILOT_SITL_BIN")
+    run.add_argument("--px4-bin", metavar="DIR", default=None,
+                     help="PX4 SITL build folder (build/px4_sitl_default, with bin/px4 and etc/); default $PX4_SITL_BIN")
     run.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                     help="extra ArduPilot parameter for SITL's defaults file (repeatable)")
+                     help="extra ArduPilot (SITL defaults file) or PX4 (PX4_PARAM_ environment) parameter (repeatable)")
     run.add_argument("--fault", action="append", default=[], type=_fault, metavar="KIND=FACTOR@SECONDS",
                      help="inject a fault at a vehicle time (repeatable): b2 (fin effectiveness), thrust "
                           "(thrust efficiency) or damping (yaw damping a22) scaled by FACTOR, e.g. b2=0.7@600")
     run.add_argument("--truth-log", metavar="CSV", default=None,
-                     help="with --autopilot ardurover/ardusub: write the physics' own speed every 0.1 s of "
+                     help="with --autopilot ardurover/ardusub/px4-*: write the physics' own speed every 0.1 s of "
                           "vehicle time (the autopilot's estimate of it is not the truth)")
     run.set_defaults(func=_run)
 
@@ -109,35 +114,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _run_ardupilot(args: argparse.Namespace) -> int:
-    import os
-    from pathlib import Path
-
-    from sim.ardupilot_sitl import ArduPilotSitl, SitlConfig
-
-    bin_dir = args.ardupilot_bin or os.environ.get("ARDUPILOT_SITL_BIN")
-    if not bin_dir:
-        print("error: --autopilot ardurover/ardusub needs --ardupilot-bin DIR (or ARDUPILOT_SITL_BIN)", file=sys.stderr)
-        return 2
+def _params(items: Sequence[str]) -> dict[str, float] | None:
+    """``--param NAME=VALUE`` items; None (after an error message) for a malformed one."""
     params = {}
-    for item in args.param:
+    for item in items:
         name, _, value = item.partition("=")
         try:
             params[name.strip()] = float(value)
         except ValueError:
             print(f"error: --param takes NAME=VALUE, not {item!r}", file=sys.stderr)
-            return 2
-    preset = None if args.preset == "starfish" and args.autopilot == "ardurover" else args.preset
-    config = SitlConfig(autopilot=args.autopilot, bin_dir=Path(bin_dir), preset=preset,
-                        speedup=args.speedup if args.speedup > 0 else 1.0, seed=args.seed, current=args.current,
-                        depth=0.0 if args.autopilot == "ardurover" else args.depth, params=params,
-                        truth_log=Path(args.truth_log) if args.truth_log else None, faults=tuple(args.fault))
-    try:
-        sitl = ArduPilotSitl(config, on_ready=lambda endpoint: print(f"READY {endpoint}", flush=True))
-    except (ValueError, RuntimeError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+            return None
+    return params
 
+
+def _run_until_signal(sitl) -> int:
     def on_signal(signum: int, _frame: object) -> None:
         sitl.stop()
 
@@ -150,9 +140,63 @@ def _run_ardupilot(args: argparse.Namespace) -> int:
         return 1
 
 
+def _run_px4(args: argparse.Namespace) -> int:
+    import os
+    from pathlib import Path
+
+    from sim.px4_sitl import ENV_BIN, Px4Config, Px4Sitl
+
+    bin_dir = args.px4_bin or os.environ.get(ENV_BIN)
+    if not bin_dir:
+        print(f"error: --autopilot px4-rover/px4-uuv needs --px4-bin DIR (or {ENV_BIN})", file=sys.stderr)
+        return 2
+    params = _params(args.param)
+    if params is None:
+        return 2
+    preset = None if args.preset == "starfish" and args.autopilot == "px4-rover" else args.preset
+    config = Px4Config(autopilot=args.autopilot, bin_dir=Path(bin_dir), preset=preset,
+                       speedup=args.speedup, seed=args.seed, current=args.current,
+                       depth=0.0 if args.autopilot == "px4-rover" else args.depth, params=params,
+                       truth_log=Path(args.truth_log) if args.truth_log else None, faults=tuple(args.fault))
+    try:
+        sitl = Px4Sitl(config, on_ready=lambda endpoint: print(f"READY {endpoint}", flush=True))
+    except (ValueError, RuntimeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return _run_until_signal(sitl)
+
+
+def _run_ardupilot(args: argparse.Namespace) -> int:
+    import os
+    from pathlib import Path
+
+    from sim.ardupilot_sitl import ArduPilotSitl, SitlConfig
+
+    bin_dir = args.ardupilot_bin or os.environ.get("ARDUPILOT_SITL_BIN")
+    if not bin_dir:
+        print("error: --autopilot ardurover/ardusub needs --ardupilot-bin DIR (or ARDUPILOT_SITL_BIN)", file=sys.stderr)
+        return 2
+    params = _params(args.param)
+    if params is None:
+        return 2
+    preset = None if args.preset == "starfish" and args.autopilot == "ardurover" else args.preset
+    config = SitlConfig(autopilot=args.autopilot, bin_dir=Path(bin_dir), preset=preset,
+                        speedup=args.speedup if args.speedup > 0 else 1.0, seed=args.seed, current=args.current,
+                        depth=0.0 if args.autopilot == "ardurover" else args.depth, params=params,
+                        truth_log=Path(args.truth_log) if args.truth_log else None, faults=tuple(args.fault))
+    try:
+        sitl = ArduPilotSitl(config, on_ready=lambda endpoint: print(f"READY {endpoint}", flush=True))
+    except (ValueError, RuntimeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return _run_until_signal(sitl)
+
+
 def _run(args: argparse.Namespace) -> int:
     from sim.server import SimConfig, SimServer
 
+    if args.autopilot.startswith("px4-"):
+        return _run_px4(args)
     if args.autopilot != "builtin":
         return _run_ardupilot(args)
 
