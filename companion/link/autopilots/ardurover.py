@@ -16,18 +16,26 @@ Which mode each phase uses (decided here, documented in the README):
   slows in turns and b2 ∝ u² then drifts within the record (a22/b2 errors up to 10 %). The
   manoeuvre's next "hold" mode command ends the excitation: GUIDED again, targets re-sent.
 
-Actuators are read back from SERVO_OUTPUT_RAW (SERVO1 steering, SERVO3 throttle). Depth is not a
-boat's notion (a depth set-point is refused); the water speed is the ground speed (no water-speed
+Actuators are read back from SERVO_OUTPUT_RAW through the actuation read at connect
+(:meth:`Strategy.configure`: SERVOn_FUNCTION, ``companion.link.actuation``): a steering servo (26 or
+21) and a throttle (70), or a skid-steered pair (73/74) un-mixed into steering and throttle (eq. S.1);
+a vehicle with neither is refused with what to set. On a skid boat the doublet is held inside the
+mixer's room: MANUAL shrinks steering *and* throttle when |s| + |t| > 1 (Rover ``mode.cpp``), which
+would slow the boat within the record, so an excitation that would reach it is scaled down around
+its trim, and the strategy says so (STATUSTEXT). Depth is not a boat's notion (a depth set-point is refused); the water speed is the ground speed (no water-speed
 sensor; a current biases it). Rover refuses to arm with the throttle off neutral.
 """
 from __future__ import annotations
 
 import logging
 import math
+from dataclasses import replace
 from typing import ClassVar
 
 from companion.interface import Telemetry
+from companion.link.actuation import OUTPUTS
 from companion.link.autopilots.ardupilot import ArduPilotStrategy, yaw_quaternion
+from companion.link.autopilots.skid_room import doublet_scale, scaled, with_actuation
 from companion.link.profile import AutopilotProfile, CampaignDefaults, NativeScale
 
 log = logging.getLogger(__name__)
@@ -92,6 +100,26 @@ class Strategy(ArduPilotStrategy):
         #: learnt override corrections (actuator -> offset in its units), kept between excitations
         self._override_bias: dict[str, float] = {}
 
+    def configure(self):
+        """This boat's actuation (SERVOn_FUNCTION, required) and its pilot channels (RCMAP_ROLL and
+        RCMAP_THROTTLE: the steering and throttle sticks an override moves in MANUAL)."""
+        actuation = self.read_actuation(OUTPUTS, required=True)
+        outputs = actuation.outputs()
+        rcmap = self.read_present(("RCMAP_ROLL", "RCMAP_THROTTLE"), self.profile.marker_param)
+        channels = {"rudder": int(rcmap.get("RCMAP_ROLL", 1)), "thrust": int(rcmap.get("RCMAP_THROTTLE", 3))}
+        return replace(with_actuation(self.profile, actuation), channels=channels,
+                       servo_outputs={"rudder": outputs.get("steering", outputs.get("left")),
+                                      "thrust": outputs.get("throttle", outputs.get("right"))})
+
+    def _excitation_scale(self, throttle: float, steering: float, value: float) -> float:
+        """1, or the factor that keeps a skid boat's doublet inside MANUAL's room (``skid_room``)."""
+        scale, text = doublet_scale(self.profile.actuation, self.profile.angle_full_scale_rad, throttle, steering,
+                                    value)
+        if text is not None:
+            log.warning("%s", text)
+            self.ports.ground.status_text(text, 4)
+        return scale
+
     def _in_guided(self) -> bool:
         return self.in_mode("guided")
 
@@ -127,14 +155,22 @@ class Strategy(ArduPilotStrategy):
             steering = latest.rudder if latest is not None and math.isfinite(latest.rudder) else 0.0
             if throttle is None:
                 raise self._cannot("throttle read-back (SERVO3): the speed cannot be held open loop")
-            self._excitation = {"mode": self.ports.announcements.mode, "steering": steering, "held": {}}
+            self._excitation = {"mode": self.ports.announcements.mode, "steering": steering, "held": {},
+                                "scale": self._excitation_scale(throttle, steering, value)}
             self._hold("thrust", throttle)  # before the switch: MANUAL never sees a stopped stick
-            self.ports.overrides.override(actuator, value)
+            self.ports.overrides.override(actuator, self._scaled(actuator, value))
             self.ports.modes.set_mode("manual")
             return
         if self._excitation is not None:
             self._excitation["held"].pop(actuator, None)  # a doublet value: its read-back is what counts
-        self.ports.overrides.override(actuator, value)
+        self.ports.overrides.override(actuator, self._scaled(actuator, value))
+
+    def _scaled(self, actuator: str, value: float) -> float:
+        """A rudder override of the current excitation, scaled around its trim (skid room)."""
+        excitation = self._excitation
+        if excitation is None or actuator != "rudder" or excitation["scale"] == 1.0:
+            return value
+        return scaled(value, excitation["steering"], excitation["scale"])
 
     def release(self, actuator: str | None) -> None:
         if self._excitation is not None and actuator == "rudder":

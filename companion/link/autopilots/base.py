@@ -80,6 +80,11 @@ class AutopilotStrategy:
         """The newest telemetry snapshot."""
         return self.ports.telemetry.latest
 
+    def configure(self) -> AutopilotProfile:
+        """The profile completed with what this vehicle says about itself, read at connect (the
+        handshake installs the result); the profile unchanged by default."""
+        return self.profile
+
     def in_mode(self, neutral: str) -> bool:
         """The latest HEARTBEAT shows the profile's mode ``neutral``."""
         return self.ports.announcements.custom_mode == self.profile.modes[neutral]
