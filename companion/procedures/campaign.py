@@ -133,6 +133,9 @@ class CampaignConfig:
     parallel_axes: bool = False
     # fields the user set explicitly: the autopilot's campaign defaults do not replace them
     user_set: tuple[str, ...] = ()
+    # the b2 speed law of the vehicle's actuation, kept when the models cannot tell ("u2" rudder, "u"
+    # differential thrust, eq. S.3); None: the thesis' u², or the profile's actuation (resolved_for)
+    speed_law: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "thrusts", check_thrust_levels(self.thrusts, "CampaignConfig.thrusts"))
@@ -140,6 +143,8 @@ class CampaignConfig:
             raise ValueError(f"CampaignConfig.axes must be yaw and/or pitch, each once, not {self.axes!r}")
         if self.depth is not None:
             require_positive(self, "depth")
+        if self.speed_law not in (None, "u2", "u"):
+            raise ValueError(f"CampaignConfig.speed_law must be 'u2', 'u' or None, not {self.speed_law!r}")
         for label in self.step_labels:
             if label not in ("original", "constant", "quicktune", "scheduled"):
                 raise ValueError(f"CampaignConfig.step_labels: unknown check {label!r} "
@@ -187,7 +192,7 @@ class CampaignConfig:
     def kinds(self) -> list[ScheduleKind]:
         """The requested gain schedules (heading with this config's bounds, cascade with its rules)."""
         options = {"heading": self.bounds, "cascade": self.cascade}
-        return [schedule_kind(name, options.get(name)) for name in self.schedules]
+        return [schedule_kind(name, options.get(name), self.speed_law) for name in self.schedules]
 
     def with_profile_defaults(self, profile) -> "CampaignConfig":
         """This configuration with the autopilot's campaign defaults (``profile.campaign_defaults``:
@@ -221,6 +226,9 @@ class CampaignConfig:
                                          **getattr(profile, "gain_ranges", {})))
         if not getattr(profile, "depth_setpoint", True):
             config = replace(config, depth=None)
+        actuation = getattr(profile, "actuation", None)
+        if actuation is not None and config.speed_law is None:
+            config = replace(config, speed_law="u" if actuation.skid else "u2")
         # a modelled servo deflection is continuous (first-order hold); a raw loop output is held (zero-order)
         hold = "foh" if getattr(profile, "actuator_rate_rad_s", None) else getattr(profile, "actuator_hold", "foh")
         if hold != "foh":
