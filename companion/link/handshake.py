@@ -88,6 +88,7 @@ def setup(ports: LinkPorts, profile: str | None, stream_rates: dict[int, float] 
     ports.overrides.send = strategy.send_overrides
     ports.telemetry.refine = strategy.on_snapshot
     ports.modes.on_change(strategy.mode_changed)
+    ports.modes.on_accepted(strategy.mode_accepted)
     rates = dict(strategy.streams if stream_rates is None else stream_rates)
     request_streams(ports, rates)
     ports.parameters.int_encoding = chosen.int_encoding

@@ -29,11 +29,20 @@ class ModeControl:
         self.clock = clock
         self.profile = None  # the autopilot profile, once known
         self.commanded: str | None = None  # the last mode the companion itself switched to
+        # vehicle time at which the HEARTBEAT confirmed it: snapshots up to then may show the old mode
+        self.confirmed_s: float | None = None
         self._listeners: list[Callable[[str], None]] = []
+        self._accepted_listeners: list[Callable[[str], None]] = []
 
     def on_change(self, listener: Callable[[str], None]) -> None:
         """Call ``listener(neutral)`` after every verified mode change the companion made."""
         self._listeners.append(listener)
+
+    def on_accepted(self, listener: Callable[[str], None]) -> None:
+        """Call ``listener(neutral)`` as soon as the autopilot acknowledges a mode change (ACCEPTED),
+        before a HEARTBEAT verifies it: for what a new mode needs at once (ArduRover's GUIDED loiters
+        until it gets a target)."""
+        self._accepted_listeners.append(listener)
 
     def _profile(self):
         if self.profile is None:
@@ -59,12 +68,24 @@ class ModeControl:
             def shown() -> bool:
                 return self.announcements.heartbeat_count > since_hb and self.announcements.custom_mode == target
 
-            self.clock.wait_until(lambda: refused() is not None or shown(), timeouts.command_s)
+            told = {"accepted": False}
+
+            def settled() -> bool:
+                if not told["accepted"] and self._accepted_listeners:
+                    answer = self.commands.answered_since(MAV_CMD_DO_SET_MODE, since_ack)
+                    if answer is not None and answer[0] == MAV_RESULT_ACCEPTED:
+                        told["accepted"] = True
+                        for listener in self._accepted_listeners:
+                            listener(neutral)
+                return refused() is not None or shown()
+
+            self.clock.wait_until(settled, timeouts.command_s)
             result = refused()
             if result is not None:
                 raise ModeChangeFailed(f"vehicle refused mode {neutral!r} ({target}): result {result}")
             if shown():
                 self.commanded = neutral
+                self.confirmed_s = self.clock.vehicle_time_s
                 for listener in self._listeners:
                     listener(neutral)
                 return

@@ -35,6 +35,7 @@ from behaviors.gain_scheduling import GainDesign, ScheduleKind
 from behaviors.heading_steps import HeadingStepTest, StepTestConfig, reengage_hold
 from behaviors.identification import IdentificationAttempt, IdentificationManoeuvre, ManoeuvreConfig, thesis_estimator
 from behaviors.sequence import Deferred, Instant, ParallelBehavior, SequenceBehavior
+from behaviors.speed_tuning import SPEED_CONTEXT, SPEED_GAINS, SpeedLoopConfig, SpeedTuning, SurgeRecorder
 from behaviors.steadiness import SteadinessRule
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.cascade_gains import CascadeRules, quicktune_feed_forward
@@ -103,8 +104,16 @@ class GainsWritten:
     after: dict
 
 
+@dataclass(frozen=True)
+class SpeedTuned:
+    """The speed loop was identified, designed and checked (or could not be): its figures."""
+
+    status: str
+    result: dict
+
+
 #: what the campaign hands the application to store, in order
-CampaignEvent = Union[AttemptRecorded, StepsChecked, DesignMade, GainsWritten]
+CampaignEvent = Union[AttemptRecorded, StepsChecked, DesignMade, GainsWritten, SpeedTuned]
 
 
 @dataclass(frozen=True)
@@ -136,6 +145,8 @@ class CampaignConfig:
     # the b2 speed law of the vehicle's actuation, kept when the models cannot tell ("u2" rudder, "u"
     # differential thrust, eq. S.3); None: the thesis' u², or the profile's actuation (resolved_for)
     speed_law: str | None = None
+    # the speed loop identified from the settles, designed and checked by speed steps (behaviors/speed_tuning.py)
+    speed: SpeedLoopConfig = SpeedLoopConfig()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "thrusts", check_thrust_levels(self.thrusts, "CampaignConfig.thrusts"))
@@ -226,6 +237,8 @@ class CampaignConfig:
                                          **getattr(profile, "gain_ranges", {})))
         if not getattr(profile, "depth_setpoint", True):
             config = replace(config, depth=None)
+        if config.speed.enabled is None:  # tuned where the autopilot has a speed loop
+            config = replace(config, speed=replace(config.speed, enabled="speed_p" in getattr(profile, "params", {})))
         actuation = getattr(profile, "actuation", None)
         if actuation is not None and config.speed_law is None:
             config = replace(config, speed_law="u" if actuation.skid else "u2")
@@ -302,6 +315,10 @@ class IdentificationCampaign(Behaviour):
         if config.step_labels and self.heading_kind is not None:
             parameters |= set(self.heading_kind.parameters)
         self.verification: str | None = None
+        self.surge = SurgeRecorder()  # the settles' speed and throttle, for the speed loop
+        self.speed: SpeedTuning | None = None
+        if config.speed.enabled:
+            parameters |= set(SPEED_GAINS + SPEED_CONTEXT)
         self.footprint = Footprint.of(parameters, ("mode", "thrust", "heading", "depth", "rudder", "elevator"))
 
     @property
@@ -335,6 +352,9 @@ class IdentificationCampaign(Behaviour):
         for thrust in cfg.thrusts:
             for label in cfg.step_labels:
                 items.append(Deferred(self._step_test_factory(thrust, label), heading_gains))
+        if cfg.speed.enabled:
+            items.append(Deferred(lambda: SpeedTuning(self.surge.record, self.original_gains, cfg.speed),
+                                  Footprint.of(SPEED_GAINS, ("mode", "thrust", "heading"))))
         items.append(Deferred(self._final_gains_step, self.footprint))
         # progress counts the manoeuvres and the step checks (the design and the final write are instants)
         self._total = len(cfg.thrusts) * (len(cfg.axes) + len(cfg.step_labels))
@@ -432,6 +452,8 @@ class IdentificationCampaign(Behaviour):
             speed = telemetry.speed_water if telemetry.finite("speed_water") else low
             speeds.append(speed)
             gains.update(self._kind(name).gains(design.schedule, speed))
+        if self.speed is not None and self.speed.kept:  # verified by its own speed steps
+            gains.update(self.speed.kept)
         self.final_gains = gains
         speed = speeds[0]
         before = {k: v for k, v in self.original_gains.items() if k in gains}
@@ -460,6 +482,9 @@ class IdentificationCampaign(Behaviour):
             result = behavior.result()
             self.step_results.append(result)
             self.events.append(StepsChecked(result))
+        elif isinstance(behavior, SpeedTuning):
+            self.speed = behavior
+            self.events.append(SpeedTuned(behavior.status.value, behavior.result()))
 
     def progress(self) -> float:
         """Fraction of the campaign's manoeuvres and checks completed (0..1), for COMMAND_ACK."""
@@ -488,10 +513,22 @@ class IdentificationCampaign(Behaviour):
                 return []
             self._sequence = self._build(telemetry.yaw)
         self._count_phase_time(telemetry.time_s)
+        self._record_surge(telemetry)
         commands = list(self._sequence.tick(telemetry))
         if self._sequence.done:
             commands += self._conclude()
         return commands
+
+    def _record_surge(self, telemetry: Telemetry) -> None:
+        """The yaw manoeuvre's settles feed the surge model (behaviors/speed_tuning.py)."""
+        current = self._sequence.current if self._sequence is not None else None
+        if isinstance(current, ParallelBehavior):
+            current = next((c for c in current.children if isinstance(c, IdentificationManoeuvre)
+                            and c.config.axis == "yaw"), None)
+        if isinstance(current, IdentificationManoeuvre):
+            self.surge.add(telemetry, current.thrust, current.stage)
+        else:
+            self.surge.add(telemetry, None, None)
 
     def _count_phase_time(self, now: float) -> None:
         """Vehicle seconds per phase of the campaign (what the campaign costs at sea):
@@ -502,6 +539,8 @@ class IdentificationCampaign(Behaviour):
             phase = "identification"
         elif isinstance(current, HeadingStepTest):
             phase = "heading_steps"
+        elif isinstance(current, SpeedTuning):
+            phase = "speed_steps"
         else:
             phase = "other"
         if last is not None and now > last[0]:
@@ -535,6 +574,7 @@ class IdentificationCampaign(Behaviour):
             "verification": self.verification or ("passed" if self.final_gains else None),
             "steps": [{k: v for k, v in r.items() if k != "series"} for r in self.step_results],
             "final_gains": self.final_gains,
+            "speed_loop": self.speed.result() if self.speed is not None else None,
         }
         return ProcedureResult.of("identification", self.status, self.reason, figures)
 

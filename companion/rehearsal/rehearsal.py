@@ -327,6 +327,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                                      "max_overshoot_pct": finite_or_none(s["max_overshoot_pct"]),
                                      "iae_s": finite_or_none(s.get("iae_s")), "oscillations": s.get("oscillations")}
                                     for s in campaign.step_results]
+        summary["speed_loop"] = speed_loop_summary(campaign.speed)
         summary["verification"] = campaign.verification or ("passed" if campaign.final_gains else None)
         summary["final_gains"] = campaign.final_gains
         summary["store"] = str(store_path)
@@ -346,6 +347,28 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
         log.warning("this rehearsal may not be reproducible: %s", "; ".join(summary["reproducibility"]["varied"]))
     (out / "summary.json").write_text(json.dumps(json_safe(summary), indent=1, allow_nan=False))
     return summary
+
+
+def speed_loop_summary(tuning) -> dict | None:
+    """The speed loop's figures for the summary: the surge model (eq. S.4), the designed gains and
+    their predicted steps, the flown speed steps per gain set, and the verdict (None: not tuned)."""
+    if tuning is None:
+        return None
+    surge, design = tuning.surge, tuning.design
+    steps = {label: {"max_overshoot_pct": finite_or_none(r["max_overshoot_pct"]),
+                     "settling_time_s": finite_or_none(r["settling_time_s"]), "speeds": r["speeds"],
+                     "steps": [{k: finite_or_none(v) for k, v in step.items()} for step in r["steps"]]}
+             for label, r in tuning.step_results.items()}
+    return {"status": tuning.status.value, "reason": tuning.reason, "verdict": tuning.verdict, "kept": tuning.kept,
+            "surge": None if surge is None else {"gain": surge.gain, "exponent": surge.exponent, "gamma": surge.gamma,
+                                                 "lag": surge.lag,
+                                                 "r2": finite_or_none(surge.r2), "levels": surge.levels,
+                                                 "describe": surge.describe()},
+            "design": None if design is None else {"gains": design.gains.params(), "speed": design.design_speed,
+                                                   "time_constant_s": design.time_constant_s,
+                                                   "step": list(design.step), "predicted": design.predicted,
+                                                   "clamped": list(design.clamped)},
+            "original": tuning.original, "steps": steps}
 
 
 def _run_steady_state(link, store, config: RehearsalConfig, campaign_id: int, abort: AbortFlag, summary: dict) -> dict:

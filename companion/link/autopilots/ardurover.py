@@ -52,6 +52,7 @@ PROFILE = AutopilotProfile(
         "heading_rate_d": "ATC_STR_RAT_D", "heading_rate_ff": "ATC_STR_RAT_FF", "heading_rate_imax": "ATC_STR_RAT_IMAX",
         "turn_rate_max": "ATC_STR_RAT_MAX", "cruise_speed": "CRUISE_SPEED", "cruise_thrust": "CRUISE_THROTTLE",
         "speed_default": "WP_SPEED", "gcs_sysid": "MAV_GCS_SYSID", "override_timeout": "RC_OVERRIDE_TIME",
+        "speed_p": "ATC_SPEED_P", "speed_i": "ATC_SPEED_I", "accel_max": "ATC_ACCEL_MAX",
         "system_id": "MAV_SYSID",
     },
     aliases={"gcs_sysid": ("SYSID_MYGCS",), "system_id": ("SYSID_THISMAV",)},
@@ -137,8 +138,17 @@ class Strategy(ArduPilotStrategy):
     def set_depth(self, depth: float) -> None:
         raise self._cannot("depth set-point: it is a boat (run the campaign without a depth)")
 
-    def _send(self) -> None:
-        if not self._in_guided() or self._excitation is not None:
+    def mode_accepted(self, neutral: str) -> None:
+        """GUIDED accepted: send the targets at once. On entry a boat loiters, braking towards a
+        stopping point, until a target arrives; waiting for the HEARTBEAT that verifies the mode
+        (up to a second) let the speed dip (measured on the skid boat: the throttle fell from 0.60 to
+        0.13, even astern, and the speed from 1.5 to 0.9 m/s after every record), and the default
+        speed loop took longer than a resettle to recover."""
+        if self.profile.modes.get(neutral) == self.profile.modes["guided"]:
+            self._send(force=True)
+
+    def _send(self, *, force: bool = False) -> None:
+        if not force and (not self._in_guided() or self._excitation is not None):
             return  # kept, and sent when GUIDED is entered
         heading = self.heading
         if not math.isfinite(heading):

@@ -118,6 +118,9 @@ class AutopilotStrategy:
     def mode_changed(self, neutral: str) -> None:
         """Called after the link switched mode (targets a new mode needs are sent here)."""
 
+    def mode_accepted(self, neutral: str) -> None:
+        """Called when the autopilot acknowledged a mode change, before a HEARTBEAT verifies it."""
+
     # ------------------------------------------------------------------ upkeep
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
         """Per-snapshot upkeep (refresh targets); may complete the snapshot (e.g. a commanded

@@ -4,12 +4,15 @@ A pilot's (or an override's) steering s and throttle t on an ArduRover skid boat
 when |s| + |t| > 1 (``Rover/mode.cpp``, ``get_pilot_desired_steering_and_throttle``; our simulator
 does the same), and the mixer itself cannot steer beyond t + |s| ≤ 1, t − |s| ≥ −1/MOT_THST_ASYM
 (``companion.link.actuation``). Either way the throttle would drop while the doublet steers and the
-speed would sag within the record, which biases a22 and b2. Nor does a motor reverse: astern a
-propeller crosses its dead band and gives less thrust than ahead (ArduPilot's MOT_THST_ASYM exists
-for it), so the yaw moment stops being linear in s (measured on the simulated skid boat at t = 0.4:
-b2 14 % low with the doublet reversing a motor). So the steering stays within
-min(1 − |t|, |t|, the mixer's own range) − a margin: a doublet that would leave it is scaled down
-around its trim, by one factor for the whole excitation (it stays a doublet), and the strategy says so. Its campaign flies below full throttle (:data:`SKID_THRUSTS`), where there
+speed would sag within the record, which biases a22 and b2. Nor does the slower motor go near
+stop: there a propeller crosses its dead band (an ESC's, or the thruster map's: ours gives no thrust
+below 5 %) and astern gives less thrust than ahead (ArduPilot's MOT_THST_ASYM exists for it), so the
+yaw moment stops being linear in s, while a quadratic thrust map alone keeps it exactly linear
+(F(t + s) − F(t − s) = 4a·t·s). Measured on the simulated skid boat at t = 0.4: b2 14 % low with the
+doublet reversing a motor, 7–8 % low with it at 0.03, inside the dead band. So the steering stays
+within min(1 − |t|, |t| − :data:`SLOW_MOTOR_MIN`, the mixer's own range) − a margin: a doublet that
+would leave it is scaled down around its trim, by one factor for the whole excitation (it stays a
+doublet), and the strategy says so. Its campaign flies below full throttle (:data:`SKID_THRUSTS`), where there
 is room to steer at all.
 """
 from __future__ import annotations
@@ -24,6 +27,8 @@ from companion.link.profile import AutopilotProfile
 SKID_THRUSTS = (0.4, 0.6, 0.8)
 #: |s| + |t| stays this far below 1 (a read-back PWM step and the held throttle's trims stay inside)
 SKID_MARGIN = 0.03
+#: the slower motor's least demand during a doublet: clear of typical ESC and propeller dead bands
+SLOW_MOTOR_MIN = 0.10
 
 
 def doublet_scale(actuation: Actuation | None, full_scale: float, throttle: float, trim: float,
@@ -33,7 +38,7 @@ def doublet_scale(actuation: Actuation | None, full_scale: float, throttle: floa
     message (≤ 50 characters, a STATUSTEXT) saying so."""
     if actuation is None or not actuation.skid:
         return 1.0, None
-    room = min(1.0 - abs(throttle), abs(throttle), actuation.steering_room(throttle)) - margin
+    room = min(1.0 - abs(throttle), abs(throttle) - SLOW_MOTOR_MIN, actuation.steering_room(throttle)) - margin
     centre, swing = abs(trim) / full_scale, abs(value - trim) / full_scale
     if swing <= 0.0 or centre + swing <= room:
         return 1.0, None
