@@ -110,8 +110,8 @@ class Actuation:
 
     def __post_init__(self) -> None:
         if self.kind == "steering":
-            if self.steering is None or self.throttle is None:
-                raise ValueError("Actuation 'steering' needs a steering and a throttle output")
+            if self.steering is None:
+                raise ValueError("Actuation 'steering' needs a steering output")
         elif self.kind == "skid":
             if self.left is None or self.right is None:
                 raise ValueError("Actuation 'skid' needs a left and a right output")
@@ -152,7 +152,8 @@ class Actuation:
             return scale.normalised(pwm[scale.output - 1]) if scale.output <= len(pwm) else math.nan
 
         if not self.skid:
-            return at(self.steering), self.unscaled_throttle(at(self.throttle))
+            throttle = self.unscaled_throttle(at(self.throttle)) if self.throttle is not None else math.nan
+            return at(self.steering), throttle
         left, right = self.unscaled_throttle(at(self.left)), self.unscaled_throttle(at(self.right))
         if left < 0.0:
             left /= self.thrust_asymmetry
@@ -178,7 +179,9 @@ class Actuation:
                     f"(MOT_THST_ASYM {self.thrust_asymmetry:g}, MOT_STR_THR_MIX {self.steering_throttle_mix:g}); "
                     "steering and throttle un-mixed from the two outputs")
         name = "Rudder" if self.steering_function == FUNCTION_RUDDER else "GroundSteering"
-        return f"SERVO{self.steering.output} {name}, SERVO{self.throttle.output} Throttle"
+        throttle = f", SERVO{self.throttle.output} Throttle" if self.throttle is not None else ", no throttle output"
+        return f"SERVO{self.steering.output} {name} (min/trim/max {self.steering.minimum:.0f}/" \
+               f"{self.steering.trim:.0f}/{self.steering.maximum:.0f}){throttle}"
 
     def scale_params(self) -> tuple[str, ...]:
         """The SERVOn_MIN/TRIM/MAX/REVERSED names of the outputs in use."""
@@ -191,10 +194,12 @@ def _outputs_with(functions: Mapping[int, float], wanted: int) -> list[int]:
 
 
 def actuation_from_functions(functions: Mapping[int, float], params: Mapping[str, float] | None = None,
-                             where: str = "the vehicle") -> Actuation:
+                             where: str = "the vehicle", *, require_throttle: bool = True) -> Actuation:
     """The boat's actuation from its output functions (output number → SERVOn_FUNCTION) and, where
     known, the outputs' scales and the mixer's parameters (``params`` by ArduPilot name; defaults
-    otherwise). ProfileError with what to set when the outputs cannot be understood."""
+    otherwise). ProfileError with what to set when the outputs cannot be understood; a steering
+    servo without a throttle output passes only without ``require_throttle`` (a log, where only
+    the steering is needed)."""
     params = dict(params or {})
     mixer = {name: float(params.get(name, default)) for name, default in MIXER_DEFAULTS.items()}
     left, right = _outputs_with(functions, FUNCTION_THROTTLE_LEFT), _outputs_with(functions, FUNCTION_THROTTLE_RIGHT)
@@ -220,17 +225,19 @@ def actuation_from_functions(functions: Mapping[int, float], params: Mapping[str
     if function is None:
         raise ProfileError(f"{where} has no steering output ({found}): set SERVOn_FUNCTION 26 (GroundSteering) on "
                            "the steering servo's output, or 73/74 (ThrottleLeft/Right) on a twin-thruster boat's motors")
-    if not throttle:
+    if not throttle and require_throttle:
         raise ProfileError(f"{where} has a steering output but no throttle ({found}): set SERVOn_FUNCTION 70 "
                            "(Throttle) on the motor's output")
     return Actuation("steering", steering=OutputScale.from_params(steering[function][0], params),
-                     throttle=OutputScale.from_params(throttle[0], params), steering_function=function, **common)
+                     throttle=OutputScale.from_params(throttle[0], params) if throttle else None,
+                     steering_function=function, **common)
 
 
 def actuation_from_params(params: Mapping[str, float], where: str = "the vehicle") -> Actuation:
-    """:func:`actuation_from_functions` from a parameter table (a log's PARAM_VALUE / PARM rows)."""
+    """:func:`actuation_from_functions` from a parameter table (a log's PARAM_VALUE / PARM rows; a
+    throttle output is not required there)."""
     functions = {n: params[f"SERVO{n}_FUNCTION"] for n in range(1, 33) if f"SERVO{n}_FUNCTION" in params}
     if not functions:
         raise ProfileError(f"{where} carries no SERVOn_FUNCTION parameter: the companion cannot tell which output "
                            "steers (a log recorded with its parameters, or --profile sim for our simulator's logs)")
-    return actuation_from_functions(functions, params, where)
+    return actuation_from_functions(functions, params, where, require_throttle=False)
