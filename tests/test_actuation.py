@@ -220,3 +220,15 @@ def test_the_rover_strategy_flies_the_scaled_doublet_and_says_so():
     room = (1.0 - 0.8 - 0.03) * 0.5236
     assert rudder == pytest.approx([room, -room])  # one factor for the whole doublet: still symmetric
     assert any("skid: doublet" in text for text in ports.ground.texts)
+
+
+def test_a_doublet_with_no_room_is_refused_with_what_to_change():
+    from companion.link.autopilots.skid_room import refusal
+
+    ports = rover({})
+    ports.profile = replace(ROVER, actuation=skid())
+    ports.telemetry.latest = Telemetry(time_s=100.0, rudder=0.0, thrust_ratio=0.03)  # ArduPilot's motorboat-skid
+    with pytest.raises(ProfileError, match="raise WP_SPEED"):
+        ports.strategy.override("rudder", 0.26)
+    assert ports.modes.changes == [] and not ports.overrides.active  # refused before anything moved
+    assert "fly slower" in refusal(0.99, 0.0) and refusal(0.5, 0.2) is None

@@ -325,7 +325,11 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
         summary["design"] = campaign.design_summary()
         summary["heading_steps"] = [{"thrust": s["thrust"], "label": s["label"],
                                      "max_overshoot_pct": finite_or_none(s["max_overshoot_pct"]),
-                                     "iae_s": finite_or_none(s.get("iae_s")), "oscillations": s.get("oscillations")}
+                                     "iae_s": finite_or_none(s.get("iae_s")), "oscillations": s.get("oscillations"),
+                                     "step_deg": s["steps"][0].get("step_deg") if s.get("steps") else None,
+                                     # time to stay within 5 % of the step, the slower of the step and its return
+                                     "settling_time_s": finite_or_none(_slowest(x["settling_time_s"]
+                                                                                for x in s["steps"]))}
                                     for s in campaign.step_results]
         summary["speed_loop"] = speed_loop_summary(campaign.speed)
         summary["verification"] = campaign.verification or ("passed" if campaign.final_gains else None)
@@ -347,6 +351,12 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
         log.warning("this rehearsal may not be reproducible: %s", "; ".join(summary["reproducibility"]["varied"]))
     (out / "summary.json").write_text(json.dumps(json_safe(summary), indent=1, allow_nan=False))
     return summary
+
+
+def _slowest(times) -> float:
+    """The largest of some settling times; NaN when there is none or one never settled."""
+    values = list(times)
+    return max(values) if values and all(math.isfinite(v) for v in values) else math.nan
 
 
 def speed_loop_summary(tuning) -> dict | None:

@@ -22,7 +22,8 @@ Actuators are read back from SERVO_OUTPUT_RAW through the actuation read at conn
 a vehicle with neither is refused with what to set. On a skid boat the doublet is held inside the
 mixer's room: MANUAL shrinks steering *and* throttle when |s| + |t| > 1 (Rover ``mode.cpp``), which
 would slow the boat within the record, so an excitation that would reach it is scaled down around
-its trim, and the strategy says so (STATUSTEXT). Depth is not a boat's notion (a depth set-point is refused); the water speed is the ground speed (no water-speed
+its trim, and the strategy says so (STATUSTEXT); one that would be scaled to almost nothing is refused
+(ProfileError: the campaign stops and restores) with what to change. Depth is not a boat's notion (a depth set-point is refused); the water speed is the ground speed (no water-speed
 sensor; a current biases it). Rover refuses to arm with the throttle off neutral.
 """
 from __future__ import annotations
@@ -35,7 +36,8 @@ from typing import ClassVar
 from companion.interface import Telemetry
 from companion.link.actuation import OUTPUTS
 from companion.link.autopilots.ardupilot import ArduPilotStrategy, yaw_quaternion
-from companion.link.autopilots.skid_room import doublet_scale, scaled, with_actuation
+from companion.link.autopilots.skid_room import doublet_scale, refusal, scaled, with_actuation
+from companion.link.errors import ProfileError
 from companion.link.profile import AutopilotProfile, CampaignDefaults, NativeScale
 
 log = logging.getLogger(__name__)
@@ -119,6 +121,9 @@ class Strategy(ArduPilotStrategy):
         if text is not None:
             log.warning("%s", text)
             self.ports.ground.status_text(text, 4)
+        reason = refusal(throttle, scale)
+        if reason is not None:
+            raise ProfileError(reason)
         return scale
 
     def _in_guided(self) -> bool:

@@ -12,7 +12,8 @@ import math
 
 from companion.link.autopilots.ardupilot import ArduPilotStrategy
 from companion.link.autopilots.base import BASE_STREAMS
-from companion.link.autopilots.skid_room import doublet_scale, scaled, with_actuation
+from companion.link.autopilots.skid_room import doublet_scale, refusal, scaled, with_actuation
+from companion.link.errors import ProfileError
 from companion.link.profile import AutopilotProfile
 
 MAV_CMD_CONDITION_YAW = 115
@@ -74,6 +75,9 @@ class Strategy(ArduPilotStrategy):
                                             throttle if math.isfinite(throttle) else 0.0, trim, value)
                 if text is not None:
                     self.ports.ground.status_text(text, 4)
+                reason = refusal(throttle, scale)
+                if reason is not None:
+                    raise ProfileError(reason)
                 self._doublet = (trim, scale)
             value = scaled(value, *self._doublet)
         self.ports.overrides.override(actuator, value)

@@ -48,6 +48,23 @@ def doublet_scale(actuation: Actuation | None, full_scale: float, throttle: floa
     return 0.0, f"skid: no steering room at throttle {throttle:.2f}"
 
 
+#: a doublet scaled below this fraction of the one asked for is refused (too small to identify from)
+MIN_SCALE = 0.05
+
+
+def refusal(throttle: float, scale: float) -> str | None:
+    """Why a doublet cannot be flown at ``throttle`` (None when it can): what a user can change."""
+    if scale >= MIN_SCALE:
+        return None
+    if throttle >= 0.5:
+        return (f"skid steering: at throttle {throttle:.2f} the mixer leaves no room to steer without cutting the "
+                "throttle: fly slower (lower --thrusts, fractions of WP_SPEED), or check that the speed loop holds "
+                "the speed (CRUISE_THROTTLE/CRUISE_SPEED near the boat's own)")
+    return (f"skid steering: at throttle {throttle:.2f} the mixer leaves no room to steer without a motor near stop "
+            f"or astern: fly faster (the campaign's thrusts are fractions of WP_SPEED; at those speeds this boat "
+            f"needs throttle {throttle:.2f}: raise WP_SPEED for the campaign)")
+
+
 def scaled(value: float, trim: float, scale: float) -> float:
     """An override of a scaled excitation: ``trim + scale·(value − trim)``."""
     return value if scale == 1.0 else trim + scale * (value - trim)
