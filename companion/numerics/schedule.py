@@ -34,7 +34,7 @@ import numpy as np
 
 from .gains import GainBounds, HeadingGains, design_heading_gains
 from .identification import YawModel
-from .speed_law import LAW_EXPONENTS, choose_speed_law
+from .speed_law import LAW_EXPONENTS, LAW_TEXT, choose_speed_law
 
 
 @dataclass
@@ -91,14 +91,17 @@ class YawSchedule:
         return f"{a22}, b2 = {self.b2_slope:.3f}·{power} + {self.b2_intercept:.3f} s⁻², δ0 = {self.delta0:.4f} rad"
 
 
-def constant_schedule(speed: float, model: YawModel) -> YawSchedule:
+def constant_schedule(speed: float, model: YawModel, prior_law: str | None = None) -> YawSchedule:
     """One speed cannot fit b2(u): that model's gains at every speed (no extrapolation of an
-    unknown law) -- the honest fallback of :func:`schedule_from_models`."""
+    unknown law) -- the honest fallback of :func:`schedule_from_models`; the actuation's law is
+    recorded, not used."""
     if not (model.a22 < 0 and model.b2 > 0):
         raise ValueError("the model needs a22 < 0 and b2 > 0")
+    law = prior_law or "u2"
     return YawSchedule(a22=model.a22, b2_slope=0.0, b2_intercept=model.b2, delta0=model.delta0,
                        speed_range=(speed, speed), b2_min_identified=model.b2, a22_reference_speed=speed,
-                       speeds=[speed])
+                       speeds=[speed], b2_law=law,
+                       b2_law_reason=f"one speed: its model at every speed ({LAW_TEXT[law]} is this actuation's law)")
 
 
 def schedule_from_models(
@@ -116,7 +119,7 @@ def schedule_from_models(
     if not usable:
         raise ValueError("no model with a measured speed")
     if len({round(u, 3) for u, _ in usable}) == 1:
-        return constant_schedule(*usable[-1])
+        return constant_schedule(*usable[-1], prior_law)
     return fit_yaw_schedule(speeds, models, weights, margin, prior_law)
 
 
