@@ -62,13 +62,13 @@ def test_the_simulated_loop_holds_a_steady_speed_and_reproduces_the_defaults_win
     assert 20.0 < up["overshoot_pct"] < 35.0  # flown on ArduRover SITL: 24-26 %
 
 
-def test_the_design_keeps_the_cruise_speed_and_settles_sooner_than_the_defaults_within_5_percent():
+def test_the_design_keeps_the_cruise_speed_and_settles_sooner_than_the_defaults_with_margin_to_5_percent():
     design = design_speed_gains(SKID, 1.5, (1.0, 2.0), original=DEFAULTS)
     gains = design.gains
     assert gains.cruise_speed == 1.5 and gains.cruise_throttle == pytest.approx(SKID.throttle_for(1.5))
-    assert 0.01 <= gains.p <= 2.0 and gains.i >= SKID.throttle_for(1.5) / (20 * 1.5) - 1e-12
+    assert 0.01 <= gains.p <= 2.0 and gains.i >= SKID.throttle_for(1.5) / (40 * 1.5) - 1e-12
     for name in ("design", "design_back"):
-        assert design.predicted[name]["overshoot_pct"] <= 5.0
+        assert design.predicted[name]["overshoot_pct"] <= 3.5
         assert design.predicted[name]["settling_time_s"] < design.predicted["original"]["settling_time_s"]
     assert design.step == (1.5, 2.0)
     faster = design_speed_gains(replace(SKID, lag=0.0), 1.5, (1.0, 2.0))
