@@ -139,7 +139,7 @@ class SpeedLoopVehicle:
 
 
 def _record_of(model: SurgeModel) -> SurgeRecord:
-    times, throttle, speed, steady = _record(model, dt=0.04)
+    times, throttle, speed, steady = _record(model, dt=0.1)
     return SurgeRecord(time=list(times), throttle=list(throttle), speed=list(speed),
                        levels={0.4: steady[0], 0.6: steady[1], 0.8: steady[2]})
 
