@@ -285,9 +285,13 @@ def test_outputs_are_paired_with_their_attitude_after_the_microsecond_clock_wrap
     from companion.link.snapshot import TelemetryAssembler
 
     assembler = TelemetryAssembler(PROFILE)
-    time_ms = 4_400_000
-    assembler.on_message(mavlink.MAVLink_attitude_message(time_ms, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0))
     servos = [1500] * 16
+    for earlier_ms in (4_399_920, 4_399_960):  # the streams run: each loop's outputs follow its attitude
+        assembler.on_message(mavlink.MAVLink_attitude_message(earlier_ms, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0))
+        assembler.on_message(mavlink.MAVLink_servo_output_raw_message((earlier_ms * 1000 + 700) & 0xFFFFFFFF, 0,
+                                                                      *servos))
+    time_ms = 4_400_000
+    assert assembler.on_message(mavlink.MAVLink_attitude_message(time_ms, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0)) is None
     servos[PROFILE.servo_outputs["rudder"] - 1] = 1700
     snapshot = assembler.on_message(mavlink.MAVLink_servo_output_raw_message((time_ms * 1000) & 0xFFFFFFFF, 0,
                                                                              *servos))

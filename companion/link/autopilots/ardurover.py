@@ -60,7 +60,6 @@ PROFILE = AutopilotProfile(
     water_speed_sensor=False,
     depth_from_pressure=False,
     depth_setpoint=False,
-    servo_follows_attitude=True,
     actuator_hold="zoh",
     output_lead_s=0.010,  # 25 Hz snapshots of the 50 Hz rover loop (STREAMS below)
     # yaw only (a boat has no dive plane); thrusts are fractions of WP_SPEED: 60, 80, 100 %
@@ -72,7 +71,7 @@ PROFILE = AutopilotProfile(
 #: GLOBAL_POSITION_INT joins the base streams (the autopilot's own position and altitude).
 #: ATTITUDE and SERVO_OUTPUT_RAW at 25 Hz, every second loop of the 50 Hz rover loop: at 20 Hz the
 #: samples come 40 and 60 ms apart in turn (measured), and 50 Hz is refused (DENIED). Each snapshot
-#: pairs a loop's attitude with that loop's outputs (``servo_follows_attitude``), which the next
+#: pairs a loop's attitude with that loop's outputs (by their time stamps, ``companion.link.snapshot``), which the next
 #: physics step applies: a zero-order hold for the identifier (``actuator_hold``). Pairing with the
 #: previous message instead scattered a22 and b2 by ±5 %, and same-loop pairing with a first-order
 #: hold biased them by −13 % (measured on SITL).

@@ -90,7 +90,6 @@ PROFILE = AutopilotProfile(
     water_speed_sensor=False,
     depth_from_pressure=False,
     depth_setpoint=False,
-    servo_follows_attitude=True,
     actuator_hold="zoh",
     train_full_window=True,
     gain_ranges=GAIN_RANGES,
