@@ -27,6 +27,7 @@ SUBCOMMANDS = (
     "minspeed",
     "analyze",
     "results",
+    "recover",
 )
 
 

@@ -91,6 +91,7 @@ class TelemetryAssembler:
             "VFR_HUD": self._on_vfr_hud,
             "SCALED_PRESSURE": self._on_scaled_pressure,
             "GLOBAL_POSITION_INT": self._on_global_position_int,
+            "NAV_CONTROLLER_OUTPUT": self._on_nav_controller_output,
             "HEARTBEAT": self._on_heartbeat,
         }
 
@@ -113,6 +114,13 @@ class TelemetryAssembler:
     def match_ms(self) -> float:
         """How far after an attitude sample its outputs may be stamped (half a sample period)."""
         return 0.5 * self._period_ms
+
+    def restart(self) -> None:
+        """The vehicle rebooted: its clock starts again, so nothing stamped before carries over."""
+        self._pending.clear()
+        self._outputs.clear()
+        self._last_attitude_ms = math.nan
+        self.released_ms = -math.inf
 
     def accepts(self, time_ms: float) -> bool:
         """An attitude sample stamped ``time_ms`` can still be placed in order: it is newer than every
@@ -240,10 +248,18 @@ class TelemetryAssembler:
         self._fields.update(speed_water=water, speed_ground=ground)
 
     def _on_global_position_int(self, msg: Any) -> None:
-        """The autopilot's own (surface-calibrated) altitude: depth where pressure is not used."""
-        if not self.profile.depth_from_pressure:
+        """The autopilot's own (surface-calibrated) altitude: depth where pressure is not used. A
+        surface vessel has no depth (its GPS altitude is not one)."""
+        if not self.profile.depth_from_pressure and self.profile.vehicle_kind != "surface":
             relative_alt = self._number(msg, "relative_alt")
             self._fields["depth"] = -relative_alt / 1000.0 if math.isfinite(relative_alt) else math.nan
+
+    def _on_nav_controller_output(self, msg: Any) -> None:
+        """The heading set-point the autopilot reports holding (whole degrees), where its profile
+        says that is what ``target_bearing`` means."""
+        if self.profile.reports_heading_target:
+            bearing = self._number(msg, "target_bearing")
+            self._fields["heading_target"] = wrap_pi(math.radians(bearing)) if math.isfinite(bearing) else math.nan
 
     def _on_scaled_pressure(self, msg: Any) -> None:
         if not self.profile.depth_from_pressure:

@@ -29,7 +29,8 @@ SNAPSHOT_QUEUE_MAX = 2000
 #: once the link has delivered an attitude sample late, complete snapshots are held this many sample
 #: periods before they are returned, so a late sample can still be placed in order
 REORDER_HOLD_SAMPLES = 2
-TELEMETRY_TYPES = ("SERVO_OUTPUT_RAW", "LOCAL_POSITION_NED", "VFR_HUD", "SCALED_PRESSURE", "GLOBAL_POSITION_INT")
+TELEMETRY_TYPES = ("SERVO_OUTPUT_RAW", "LOCAL_POSITION_NED", "VFR_HUD", "SCALED_PRESSURE", "GLOBAL_POSITION_INT",
+                   "NAV_CONTROLLER_OUTPUT")
 
 
 class TelemetryFeed:
@@ -51,6 +52,7 @@ class TelemetryFeed:
         self.samples_duplicate = 0
         self.samples_accepted = 0
         self._returned_ms: int | None = None
+        self.reboot: str | None = None  # a reboot seen and not yet reported by wait()
         transport.on("ATTITUDE", self._on_attitude)
         for message_type in TELEMETRY_TYPES:
             transport.on(message_type, self._on_telemetry)
@@ -74,8 +76,7 @@ class TelemetryFeed:
         numeric = isinstance(time_ms, (int, float)) and math.isfinite(time_ms)
         last = self.clock.last_sample_ms
         if numeric and last is not None and time_ms < last - 1000:
-            self.clock.restart(time_ms)
-            raise VehicleRebooted(f"time_boot_ms went back from {last} to {time_ms}: the vehicle rebooted")
+            self._rebooted(last, time_ms)
         if self.assembler is None:
             if numeric:
                 self.clock.advance(time_ms)
@@ -93,6 +94,18 @@ class TelemetryFeed:
                 self.clock.sample(time_ms)
         for snapshot in done:
             self._queue(snapshot)
+
+    def _rebooted(self, last_ms: float, time_ms: float) -> None:
+        """The vehicle's clock went back: it rebooted. The clock and the assembler start again,
+        snapshots of the old boot are dropped, and the next :meth:`wait` raises VehicleRebooted
+        (once): a procedure stops there, while a restore under way carries on with the new boot."""
+        self.clock.restart(time_ms)
+        if self.assembler is not None:
+            self.assembler.restart()
+        self._unread.clear()
+        self._returned_ms = None
+        self.reboot = f"time_boot_ms went back from {last_ms:.0f} to {time_ms:.0f}: the vehicle rebooted"
+        log.warning("%s", self.reboot)
 
     def _count_unplaced(self, duplicate: bool) -> None:
         """A sample repeated, or arriving after newer snapshots were returned: dropped, counted."""
@@ -140,6 +153,7 @@ class TelemetryFeed:
             self.clock.acknowledge(self._returned_ms if self._returned_ms is not None else 0)
         deadline = time.monotonic() + timeout_s
         while not self._unread:
+            self._report_reboot()
             remaining = deadline - time.monotonic()
             if remaining <= 0.0:
                 silent = time.monotonic() - self.transport.last_rx_wall
@@ -150,6 +164,12 @@ class TelemetryFeed:
                 self.clock.unstall()
             else:
                 self.transport.pump(min(remaining, 0.5))
+        self._report_reboot()
+
+    def _report_reboot(self) -> None:
+        if self.reboot is not None:
+            reason, self.reboot = self.reboot, None
+            raise VehicleRebooted(reason)
 
     def pop(self) -> Telemetry:
         """The oldest queued snapshot (call :meth:`wait` first)."""

@@ -4,8 +4,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_procedure_argument, add_store_argument,
-                                       connected_vehicle)
+from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_procedure_argument,
+                                            add_recovery_argument, add_store_argument, connected_vehicle,
+                                            follow_interrupted_trails)
 
 
 def add_parser(subparsers) -> None:
@@ -18,6 +19,7 @@ def add_parser(subparsers) -> None:
                     "and restoring whatever runs).")
     add_connect_arguments(parser)
     add_store_argument(parser)
+    add_recovery_argument(parser)
     parser.add_argument("--no-scheduling", action="store_true", help="do not write scheduled gains between procedures")
     parser.add_argument("--no-health", action="store_true",
                         help="do not watch the vehicle's health (passive identification against the stored models, "
@@ -44,6 +46,8 @@ def run(args: argparse.Namespace) -> int:
                          min_speed=MinSpeedProcedureConfig.governed())
     try:
         with connected_vehicle(args) as (link, stop), Store(args.store) as store:
+            if not follow_interrupted_trails(link, store, args):  # an earlier procedure left it changed
+                return 1
             companion = Companion(link, store, vehicle_record(store, link), config, stop)
             print(f"companion running on {args.connect} (system {link.transport.system_id}, component 191, profile "
                   f"{link.profile.name}); Ctrl-C to stop", file=sys.stderr)

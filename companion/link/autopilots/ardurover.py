@@ -59,6 +59,7 @@ PROFILE = AutopilotProfile(
     strategy="ardurover",
     water_speed_sensor=False,
     depth_from_pressure=False,
+    vehicle_kind="surface",
     depth_setpoint=False,
     actuator_hold="zoh",
     output_lead_s=0.010,  # 25 Hz snapshots of the 50 Hz rover loop (STREAMS below)
@@ -191,6 +192,13 @@ class Strategy(ArduPilotStrategy):
             self._override_bias[actuator] = held["command"] - held["target"]
             log.debug("%s held at %.4f reads %.4f: override now %.4f", actuator, held["target"], read, held["command"])
             self.ports.overrides.override(actuator, held["command"])
+
+    def not_ready(self, telemetry: Telemetry) -> str | None:
+        """GUIDED (the campaign's holding mode) needs the EKF's position: Rover refuses the mode without
+        it (measured on SITL before its EKF used GPS: MAV_RESULT_FAILED)."""
+        if not telemetry.finite("north", "east"):
+            return "no position estimate yet (GUIDED, the holding mode, needs one: the EKF is still initialising)"
+        return None
 
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
         if self._excitation is None and self._in_guided() and telemetry.time_s - self._sent_at >= self.refresh_s:

@@ -89,6 +89,7 @@ PROFILE = AutopilotProfile(
     strategy="ardusub",
     water_speed_sensor=False,
     depth_from_pressure=False,
+    vehicle_kind="underwater",
     depth_setpoint=False,
     actuator_hold="zoh",
     train_full_window=True,
