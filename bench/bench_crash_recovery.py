@@ -1,5 +1,6 @@
 """Crash recovery at random points of a campaign: ``companion identify`` killed with SIGKILL after a
-random number of recorded changes (seeded), then ``companion recover --yes``; a case is restored
+random number of recorded changes (seeded, between one and all but the last of the changes a whole
+campaign records, counted first on a campaign run to its end), then ``companion recover --yes``; a case is restored
 when the heading gains, the mode and the thrust are as found and the rudder is back with the heading
 loop (no override left), and the campaign row says ``interrupted`` (harness/crash_cases.py).
 
@@ -14,8 +15,21 @@ import tempfile
 from collections import Counter
 from pathlib import Path
 
-from harness.crash_cases import run_crash_case, store_changes
+from harness.crash_cases import campaign_command, prepare_vehicle, run_crash_case, store_changes
 from harness.simulator import start_sim
+
+
+def whole_campaign_changes(store: Path) -> int:
+    """The changes one campaign of the cases' kind records when it runs to its end."""
+    import subprocess
+
+    sim = start_sim(transport="tcp", speedup=0, seed=99, lockstep=True)
+    try:
+        prepare_vehicle(sim.endpoint)
+        subprocess.run(campaign_command(sim.endpoint, store), capture_output=True, timeout=600)
+    finally:
+        sim.stop()
+    return len(store_changes(store))
 
 
 def main() -> int:
@@ -26,8 +40,10 @@ def main() -> int:
     rng = random.Random(args.seed)
     rows, restored = [], 0
     with tempfile.TemporaryDirectory() as folder:
+        total = whole_campaign_changes(Path(folder) / "whole.sqlite")
+        print(f"a whole campaign records {total} changes", flush=True)
         for case in range(args.cases):
-            after = rng.randint(1, 40)  # kill after this many recorded changes
+            after = rng.randint(1, max(total - 1, 1))  # kill after this many recorded changes
             sim = start_sim(transport="tcp", speedup=0, seed=case + 1, lockstep=True)
             try:
                 store = Path(folder) / f"case{case}.sqlite"

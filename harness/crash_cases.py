@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-__all__ = ["GAINS", "CrashResult", "run_crash_case", "store_changes"]
+__all__ = ["GAINS", "CrashResult", "campaign_command", "prepare_vehicle", "run_crash_case", "store_changes"]
 
 GAINS = ("HDG_P", "HDG_I", "HDG_TRIM")
 THRUST_TOLERANCE = 0.011
@@ -64,6 +64,23 @@ def vehicle_state(endpoint: str, settle_samples: int = 0) -> dict:
         link.close()
 
 
+def prepare_vehicle(endpoint: str) -> None:
+    """In hold, armed, its RC override timeout off (an override a dead companion held never expires)."""
+    link = _vehicle(endpoint)
+    try:
+        link.set_param("RC_OVR_TIME", -1.0)
+        link.set_mode("hold")
+        link.arm(True)
+    finally:
+        link.close()
+
+
+def campaign_command(endpoint: str, store_path: Path) -> list[str]:
+    """The campaign each case runs (one thrust, yaw)."""
+    return [sys.executable, "-m", "companion", "identify", "--connect", endpoint, "--lockstep",
+            "--store", str(store_path), "--thrusts", "0.8", "--axes", "yaw"]
+
+
 @dataclass
 class CrashResult:
     """What a case did: where it killed, what the crash left, the next start's refusal, the recovery."""
@@ -88,16 +105,9 @@ def run_crash_case(sim, store_path: Path, kill_point: str, until: Callable[[list
     """Start a campaign on ``sim`` (lockstep TCP), kill it once ``until(changes, found)`` holds, then
     recover and compare (module docstring)."""
     result = CrashResult(kill_point)
-    link = _vehicle(sim.endpoint)
-    try:
-        link.set_param("RC_OVR_TIME", -1.0)
-        link.set_mode("hold")
-        link.arm(True)
-    finally:
-        link.close()
+    prepare_vehicle(sim.endpoint)
     found = vehicle_state(sim.endpoint)
-    command = [sys.executable, "-m", "companion", "identify", "--connect", sim.endpoint, "--lockstep",
-               "--store", str(store_path), "--thrusts", "0.8", "--axes", "yaw"]
+    command = campaign_command(sim.endpoint, store_path)
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + timeout_s

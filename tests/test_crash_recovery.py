@@ -14,14 +14,15 @@ pytestmark = [pytest.mark.e2e, pytest.mark.skipif(sys.platform == "win32", reaso
 
 
 def _in_doublet(changes, found) -> bool:
-    return any(kind == "OverrideActuator" for kind, _ in changes)
+    """The RC channel is recorded as held just before the override goes out."""
+    return any(kind == "ChannelHeld" for kind, _ in changes)
 
 
 def _trial_gains(changes, found) -> bool:
-    """A change is recorded before it is sent: the trial gains are surely on the vehicle once the
-    change after them was recorded."""
+    """A write is recorded before it is sent and the next only once it was echoed: the trial gain is
+    surely on the vehicle once the change after its write was recorded."""
     trial = [i for i, (kind, detail) in enumerate(changes)
-             if kind == "SetParameters" and detail["values"].get("heading_p") not in (None, found["params"]["HDG_P"])]
+             if kind == "ParamWrite" and detail["name"] == "HDG_P" and abs(detail["value"] - found["params"]["HDG_P"]) > 1e-6]
     return bool(trial) and len(changes) > trial[0] + 1
 
 

@@ -91,7 +91,10 @@ def test_a_boat_is_never_checked_on_a_depth_it_does_not_have():
     boat, auv = SafetyLimits.for_profile(ARDUROVER), SafetyLimits.for_profile(ARDUSUB)
     assert boat.max_depth is None and boat.violation(Telemetry(time_s=0.0, depth=-584.06)) is None
     assert "depth" in auv.violation(Telemetry(time_s=0.0, depth=-584.06))
-    watch = boat.watch()
+    far = [Telemetry(time_s=float(i), north=10.0 + 2000.0 * i, east=0.0) for i in range(3)]
+    unlimited = boat.watch()
+    assert all(unlimited.check(t) is None for t in far)  # a campaign's straight runs: not limited unless asked
+    watch = SafetyLimits.for_profile(ARDUROVER, max_distance_m=500.0).watch()
     assert watch.check(Telemetry(time_s=0.0, north=10.0, east=0.0)) is None
     assert watch.check(Telemetry(time_s=1.0, north=400.0, east=0.0)) is None
     assert "from where the procedure started" in watch.check(Telemetry(time_s=2.0, north=10.0, east=520.0))
@@ -116,10 +119,11 @@ def test_a_full_disk_is_a_sentence_and_the_store_keeps_what_it_had(tmp_path):
     with Store(path) as store:
         vehicle = store.add_vehicle("v")
         campaign = store.start_campaign(vehicle, "identification")
+        trail = store.save_restore_point(campaign, {"mode": "hold"}, {})
         store._db.execute("PRAGMA max_page_count = %d" % store._db.execute("PRAGMA page_count").fetchone()[0])
         with pytest.raises(StoreError, match="the disk is full"):
             for _ in range(200):
-                store.add_change(campaign, 1.0, "SetParameters", {"values": {"x" * 500: 1.0}})
+                store.add_change(trail, 1.0, "SetParameters", {"values": {"x" * 500: 1.0}})
     db = sqlite3.connect(path)
     assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     assert db.execute("SELECT status FROM campaigns").fetchone()[0] == "running"  # nothing half-written

@@ -58,7 +58,7 @@ class CommandChannel:
     def send(self, command: int, params: Sequence[float], *, confirmation: int = 0) -> int:
         """Send a COMMAND_LONG; returns the acknowledgement counter to wait from."""
         self.transport.command_long(command, tuple(params), confirmation=confirmation)
-        self._sent_wall.setdefault(command, time.monotonic())
+        self._sent_wall[command] = time.monotonic()  # the latest send: a resend's answer is timed from it
         return self.ack_count
 
     @property
@@ -66,12 +66,22 @@ class CommandChannel:
         """The longest recent command round trip (wall seconds; 0 before any was measured)."""
         return max(self.round_trips, default=0.0)
 
+    @property
+    def try_wall_s(self) -> float:
+        """The wall clock one command period lasts at least: the configured minimum, or three times
+        the link's median round trip when that is longer (a loaded companion or a slow radio)."""
+        trips = sorted(self.round_trips)
+        median = trips[len(trips) // 2] if trips else 0.0
+        return max(self.clock.timeouts.min_try_wall_s, 3.0 * median)
+
     def abandon(self) -> list[int]:
         """Stop awaiting (and re-sending) every set-point still unanswered: a restore begins, and
         nothing of the procedure may be sent after it. Returns the commands abandoned."""
         abandoned = sorted(self._awaiting)
         self._awaiting.clear()
         self._sends.clear()
+        for command in abandoned:  # an answer to these no longer measures the link
+            self._sent_wall.pop(command, None)
         self._refusals.clear()
         return abandoned
 
@@ -116,7 +126,7 @@ class CommandChannel:
         is still reading as time the vehicle had to answer."""
         if self.clock.vehicle_time_s - vehicle_s <= periods * self.period_s:
             return False
-        return self.clock.lockstep or time.monotonic() - wall_s >= periods * self.clock.timeouts.min_try_wall_s
+        return self.clock.lockstep or time.monotonic() - wall_s >= periods * self.try_wall_s
 
     @property
     def awaiting(self) -> tuple[int, ...]:

@@ -12,7 +12,7 @@ import collections
 import logging
 import math
 from dataclasses import dataclass
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 from companion.link import param_codec
 from companion.link.clock import VehicleClock
@@ -49,7 +49,10 @@ class ParameterChannel:
         # changes seen: name -> ForeignChange (the vehicle announced a value no write of ours asked for)
         self.watched: set[str] = set()
         self.foreign: dict[str, ForeignChange] = {}
-        self._asked: dict[str, float] = {}  # name -> the value our latest write asked for (its echo may come late)
+        # name -> every value our writes asked for since watch(): an echo of an earlier write of
+        # ours can arrive after a later one was asked for (a slow link), and is still ours
+        self._asked: dict[str, list[float]] = collections.defaultdict(list)
+        self._write_listeners: list[Callable[[str, float], None]] = []
         transport.on("PARAM_VALUE", self._on_param_value)
 
     @property
@@ -72,17 +75,29 @@ class ParameterChannel:
         else (a ground station, a script) changed it."""
         if param_codec.echo_matches(before, value, param_type):
             return
-        asked = self._asked.get(name)
-        if asked is not None and param_codec.echo_matches(asked, value, param_type):
+        if self.ours(name, value):
             return
         change = ForeignChange(name, before, value, self.clock.vehicle_time_s)
         self.foreign[name] = change
         log.warning("%s changed from %g to %g by someone else", name, before, value)
 
     def watch(self, names) -> None:
-        """Watch these parameters for changes by anyone else (from now on; earlier changes forgotten)."""
+        """Watch these parameters for changes by anyone else (from now on; earlier changes and
+        the values our writes asked for forgotten)."""
         self.watched = set(names)
         self.foreign = {}
+        self._asked.clear()
+
+    def on_write(self, listener: Callable[[str, float], None]) -> Callable[[], None]:
+        """Call ``listener(name, value)`` before each write is sent (a crash trail records it);
+        returns the unsubscribe call."""
+        self._write_listeners.append(listener)
+        return lambda: self._write_listeners.remove(listener) if listener in self._write_listeners else None
+
+    def ours(self, name: str, value: float) -> bool:
+        """``value`` of ``name`` is one a write of ours asked for since :meth:`watch`."""
+        param_type = self.types.get(name, param_codec.REAL32)
+        return any(param_codec.echo_matches(asked, value, param_type) for asked in self._asked.get(name, ()))
 
     # ------------------------------------------------------------------ by autopilot name
     def request(self, name: str) -> None:
@@ -114,7 +129,11 @@ class ParameterChannel:
             self.get_param(name, retries=retries)  # the type decides the bytes we send
         param_type = self.types.get(name, param_codec.REAL32)
         wire_value = param_codec.encode_value(value, param_type, self.int_encoding)
-        self._asked[name] = value
+        for listener in list(self._write_listeners):
+            listener(name, value)
+        asked = self._asked[name]
+        asked.append(value)
+        del asked[:-256]  # bounded for a resident loop that writes for hours without a watch
         return self._write(name, value, wire_value, param_type, retries)
 
     def _write(self, name: str, value: float, wire_value: float, param_type: int, retries: int) -> float:

@@ -174,14 +174,15 @@ class TelemetryAssembler:
         return self._release(self._last_attitude_ms)
 
     def _outputs_streaming(self, time_ms: float) -> bool:
-        """Output samples arrive with every attitude sample: the last two came one attitude period
-        apart (within 50 %) and the newest is within a few periods of ``time_ms``. Otherwise (no
+        """Output samples arrive with every attitude sample: the recent ones came a median of one
+        attitude period apart (within 50 %) and the newest is within a few periods of ``time_ms``. Otherwise (no
         output stream, or a slower one) a snapshot never waits: it takes the outputs last held."""
-        stamps = sorted(stamp for stamp, _ in list(self._outputs)[-4:])
-        if len(stamps) < 2:
+        stamps = sorted(stamp for stamp, _ in list(self._outputs)[-6:])
+        spacings = sorted(b - a for a, b in zip(stamps, stamps[1:]))
+        if not spacings:
             return False
-        newest, previous = stamps[-1], stamps[-2]
-        return 0.0 < newest - previous <= 1.5 * self._period_ms and newest >= time_ms - 5.0 * self._period_ms
+        median = spacings[len(spacings) // 2]  # one lost or reordered output does not stop the stream
+        return 0.0 < median <= 1.5 * self._period_ms and stamps[-1] >= time_ms - 5.0 * self._period_ms
 
     def _outputs_for(self, time_ms: float) -> dict | None:
         """The actuator fields of the earliest output sample stamped within the match window of ``time_ms``."""

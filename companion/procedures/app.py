@@ -31,6 +31,7 @@ from companion.procedures.results import ProcedureResult
 from companion.procedures.runner import (RestoreGuard, RestorePoint, RunOutcome, SafetyLimits, not_started,
                                          run_procedure)
 from companion.procedures.trail import TrailRecorder, vehicle_identity
+from companion.link.errors import LinkError
 from companion.records.store import Store, StoreError
 
 __all__ = ["MAV_RESULT_ACCEPTED", "MAV_RESULT_FAILED", "MAV_RESULT_IN_PROGRESS", "MAV_RESULT_TEMPORARILY_REJECTED",
@@ -206,7 +207,10 @@ def run_campaign(
     limits = limits if limits is not None else SafetyLimits.for_profile(profile)
     campaign_id = store.start_campaign(vehicle_id, "identification", config.to_dict())
     campaign = IdentificationCampaign(config)
-    objection = await_ready(link, tell=lambda text: _tell(link, text[:50], 4))
+    try:
+        objection = await_ready(link, tell=lambda text: _tell(link, text[:50], 4))
+    except LinkError as exc:  # lost while waiting: nothing was changed
+        objection = f"{type(exc).__name__}: {exc}"
     if objection is not None:  # nothing was changed: refuse, with the vehicle's reason
         outcome = RunOutcome("aborted", f"not started: the vehicle is not ready: {objection}", {})
         _close_record(store, campaign_id, outcome)
@@ -223,7 +227,14 @@ def run_campaign(
         return campaign, outcome, campaign_id
     campaign.original_gains = dict(original.parameters)
     log.info("campaign %d started; original gains %s, mode %s", campaign_id, original.parameters, original.mode)
-    store.save_restore_point(campaign_id, original.as_json(), vehicle_identity(link))
+    try:
+        trail_id = store.save_restore_point(campaign_id, original.as_json(), vehicle_identity(link))
+    except StoreError as exc:  # nothing was changed: a procedure without its trail is not started
+        outcome = RunOutcome("aborted", f"not started: the restore point could not be stored: {exc}", {})
+        _close_record(store, campaign_id, outcome)
+        if gcs is not None:
+            gcs.finish(outcome)
+        return campaign, outcome, campaign_id
 
     def on_step(telemetry: Telemetry, _behavior: Behavior) -> None:
         drain_campaign_events(store, campaign_id, campaign)
@@ -235,12 +246,16 @@ def run_campaign(
             console.update(fraction, f"t={telemetry.time_s:7.1f}s {current.name if current else ''}")
 
     # one capture: the original gains of the step checks are the restore point's own values
-    outcome = run_procedure(link, campaign, limits=limits, abort_requested=abort, on_step=on_step, restore=original,
-                            on_change=TrailRecorder(store, campaign_id, link))
+    recorder = TrailRecorder(store, trail_id, link)
+    try:
+        outcome = run_procedure(link, campaign, limits=limits, abort_requested=abort, on_step=on_step,
+                                restore=original, on_change=recorder)
+    finally:
+        recorder.close()
     try:
         _store_safely(outcome, lambda: drain_campaign_events(store, campaign_id, campaign))
     finally:
-        _close_record(store, campaign_id, outcome)
+        _close_record(store, campaign_id, outcome, trail_id)
         if gcs is not None:
             gcs.finish(outcome)
         if console is not None:
@@ -258,9 +273,11 @@ def _store_safely(outcome: RunOutcome, write: Callable[[], None]) -> None:
         outcome.store_problems.append(str(exc))
 
 
-def _close_record(store: Store, campaign_id: int, outcome: RunOutcome) -> None:
+def _close_record(store: Store, campaign_id: int, outcome: RunOutcome, trail_id: int | None = None) -> None:
     """The trail closed (the restore ran) and the campaign row finished, each as far as the store allows."""
-    _store_safely(outcome, lambda: store.finish_restore(campaign_id, outcome.restore_problems, outcome.restore_notes))
+    if trail_id is not None:
+        _store_safely(outcome, lambda: store.finish_restore(trail_id, outcome.restore_problems,
+                                                            outcome.restore_notes))
     _store_safely(outcome, lambda: store.finish_campaign(campaign_id, outcome.status, outcome.reason))
 
 
@@ -302,11 +319,19 @@ def run_named_procedure(name: str, link, store: Store, *, vehicle_id: int, campa
         except Exception as exc:  # noqa: BLE001 - nothing was changed yet: refuse to start, never raise
             outcome = not_started(exc)
         else:
-            store.save_restore_point(campaign_id, restore.as_json(), vehicle_identity(link))
-            outcome = run_procedure(link, procedure, limits=limits or SafetyLimits.for_profile(profile),
-                                    abort_requested=abort, restore=restore,
-                                    on_change=TrailRecorder(store, campaign_id, link))
-            _store_safely(outcome, lambda: store.finish_restore(campaign_id, outcome.restore_problems,
+            try:
+                trail_id = store.save_restore_point(campaign_id, restore.as_json(), vehicle_identity(link))
+            except StoreError as exc:  # nothing was changed: a procedure without its trail is not started
+                outcome = RunOutcome("aborted", f"not started: the restore point could not be stored: {exc}", {})
+                result = procedure.result().with_outcome(outcome)
+                return NamedRun(result, spec.summary(result.to_json()), outcome)
+            recorder = TrailRecorder(store, trail_id, link)
+            try:
+                outcome = run_procedure(link, procedure, limits=limits or SafetyLimits.for_profile(profile),
+                                        abort_requested=abort, restore=restore, on_change=recorder)
+            finally:
+                recorder.close()
+            _store_safely(outcome, lambda: store.finish_restore(trail_id, outcome.restore_problems,
                                                                 outcome.restore_notes))
         result = procedure.result().with_outcome(outcome)
         _store_safely(outcome, lambda: store.add_behavior_result(campaign_id, name, result.status, result.to_json()))

@@ -42,15 +42,17 @@ class SafetyLimits:
             raise ValueError(f"SafetyLimits.max_nan_samples must be an integer ≥ 1, not {self.max_nan_samples!r}")
 
     @classmethod
-    def for_profile(cls, profile) -> "SafetyLimits":
+    def for_profile(cls, profile, *, max_distance_m: float | None = None) -> "SafetyLimits":
         """The envelope of the vehicle behind an autopilot profile: a surface vessel is not checked
-        on depth but on its distance from where the procedure started (500 m: a campaign covers a
-        few hundred metres of straight runs); an underwater vehicle keeps the depth band."""
+        on depth; an underwater vehicle keeps the depth band. The distance from where the procedure
+        started is checked only when the operator gives one (``identify --max-distance``): there is
+        no default that fits, since a whole campaign runs as one procedure and its straight runs
+        add up to kilometres (about 2.6 km for the default four speeds at 2 m/s)."""
         kind = getattr(profile, "vehicle_kind", "underwater")
         if kind == "surface":
             return cls(max_roll=math.radians(30.0), max_pitch=math.radians(30.0), max_depth=None, min_depth=None,
-                       max_distance_m=500.0)
-        return cls()
+                       max_distance_m=max_distance_m)
+        return cls(max_distance_m=max_distance_m)
 
     def with_distance(self, metres: float | None) -> "SafetyLimits":
         return replace(self, max_distance_m=metres)

@@ -26,7 +26,7 @@ from typing import Callable, Iterable
 from behaviors.base import Footprint
 from companion.interface import SetHeading, SetRollingMass, SetThrust
 from companion.procedures.restore_items import Reconnector, StateCheck, set_and_confirm, try_restore_item, \
-    write_if_changed
+    in_flight_possible, wait_in_flight, write_if_changed
 
 log = logging.getLogger(__name__)
 
@@ -141,11 +141,15 @@ class RestorePoint:
         and logged; what was decided is in :attr:`notes`."""
         self.notes = []
         _abandon_procedure_setpoints(link)
-        items = [("release overrides", lambda: _release_all(link))]
+        rebooted = _reboots(link) > self.boot
+        # no mode switch ends an excitation when the mode is not the companion's to change
+        items = [("release overrides", lambda: _release_all(link, switch_mode=mode and not rebooted))]
         if parameters:
             items += self._parameter_items(link, keep)
+            items.append(("check the parameters again", lambda: self._recheck_parameters(link, keep)))
         items += [(what, lambda what=what, action=action: self._unless_rebooted(link, what, action))
                   for what, action in self._setpoint_items(link, mode)]
+        items.append(("stop refreshing the procedure's targets", lambda: _forget_targets(link)))
         guard = guard or RestoreGuard()
         was_interruptible, guard.interruptible = guard.interruptible, False
         guard.restoring, guard.pending = True, [what for what, _ in items]
@@ -173,11 +177,44 @@ class RestorePoint:
                 continue
             change = foreign.get(name)
             if change is not None:
-                self.notes.append(f"{name}: kept {change.value:g}, set by someone else during the procedure "
-                                  f"(found {value:g})")
+                items.append((f"restore {name}", lambda name=name, value=value, change=change:
+                              self._keep_or_restore(link, name, value, change)))
                 continue
             items.append((f"restore {name}", lambda name=name, value=value: write_if_changed(link, name, value)))
         return items
+
+    def _recheck_parameters(self, link, keep: Iterable[str]) -> None:
+        """Read the restored parameters again once what was in flight has landed: a write of the
+        procedure delayed on the link can arrive after the restore's (as a set-point can,
+        ``restore_items``). One found changed again is written back once more and said. Nothing can
+        be in flight in lockstep or in process: then there is nothing to check."""
+        if not self.native or not in_flight_possible(link):
+            return
+        wait_in_flight(link)
+        kept = {n for name in keep for n in self.natives_of.get(name, ())}
+        foreign = getattr(getattr(link, "parameters", None), "foreign", None) or {}
+        for name, found in self.native.items():
+            if name in kept or name in foreign:
+                continue
+            current = link.get_param(name)
+            if not (math.isfinite(current) and abs(current - found) <= 1e-6 * max(1.0, abs(found))):
+                self.notes.append(f"{name} read {current:g} after it was restored (a late write of the "
+                                  f"procedure): written back to {found:g} again")
+                link.set_param(name, found)
+
+    def _keep_or_restore(self, link, name: str, found: float, change) -> None:
+        """A parameter someone else changed during the procedure: read it again, keep it if it still
+        holds their value (and that is no value a write of ours asked for), else put back ``found``
+        (their change was overwritten since, or the announcement was a late echo of ours)."""
+        current = link.get_param(name)
+        parameters = getattr(link, "parameters", None)
+        ours = getattr(parameters, "ours", lambda _name, _value: False)
+        theirs = math.isfinite(current) and abs(current - change.value) <= 1e-6 * max(1.0, abs(change.value))
+        if theirs and not ours(name, current):
+            self.notes.append(f"{name}: kept {change.value:g}, set by someone else during the procedure "
+                              f"(found {found:g})")
+            return
+        write_if_changed(link, name, found)
 
     def _setpoint_items(self, link, mode: bool) -> list[tuple[str, Callable[[], None]]]:
         items = []
@@ -219,14 +256,24 @@ def _reported(link, check: StateCheck) -> StateCheck | None:
     return check
 
 
-def _release_all(link) -> None:
+def _release_all(link, *, switch_mode: bool = True) -> None:
     """Release every override through the autopilot's strategy (ArduSub keeps a released override's
-    last value unless the stick is centred first; ArduRover's excitation ends by leaving MANUAL)."""
+    last value unless the stick is centred first; ArduRover's excitation ends by leaving MANUAL,
+    unless ``switch_mode`` is False: the pilot has the vehicle, or it rebooted)."""
     strategy = getattr(link, "autopilot", None)
     if callable(getattr(strategy, "release", None)):
+        if not switch_mode and callable(getattr(strategy, "forget_excitation", None)):
+            strategy.forget_excitation()
         strategy.release(None)
     else:  # a link without an autopilot strategy (the in-process harness)
         link.release(None)
+
+
+def _forget_targets(link) -> None:
+    """The strategy stops refreshing the procedure's targets (``AutopilotStrategy.forget_targets``)."""
+    forget = getattr(getattr(link, "autopilot", None), "forget_targets", None)
+    if callable(forget):
+        forget()
 
 
 def _abandon_procedure_setpoints(link) -> None:

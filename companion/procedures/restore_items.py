@@ -126,11 +126,42 @@ def _hold_seen(link, check: StateCheck) -> None:
                 held_since, held_wall = telemetry.time_s, time.monotonic()
             if telemetry.time_s - held_since >= CONFIRM_VEHICLE_S and time.monotonic() - held_wall >= wall_needed:
                 return
-        elif held_since is not None:
-            raise _Overtaken(check.describe(telemetry))
+        elif held_since is not None and math.isfinite(error):
+            raise _Overtaken(check.describe(telemetry))  # a snapshot without the read-back says nothing
         if telemetry.time_s - start_vehicle > CONFIRM_TIMEOUT_S and time.monotonic() - start_wall > 2.0 * wall_needed:
             raise NotConfirmed(f"{check.describe(telemetry)} {CONFIRM_TIMEOUT_S:g} s after it was acknowledged")
         telemetry = link.next_telemetry()
+
+
+def in_flight_possible(link) -> bool:
+    """Something the procedure sent may still be on its way: a MAVLink link (it has a clock) that is
+    not in lockstep. The in-process harness applies every command at once."""
+    clock = getattr(link, "clock", None)
+    return clock is not None and not getattr(clock, "lockstep", False) and callable(getattr(link, "next_telemetry", None))
+
+
+def wait_in_flight(link) -> None:
+    """Let what the procedure sent before the restore land: :data:`CONFIRM_VEHICLE_S` of vehicle time
+    and the link's in-flight window of wall clock (:func:`_in_flight_wall_s`), reading telemetry
+    meanwhile; nothing to wait for in lockstep or without telemetry."""
+    if not in_flight_possible(link):
+        return
+    wall_needed = _in_flight_wall_s(link)
+    start_wall = time.monotonic()
+    first = link.next_telemetry()
+    telemetry = first
+    while telemetry.time_s - first.time_s < CONFIRM_VEHICLE_S or time.monotonic() - start_wall < wall_needed:
+        telemetry = link.next_telemetry()
+
+
+def pump_vehicle_time(link, seconds: float) -> None:
+    """Keep reading telemetry for ``seconds`` of vehicle time (what is held is refreshed, what is
+    released is sent, with every snapshot); nothing without telemetry."""
+    if not callable(getattr(link, "next_telemetry", None)):
+        return
+    first = link.next_telemetry()
+    while link.next_telemetry().time_s - first.time_s < seconds:
+        pass
 
 
 def write_if_changed(link, name: str, value: float) -> None:

@@ -19,10 +19,10 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterable, Protocol, Sequence
 
 from behaviors.base import Status, footprint_of
-from companion.interface import (Behavior, Command, OverrideActuator, SetDepth, SetHeading, SetMode, SetParameters,
-                                 SetRollingMass, SetThrust, Telemetry)
+from companion.interface import (Behavior, Command, NamedValue, OverrideActuator, ReleaseActuator, SetDepth,
+                                 SetHeading, SetMode, SetParameters, SetRollingMass, SetThrust, StatusText, Telemetry)
 from companion.errors import UserError as _UserError
-from companion.link.errors import LinkError
+from companion.link.errors import LinkError, VehicleRebooted
 from companion.procedures.limits import SafetyLimits
 from companion.procedures.restore import RestoreGuard, RestorePoint
 from companion.procedures.results import ProcedureResult
@@ -82,8 +82,13 @@ def _foreign_change(link) -> str | None:
     return f"{change.name} was changed to {change.value:g} by someone else during the procedure"
 
 
-#: the commands that change the vehicle's state, recorded as they are made (a crash leaves a trail)
-STATE_CHANGES = (SetParameters, SetMode, SetThrust, SetHeading, SetDepth, SetRollingMass, OverrideActuator)
+#: the commands that change the vehicle's state, recorded as they are made (a crash leaves a trail;
+#: a release is recorded so the trail knows which overrides were still held)
+STATE_CHANGES = (SetParameters, SetMode, SetThrust, SetHeading, SetDepth, SetRollingMass, OverrideActuator,
+                 ReleaseActuator)
+#: what a behaviour's abort may still send to a vehicle that rebooted: its new boot's mode and
+#: set-points are its own, so only releases and words
+AFTER_REBOOT = (ReleaseActuator, StatusText, NamedValue)
 
 
 def _other_companion(link) -> str | None:
@@ -159,6 +164,7 @@ def _run_guarded(behavior, link, limits, abort_requested, on_step, restore, rest
     nan_run = 0
     reason: str | None = None
     pilot_has_it = False
+    rebooted = False
     try:
         try:
             if guard is not None:
@@ -200,6 +206,7 @@ def _run_guarded(behavior, link, limits, abort_requested, on_step, restore, rest
     except (LinkError, _UserError) as exc:  # expected conditions: a sentence, the traceback only at debug level
         log.debug("procedure stopped", exc_info=True)
         reason = f"{type(exc).__name__}: {exc}"
+        rebooted = isinstance(exc, VehicleRebooted)
     except Exception as exc:  # noqa: BLE001 - a bug: abort safely, then report (with its traceback)
         log.exception("procedure failed")
         reason = f"{type(exc).__name__}: {exc}"
@@ -208,7 +215,10 @@ def _run_guarded(behavior, link, limits, abort_requested, on_step, restore, rest
         log.warning("aborting: %s", reason)
         unwanted = (SetParameters, SetMode) if pilot_has_it else (SetParameters,)
         try:
-            link.execute([c for c in behavior.abort(reason) if not isinstance(c, unwanted)])
+            commands = [c for c in behavior.abort(reason) if not isinstance(c, unwanted)]
+            if rebooted:
+                commands = [c for c in commands if isinstance(c, AFTER_REBOOT)]
+            link.execute(commands)
         except Exception as exc:  # noqa: BLE001 - the restore below still runs
             problems.append(f"behaviour abort: {exc}")
         if restore is not None:

@@ -186,9 +186,14 @@ def link_fit_for_identification(link) -> bool:
     """Measure what the link delivers (two vehicle seconds of telemetry); False, with the sentence
     saying what to change, when it is too slow to identify from; a slower link than asked for is
     said and accepted."""
+    from companion.link.errors import LinkError
     from companion.procedures.readiness import measure_link_rate
 
-    rate = measure_link_rate(link)
+    try:
+        rate = measure_link_rate(link)
+    except LinkError as exc:
+        print(f"error: the link rate could not be measured: {exc}", file=sys.stderr)
+        return False
     verdict, warning = rate.verdict(), rate.warning()
     if verdict is not None:
         print(f"error: {verdict}", file=sys.stderr)
@@ -214,19 +219,20 @@ def add_recovery_argument(parser: argparse.ArgumentParser) -> None:
                              "it found it without asking (for scripts and services)")
 
 
-def follow_interrupted_trails(link, store, args: argparse.Namespace) -> bool:
+def follow_interrupted_trails(link, store, args: argparse.Namespace, guard=None) -> bool:
     """Before anything else on a vehicle: a procedure whose process died left a trail; say what it
     left changed and put the vehicle back (asked on a terminal, ``--yes`` for scripts). False when
-    one is left unrecovered (the caller must not start another procedure)."""
+    one is left unrecovered, or recovered only in part (the caller must not start another procedure;
+    the trail stays open and the next start tries again)."""
+    from companion.link.errors import LinkError
     from companion.procedures.trail import close_without_vehicle, interrupted, recover
 
-    trails = interrupted(store)
-    for trail in trails:
+    for trail in interrupted(store):
         print(f"campaign {trail.campaign_id} ({trail.kind}, started {trail.started_utc}) was interrupted: "
-              f"the companion ({trail.owner}) stopped during it", file=sys.stderr)
+              f"the companion ({trail.owner.describe()}) stopped during it", file=sys.stderr)
         if trail.restore is None and not trail.changes:
             close_without_vehicle(store, trail)
-            print("  it had changed nothing yet: closed as interrupted", file=sys.stderr)
+            print("  it had changed nothing yet (or its restore had run): closed as interrupted", file=sys.stderr)
             continue
 
         def decide(found: list[str], trail=trail) -> bool:
@@ -239,7 +245,11 @@ def follow_interrupted_trails(link, store, args: argparse.Namespace) -> bool:
             answer = input(f"Put the vehicle back as campaign {trail.campaign_id} found it? [y/N] ")
             return answer.strip().lower() in ("y", "yes")
 
-        done = recover(link, store, trail, decide)
+        try:
+            done = recover(link, store, trail, decide, guard=guard)
+        except LinkError as exc:  # the trail stays open: the next start tries again
+            print(f"  not put back: {type(exc).__name__}: {exc}; the trail stays open", file=sys.stderr)
+            return False
         for note in done.notes:
             print(f"  {note}", file=sys.stderr)
         if not done.applied and not done.other_vehicle:
@@ -248,7 +258,11 @@ def follow_interrupted_trails(link, store, args: argparse.Namespace) -> bool:
             return False
         for problem in done.problems:
             print(f"  could not put back: {problem}", file=sys.stderr)
+        if done.applied and not done.complete:
+            print(f"  put back except the items above; campaign {trail.campaign_id} stays open: fix them (or set "
+                  f"them by hand) and run `companion recover --connect {args.connect} --yes` again",
+                  file=sys.stderr)
+            return False
         if done.applied:
-            print(f"  put back{'' if not done.problems else ' except the items above'}; campaign "
-                  f"{trail.campaign_id} closed as interrupted", file=sys.stderr)
+            print(f"  put back; campaign {trail.campaign_id} closed as interrupted", file=sys.stderr)
     return True

@@ -38,6 +38,10 @@ def add_parser(subparsers) -> None:
                         help="the seeds' exact estimator (P0 = 100·I, zero-order holds) instead of the defaults")
     parser.add_argument("--no-write", action="store_true", help="design the gains but do not write them")
     parser.add_argument("--r2-threshold", type=float, default=None, help="validation acceptance threshold (default: 0.61)")
+    parser.add_argument("--max-distance", type=float, default=None, metavar="M",
+                        help="abort and restore if the vehicle goes more than M metres over ground from where the "
+                             "campaign started (default: not checked; the default campaign's straight runs add up "
+                             "to about 2.6 km)")
     parser.add_argument("--report", metavar="DIR", default=None, help="also write the HTML report into DIR")
     parser.add_argument("--json", action="store_true", help="print the campaign result as JSON")
     parser.set_defaults(func=run)
@@ -81,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
               "mission) is required", file=sys.stderr)
         return 2
     from companion.procedures.app import ConsoleProgress, run_campaign, vehicle_record
+    from companion.procedures.limits import SafetyLimits
     from companion.records.report import write_report
     from companion.records.store import Store
 
@@ -91,12 +96,17 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         with connected_vehicle(args) as (link, abort), Store(args.store) as store:
-            if not follow_interrupted_trails(link, store, args):  # an earlier procedure left it changed
+            try:
+                limits = SafetyLimits.for_profile(link.profile, max_distance_m=args.max_distance)
+            except ValueError as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return 2
+            if not follow_interrupted_trails(link, store, args, guard=getattr(abort, "guard", None)):
                 return 1
             if not link_fit_for_identification(link):
                 return 1
             campaign, outcome, campaign_id = run_campaign(
-                link, store, config, vehicle_id=vehicle_record(store, link), abort=abort,
+                link, store, config, vehicle_id=vehicle_record(store, link), abort=abort, limits=limits,
                 console=ConsoleProgress("identification", enabled=not args.json))
             link_quality = link_quality_record(link, campaign)
             report = str(write_report(store, campaign_id, args.report)) if args.report and not outcome.store_problems \

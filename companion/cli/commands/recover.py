@@ -38,8 +38,8 @@ def run(args: argparse.Namespace) -> int:
                 print_json({"interrupted": [], "recovered": []})
             return 0
         try:
-            with connected_vehicle(args) as (link, _abort):
-                ok = follow_interrupted_trails(link, store, args)
+            with connected_vehicle(args) as (link, abort):
+                ok = follow_interrupted_trails(link, store, args, guard=getattr(abort, "guard", None))
         except ConnectFailed as exc:
             print(exc, file=sys.stderr)
             return 1

@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
                          min_speed=MinSpeedProcedureConfig.governed())
     try:
         with connected_vehicle(args) as (link, stop), Store(args.store) as store:
-            if not follow_interrupted_trails(link, store, args):  # an earlier procedure left it changed
+            if not follow_interrupted_trails(link, store, args, guard=getattr(stop, "guard", None)):
                 return 1
             companion = Companion(link, store, vehicle_record(store, link), config, stop)
             print(f"companion running on {args.connect} (system {link.transport.system_id}, component 191, profile "

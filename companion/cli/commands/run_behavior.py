@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
                          turns=replace(steady.turns, turn_s=args.duration))
     try:
         with connected_vehicle(args) as (link, abort), Store(args.store) as store:
-            if not follow_interrupted_trails(link, store, args):  # an earlier procedure left it changed
+            if not follow_interrupted_trails(link, store, args, guard=getattr(abort, "guard", None)):
                 return 1
             outcome = run_named_behavior(name, link, store, vehicle_id=vehicle_record(store, link), campaign_id=None,
                                          abort=abort, preset=args.preset, simulator=args.simulator_hooks,

@@ -89,6 +89,7 @@ class Strategy(ArduPilotStrategy):
         self.speed_fraction = math.nan
         self._sent_at = -math.inf
         self._excitation: dict | None = None
+        self._refreshing = False  # targets of a procedure to refresh while in GUIDED (False once forgotten)
         #: learnt override corrections (actuator -> offset in its units), kept between excitations
         self._override_bias: dict[str, float] = {}
 
@@ -97,6 +98,7 @@ class Strategy(ArduPilotStrategy):
 
     def set_heading(self, heading: float) -> None:
         self.heading = heading
+        self._refreshing = True
         self._send()
 
     def set_thrust(self, thrust_level: float) -> None:
@@ -104,7 +106,18 @@ class Strategy(ArduPilotStrategy):
         if not 0.0 <= thrust_level <= 1.0:
             raise ValueError(f"thrust (fraction of WP_SPEED) {thrust_level!r} outside 0..1")
         self.speed_fraction = thrust_level
+        self._refreshing = True
         self._send()
+
+    def forget_targets(self) -> None:
+        """After a restore the procedure's heading and speed are no longer refreshed: a boat left in
+        GUIDED then does what Rover does when its targets stop (it stops after 3 s), as it would had
+        the companion not been there; the next procedure sends its own."""
+        self.heading = self.speed_fraction = math.nan
+        self._refreshing = False
+
+    def forget_excitation(self) -> None:
+        self._excitation = None
 
     def set_depth(self, depth: float) -> None:
         raise self._cannot("depth set-point: it is a boat (run the campaign without a depth)")
@@ -151,6 +164,8 @@ class Strategy(ArduPilotStrategy):
             self._excitation = None  # whoever left MANUAL ended the excitation
         if ended:
             self.ports.overrides.release(None)
+        if self._in_guided():
+            self._refreshing = True  # the companion put it in GUIDED: its targets are kept alive
         self._send()
 
     # ------------------------------------------------------------------ held outputs
@@ -201,7 +216,8 @@ class Strategy(ArduPilotStrategy):
         return None
 
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
-        if self._excitation is None and self._in_guided() and telemetry.time_s - self._sent_at >= self.refresh_s:
+        if (self._refreshing and self._excitation is None and self._in_guided()
+                and telemetry.time_s - self._sent_at >= self.refresh_s):
             self._send()
         self._trim_held(telemetry)
         return self.servo_model(telemetry)
