@@ -223,6 +223,10 @@ def load_config(path: str | Path, schema: Mapping[str, Mapping[str, Key]]) -> di
     try:
         data = tomllib.loads(source)
     except tomllib.TOMLDecodeError as exc:
+        found = re.search(r"^(.*) \(at line (\d+), column (\d+)\)$", str(exc))
+        if found:
+            raise ConfigError(f"{path}, line {found.group(2)}, column {found.group(3)}: not valid TOML: "
+                              f"{found.group(1)}") from None
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
     lines = key_lines(source)
 
