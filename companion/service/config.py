@@ -236,11 +236,13 @@ def load_config(path: str | Path, schema: Mapping[str, Mapping[str, Key]]) -> di
 
     values: dict[str, Any] = {}
     for section, table in data.items():
+        if not isinstance(table, dict):
+            owner = next((s for s, table_keys in schema.items() if section in table_keys), None)
+            hint = f": it belongs under [{owner}]" if owner else f" (sections: {', '.join(f'[{s}]' for s in schema)})"
+            raise ConfigError(f"{where(section)}: {section} is outside any section{hint}")
         if section not in schema:
             raise ConfigError(f"{where(section)}: unknown section [{section}] "
                               f"(known: {', '.join(f'[{s}]' for s in schema)})")
-        if not isinstance(table, dict):
-            raise ConfigError(f"{where(section)}: {section} must be a table ([{section}]), not a value")
         for name, value in table.items():
             spec = schema[section].get(name)
             if spec is None:

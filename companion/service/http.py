@@ -75,7 +75,7 @@ class StatusServer:
     """The page and its JSON on ``host:port`` (port 0: a free one; :attr:`port` is the bound one)."""
 
     def __init__(self, board: StatusBoard, host: str = "127.0.0.1", port: int = 0, *, allow_remote: bool = False,
-                 report: Callable[[], Path | None] = lambda: None) -> None:
+                 report: Callable[[], Path | None] = lambda: None, poll_interval_s: float = 0.5) -> None:
         loopback = is_loopback(host)
         if not loopback and not allow_remote:
             raise HttpConfigError(f"the status page would listen on {host}, which is not a loopback address: "
@@ -89,7 +89,9 @@ class StatusServer:
         except OSError as exc:
             raise HttpConfigError(f"the status page cannot listen on {host}:{port}: {exc.strerror or exc}") from None
         self.host, self.port = host, int(self.httpd.server_address[1])
-        self.thread = threading.Thread(target=self.httpd.serve_forever, name="status-page", daemon=True)
+        # the thread checks for a shutdown request every poll_interval_s (a close waits up to that long)
+        self.thread = threading.Thread(target=self.httpd.serve_forever, args=(poll_interval_s,), name="status-page",
+                                       daemon=True)
         if not loopback:
             log.warning("status page served to the network on %s:%d: read-only, without authentication; "
                         "anyone who reaches the port reads the vehicle's state", host, self.port)
