@@ -33,7 +33,7 @@ def _log_failure(logger: logging.Logger) -> None:
 
 def test_journal_lines_carry_the_priority_and_no_timestamp(restore_root_logger):
     stream = io.StringIO()
-    assert configure_logging("journal", logging.INFO, stream) == "journal"
+    assert configure_logging("journal", logging.INFO, stream, alongside=True) == "journal"
     log = logging.getLogger("companion.test")
     log.info("gain scheduling on")
     log.warning("aborting: signal SIGTERM")
@@ -46,7 +46,7 @@ def test_journal_lines_carry_the_priority_and_no_timestamp(restore_root_logger):
 
 def test_a_traceback_only_at_debug(restore_root_logger):
     stream = io.StringIO()
-    configure_logging("text", logging.DEBUG, stream)
+    configure_logging("text", logging.DEBUG, stream, alongside=True)
     _log_failure(logging.getLogger("companion.test"))
     text = stream.getvalue()
     assert "Traceback (most recent call last)" in text and "ERROR companion.test: procedure failed" in text
@@ -60,6 +60,14 @@ def test_journal_stream_names_the_stream_systemd_connected(tmp_path):
         assert journal_stream(env, stream)
         assert not journal_stream(env, other)  # a process whose stderr was redirected elsewhere
         assert not journal_stream({}, stream) and not journal_stream({"JOURNAL_STREAM": "garbage"}, stream)
+
+
+def test_a_logger_configured_elsewhere_is_left_alone(restore_root_logger):
+    root = logging.getLogger()
+    foreign = logging.NullHandler()
+    root.addHandler(foreign)
+    assert configure_logging("journal", logging.DEBUG, io.StringIO()) is None
+    assert foreign in root.handlers and not any(isinstance(h.formatter, ServiceFormatter) for h in root.handlers)
 
 
 def test_priorities_of_levels():

@@ -65,19 +65,24 @@ class ServiceFormatter(logging.Formatter):
         return "\n".join(prefix + line for line in text.splitlines() or [""])
 
 
-def configure_logging(log_format: str = "auto", level: int = logging.WARNING, stream: TextIO | None = None) -> str:
+def configure_logging(log_format: str = "auto", level: int = logging.WARNING, stream: TextIO | None = None,
+                      *, alongside: bool = False) -> str | None:
     """One handler on the root logger writing to ``stream`` (standard error) in ``log_format``
-    (``auto``/``text``/``journal``); replaces handlers set before (a configuration file read after
-    the flags may change the level and the format). Returns the format used."""
+    (``auto``/``text``/``journal``), replacing the one set by an earlier call (a configuration file
+    read after the flags may change the level and the format). Like ``logging.basicConfig``, it
+    leaves a root logger configured by someone else alone (a host program, pytest), unless
+    ``alongside``. Returns the format used, None when it left the logger alone."""
     stream = stream or sys.stderr
     if log_format not in ("auto", "text", "journal"):
         raise ValueError(f"log format {log_format!r}: use auto, text or journal")
+    root = logging.getLogger()
+    for old in [h for h in root.handlers if isinstance(h.formatter, ServiceFormatter)]:
+        root.removeHandler(old)
+    if root.handlers and not alongside:
+        return None
     journal = log_format == "journal" or (log_format == "auto" and journal_stream(stream=stream))
     handler = logging.StreamHandler(stream)
     handler.setFormatter(ServiceFormatter(journal))
-    root = logging.getLogger()
-    for old in list(root.handlers):
-        root.removeHandler(old)
     root.addHandler(handler)
     root.setLevel(level)
     return "journal" if journal else "text"
