@@ -39,7 +39,7 @@ UNIT = ROOT / "deploy" / "marine-companion.service"
 MAV_CMD_USER_1, IN_PROGRESS = 31010, 5
 MANUAL, HOLD = 19, 2  # the simulator's modes (companion.link.autopilots.sim)
 GAINS = ("HDG_P", "HDG_I", "HDG_TRIM", "PIT_P", "PIT_I")
-SPEEDUP = 20
+SPEEDUP = 10  # acknowledgements keep their margin on a loaded machine (the product runs at 1x)
 
 
 def unit_settings(section: str = "Service") -> dict[str, str]:
@@ -133,7 +133,7 @@ def _wait_for_line(path: Path, prefix: str, process: subprocess.Popen, timeout_s
 def test_the_units_stop_signal_mid_campaign_restores_the_vehicle(sim_factory, mav_client, tmp_path):
     service = unit_settings()
     stop_signal = getattr(signal, service["KillSignal"])
-    sim = sim_factory(speedup=SPEEDUP, seed=2)
+    sim = sim_factory(transport="tcp", speedup=SPEEDUP, seed=2)  # lossless on a loaded machine
     gcs = mav_client(sim.endpoint)
     config = tmp_path / "companion.toml"
     config.write_text(f'[connection]\nconnect = "{sim.endpoint}"\n[store]\npath = "companion.sqlite"\n'
@@ -178,7 +178,12 @@ def test_the_units_stop_signal_mid_campaign_restores_the_vehicle(sim_factory, ma
         during = _status(url)
         sent = time.monotonic()
         process.send_signal(stop_signal)
-        process.wait(timeout=seconds(service["TimeoutStopSec"]))
+        restored_s = None
+        while process.poll() is None and time.monotonic() - sent < seconds(service["TimeoutStopSec"]):
+            if restored_s is None and "procedure finished" in stderr.read_text():
+                restored_s = time.monotonic() - sent  # logged right after the restore
+            time.sleep(0.005)
+        process.wait(timeout=1.0)
         stopped_s = time.monotonic() - sent
     finally:
         if process.poll() is None:
@@ -186,8 +191,9 @@ def test_the_units_stop_signal_mid_campaign_restores_the_vehicle(sim_factory, ma
             process.wait()
     log = stderr.read_text()
     assert process.returncode == 0, log[-3000:]
-    print(f"\nstop: signal to exit {stopped_s:.2f} s wall (x{SPEEDUP} simulator: ~{SPEEDUP * stopped_s:.0f} s vehicle); "
-          f"progress at the signal {during['procedure'].get('progress_pct')} %")
+    restored = "?" if restored_s is None else f"{restored_s:.3f}"
+    print(f"\nstop: restored {restored} s and exited {stopped_s:.2f} s (wall) after the signal, x{SPEEDUP} simulator; "
+          f"campaign progress at the signal {during['procedure'].get('progress_pct')} %")
     # as found: the mode, every gain, no override holding a fin
     mode, deadline = None, time.monotonic() + 10.0
     while mode != MANUAL and time.monotonic() < deadline:

@@ -175,9 +175,10 @@ class StatusFeed:
     # ------------------------------------------------------------------ from the store and the loop
     def refresh(self) -> None:
         self._dirty = False
+        designs = self._designs()
         self.board.set("models", self._models())
-        self.board.set("schedule", self._schedule())
-        self.board.set("gains", self._gains())
+        self.board.set("schedule", self._schedule(designs))
+        self.board.set("gains", self._gains(designs))
         self.board.set("health", self._health())
         self.board.set("alarms", self._alarms())
 
@@ -201,22 +202,23 @@ class StatusFeed:
                 found.append(design)
         return found
 
-    def _schedule(self) -> dict:
+    def _schedule(self, found: list[tuple[int, Any]]) -> dict:
         designs = [{"kind": design.kind, "campaign_id": campaign_id, "law": design.schedule.describe(),
                     "points": [{"speed": p.speed, "thrust": p.thrust, "gains": p.scheduled} for p in design.points]}
-                   for campaign_id, design in self._designs()]
+                   for campaign_id, design in found]
         scheduler = getattr(self.companion, "scheduler", None)
         writes = list(getattr(scheduler, "writes", []) or [])
         return {"active": scheduler is not None, "designs": designs, "last_write": writes[-1] if writes else None,
                 "writes": len(writes)}
 
-    def _gain_natives(self) -> dict[str, str]:
+    def _gain_natives(self, designs: list[tuple[int, Any]] | None = None) -> dict[str, str]:
         """native name → neutral name of the gains the page shows: every designed kind's, else the
         profile's heading schedule's."""
         profile = getattr(self.link, "profile", None)
         if profile is None:
             return {}
-        kinds = [design.kind for _, design in self._designs()] or [getattr(profile, "heading_schedule", "heading")]
+        designs = self._designs() if designs is None else designs
+        kinds = [design.kind for _, design in designs] or [getattr(profile, "heading_schedule", "heading")]
         out: dict[str, str] = {}
         for name in kinds:
             try:
@@ -231,10 +233,10 @@ class StatusFeed:
     def _cache(self) -> dict:
         return dict(getattr(getattr(self.link, "parameters", None), "cache", {}) or {})
 
-    def _gains(self) -> dict:
+    def _gains(self, designs: list[tuple[int, Any]]) -> dict:
         cache = self._cache()
         return {"on_vehicle": [{"name": native, "neutral": neutral, "value": cache.get(native)}
-                               for native, neutral in self._gain_natives().items()],
+                               for native, neutral in self._gain_natives(designs).items()],
                 "source": "the last PARAM_VALUE the vehicle sent for each"}
 
     def _health(self) -> dict | None:
