@@ -30,6 +30,8 @@ import math
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
+from pymavlink.dialects.v20.common import MAV_RESULT_DENIED
+
 from behaviors.gain_scheduling import GainDesign, GainScheduler, SchedulingConfig
 from behaviors.base import Footprint
 from companion.numerics.drift import DriftConfig
@@ -58,7 +60,6 @@ log = logging.getLogger(__name__)
 
 #: the longest run a ground station may ask for with param1 (seconds of vehicle time)
 MAX_PROCEDURE_S = 3600.0
-MAV_RESULT_DENIED = 2
 
 
 class CompanionObserver(Protocol):
