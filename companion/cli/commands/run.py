@@ -107,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         settings = settings_from(args)
+        config = settings.serve_config()  # every value checked before anything connects
     except ValueError as exc:
         print(f"companion run: error: {exc}", file=sys.stderr)
         return 2
@@ -121,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     for name in ("connect", "profile", "signing_key", "rudder_full_scale", "rudder_rate"):
         setattr(args, name, getattr(settings, name))  # what connected_vehicle reads
     try:
-        return _serve(args, settings)
+        return _serve(args, settings, config)
     except HttpConfigError as exc:
         print(f"companion run: error: {exc}", file=sys.stderr)
         return 2
@@ -130,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
 
 
-def _serve(args: argparse.Namespace, settings) -> int:
+def _serve(args: argparse.Namespace, settings, config) -> int:
     from companion.cli.main import package_version
     from companion.procedures.app import vehicle_record
     from companion.procedures.resident import Companion
@@ -139,7 +140,6 @@ def _serve(args: argparse.Namespace, settings) -> int:
     from companion.service.http import StatusServer
     from companion.service.status import StatusBoard
 
-    config = settings.serve_config()
     board = StatusBoard()
     server = None
     report_dir = settings.report_dir
