@@ -151,7 +151,7 @@ def test_snapshot_assembly_from_fabricated_messages():
 def test_snapshot_turns_garbage_into_nan_without_raising(caplog):
     assembler = TelemetryAssembler(SIM)
     assembler.on_message(wire(mavlink.MAVLink_vfr_hud_message(float("nan"), float("inf"), 0, 0, 0.0, 0.0)))
-    assembler.on_message(wire(mavlink.MAVLink_servo_output_raw_message(0, 0, 0, 65535, 1500, 0, 0, 0, 0, 0)))
+    assembler.on_message(wire(mavlink.MAVLink_servo_output_raw_message(200000, 0, 0, 65535, 1500, 0, 0, 0, 0, 0)))
     snapshot = assembler.on_message(wire(mavlink.MAVLink_attitude_message(
         200, float("nan"), 0.0, float("nan"), 0.0, float("-inf"), 0.0)))
     assert snapshot is not None
@@ -389,3 +389,53 @@ def test_reboot_and_silence_are_reported(fake_link):
     fake.silent = True
     with pytest.raises(LinkLost):
         link.next_telemetry(timeout_s=0.2)
+
+
+# ============================================================================ pairing by time stamp
+def _stream(assembler, messages):
+    out = []
+    for msg in messages:
+        out += assembler.take(wire(msg))
+    return out
+
+
+def _attitude(ms):
+    return mavlink.MAVLink_attitude_message(ms, 0.0, 0.0, 0.1, 0.0, 0.0, 0.0)
+
+
+def _outputs(ms, rudder_pwm):
+    return mavlink.MAVLink_servo_output_raw_message(ms * 1000, 0, rudder_pwm, 1500, 1700, 1500, 0, 0, 0, 0, 1500)
+
+
+def test_outputs_are_paired_with_their_own_sample_whatever_the_arrival_order():
+    """Over a link that reorders, the outputs of the next sample can arrive before an attitude and
+    those of its own sample after it: each snapshot gets the rudder stamped with its own time, and
+    the snapshots come out in time order."""
+    assembler = TelemetryAssembler(SIM)
+    pwm = {ms: 1500 + ms // 10 for ms in range(1000, 1400, 50)}  # a different rudder every sample
+    in_order = [m for ms in (1000, 1050) for m in (_outputs(ms, pwm[ms]), _attitude(ms))]
+    shuffled = [_attitude(1100), _outputs(1150, pwm[1150]), _outputs(1100, pwm[1100]), _attitude(1150),
+                _attitude(1200), _attitude(1250), _outputs(1250, pwm[1250]), _outputs(1200, pwm[1200]),
+                _outputs(1300, pwm[1300]), _attitude(1300)]
+    snapshots = _stream(assembler, in_order + shuffled)
+    assert [round(s.time_s * 1000) for s in snapshots] == list(range(1000, 1350, 50))
+    for snapshot in snapshots:
+        ms = round(snapshot.time_s * 1000)
+        assert snapshot.rudder == pytest.approx(SIM.pwm_to_angle(pwm[ms])), ms
+
+
+def test_a_lost_output_message_releases_its_snapshot_with_the_outputs_held_then():
+    assembler = TelemetryAssembler(SIM)
+    messages = [m for ms in (1000, 1050, 1100) for m in (_outputs(ms, 1600), _attitude(ms))]
+    messages += [_attitude(1150)]  # its outputs are lost
+    messages += [m for ms in (1200, 1250) for m in (_outputs(ms, 1700), _attitude(ms))]
+    snapshots = _stream(assembler, messages)
+    assert [round(s.time_s * 1000) for s in snapshots] == [1000, 1050, 1100, 1150, 1200, 1250]
+    assert snapshots[3].rudder == pytest.approx(SIM.pwm_to_angle(1600))  # held, not the later 1700
+    assert assembler.released_without_outputs == 1
+
+
+def test_without_an_output_stream_no_snapshot_waits():
+    assembler = TelemetryAssembler(SIM)
+    snapshots = _stream(assembler, [_attitude(ms) for ms in (1000, 1050, 1100)])
+    assert [round(s.time_s * 1000) for s in snapshots] == [1000, 1050, 1100]

@@ -28,6 +28,7 @@ SUBCOMMANDS = (
     "minspeed",
     "analyze",
     "results",
+    "recover",
 )
 
 

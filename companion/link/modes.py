@@ -29,6 +29,7 @@ class ModeControl:
         self.clock = clock
         self.profile = None  # the autopilot profile, once known
         self.commanded: str | None = None  # the last mode the companion itself switched to
+        self.commanded_at_s: float = float("nan")  # vehicle time the heartbeat confirmed it
         self._listeners: list[Callable[[str], None]] = []
 
     def on_change(self, listener: Callable[[str], None]) -> None:
@@ -47,6 +48,7 @@ class ModeControl:
         params = profile.mode_command_params(target)
         timeouts = self.clock.timeouts
         tries = max(int(math.ceil(timeouts.mode_s / timeouts.command_s)), 1)
+        since_text = self.announcements.statustext_count
         for _attempt in range(tries):
             since_hb = self.announcements.heartbeat_count
             since_ack = self.commands.send(MAV_CMD_DO_SET_MODE, params)
@@ -62,9 +64,12 @@ class ModeControl:
             self.clock.wait_until(lambda: refused() is not None or shown(), timeouts.command_s)
             result = refused()
             if result is not None:
-                raise ModeChangeFailed(f"vehicle refused mode {neutral!r} ({target}): result {result}")
+                said = self.announcements.warnings_since(since_text)
+                raise ModeChangeFailed(f"the vehicle refused mode {neutral!r} ({target}, MAV_RESULT {result})"
+                                       + (f": it said {said!r}" if said else ""))
             if shown():
                 self.commanded = neutral
+                self.commanded_at_s = self.clock.vehicle_time_s
                 for listener in self._listeners:
                     listener(neutral)
                 return

@@ -11,6 +11,7 @@ from __future__ import annotations
 import collections
 import logging
 import math
+from dataclasses import dataclass
 from typing import Any, Iterable
 
 from companion.link import param_codec
@@ -20,6 +21,16 @@ from companion.link.transport import Transport
 from companion.link.vehicle_state import VehicleAnnouncements
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ForeignChange:
+    """A parameter changed by someone else: its value before, the value announced, when (vehicle s)."""
+
+    name: str
+    before: float
+    value: float
+    time_s: float
 
 
 class ParameterChannel:
@@ -34,6 +45,11 @@ class ParameterChannel:
         self.cache: dict[str, float] = {}
         self.types: dict[str, int] = {}
         self.events: dict[str, int] = collections.defaultdict(int)  # name -> PARAM_VALUEs received
+        # parameters whose changes by anyone else are watched (a procedure's footprint), and the
+        # changes seen: name -> ForeignChange (the vehicle announced a value no write of ours asked for)
+        self.watched: set[str] = set()
+        self.foreign: dict[str, ForeignChange] = {}
+        self._asked: dict[str, float] = {}  # name -> the value our latest write asked for (its echo may come late)
         transport.on("PARAM_VALUE", self._on_param_value)
 
     @property
@@ -44,9 +60,29 @@ class ParameterChannel:
         if not self.transport.from_vehicle(msg):
             return
         name = param_codec.param_id_str(msg.param_id)
+        value = param_codec.decode_value(msg.param_value, msg.param_type, self.int_encoding)
         self.types[name] = msg.param_type
-        self.cache[name] = param_codec.decode_value(msg.param_value, msg.param_type, self.int_encoding)
+        if name in self.watched and name in self.cache:
+            self._note_foreign(name, self.cache[name], value, msg.param_type)
+        self.cache[name] = value
         self.events[name] += 1
+
+    def _note_foreign(self, name: str, before: float, value: float, param_type: int) -> None:
+        """A watched parameter announced with a new value that no write of ours asked for: someone
+        else (a ground station, a script) changed it."""
+        if param_codec.echo_matches(before, value, param_type):
+            return
+        asked = self._asked.get(name)
+        if asked is not None and param_codec.echo_matches(asked, value, param_type):
+            return
+        change = ForeignChange(name, before, value, self.clock.vehicle_time_s)
+        self.foreign[name] = change
+        log.warning("%s changed from %g to %g by someone else", name, before, value)
+
+    def watch(self, names) -> None:
+        """Watch these parameters for changes by anyone else (from now on; earlier changes forgotten)."""
+        self.watched = set(names)
+        self.foreign = {}
 
     # ------------------------------------------------------------------ by autopilot name
     def request(self, name: str) -> None:
@@ -78,6 +114,10 @@ class ParameterChannel:
             self.get_param(name, retries=retries)  # the type decides the bytes we send
         param_type = self.types.get(name, param_codec.REAL32)
         wire_value = param_codec.encode_value(value, param_type, self.int_encoding)
+        self._asked[name] = value
+        return self._write(name, value, wire_value, param_type, retries)
+
+    def _write(self, name: str, value: float, wire_value: float, param_type: int, retries: int) -> float:
         for _attempt in range(retries):
             since_param = self.events[name]
             since_text = self.announcements.statustext_count

@@ -5,7 +5,9 @@ lets the autopilot's strategy complete each one (``refine``: a read-back it must
 must model), and queues every snapshot: an estimator must see no holes, so snapshots completed
 while another call was blocking are returned first by the next :meth:`TelemetryFeed.wait` /
 :meth:`TelemetryFeed.pop`. ATTITUDE drives the vehicle clock; a ``time_boot_ms`` that jumps back by
-more than a second is a reboot (VehicleRebooted), a repeated or older one is dropped.
+more than a second is a reboot (VehicleRebooted); one that arrives after a newer sample is placed
+in order while it still can be (the assembler holds snapshots briefly once the link has reordered)
+and dropped, counted, when it cannot; a repeated one is dropped.
 """
 from __future__ import annotations
 
@@ -24,7 +26,11 @@ from companion.link.transport import Transport
 log = logging.getLogger(__name__)
 
 SNAPSHOT_QUEUE_MAX = 2000
-TELEMETRY_TYPES = ("SERVO_OUTPUT_RAW", "LOCAL_POSITION_NED", "VFR_HUD", "SCALED_PRESSURE", "GLOBAL_POSITION_INT")
+#: once the link has delivered an attitude sample late, complete snapshots are held this many sample
+#: periods before they are returned, so a late sample can still be placed in order
+REORDER_HOLD_SAMPLES = 2
+TELEMETRY_TYPES = ("SERVO_OUTPUT_RAW", "LOCAL_POSITION_NED", "VFR_HUD", "SCALED_PRESSURE", "GLOBAL_POSITION_INT",
+                   "NAV_CONTROLLER_OUTPUT")
 
 
 class TelemetryFeed:
@@ -39,7 +45,14 @@ class TelemetryFeed:
         # bounded (SNAPSHOT_QUEUE_MAX, ~100 s at 20 Hz) so a caller that never reads cannot grow it forever
         self._unread: collections.deque[Telemetry] = collections.deque(maxlen=SNAPSHOT_QUEUE_MAX)
         self.snapshots_dropped = 0
+        # link quality, counted as the samples arrive: attitude samples that came after a newer one
+        # (reordered; dropped, the estimator needs time order) or twice (duplicated; dropped)
+        self.samples_late = 0
+        self.samples_dropped_late = 0
+        self.samples_duplicate = 0
+        self.samples_accepted = 0
         self._returned_ms: int | None = None
+        self.reboot: str | None = None  # a reboot seen and not yet reported by wait()
         transport.on("ATTITUDE", self._on_attitude)
         for message_type in TELEMETRY_TYPES:
             transport.on(message_type, self._on_telemetry)
@@ -51,6 +64,7 @@ class TelemetryFeed:
     def use(self, assembler: TelemetryAssembler, first_heartbeat: Any = None) -> None:
         """Start assembling snapshots (the profile is known)."""
         self.assembler = assembler
+        assembler.wait_for_outputs = not self.clock.lockstep
         if first_heartbeat is not None:
             assembler.on_message(first_heartbeat)
 
@@ -59,28 +73,59 @@ class TelemetryFeed:
         if not self.transport.from_autopilot(msg):
             return
         time_ms = getattr(msg, "time_boot_ms", None)
-        numeric = isinstance(time_ms, (int, float))
+        numeric = isinstance(time_ms, (int, float)) and math.isfinite(time_ms)
         last = self.clock.last_sample_ms
-        if numeric and last is not None:
-            if time_ms < last - 1000:
-                self.clock.restart(time_ms)
-                raise VehicleRebooted(f"time_boot_ms went back from {last} to {time_ms}: the vehicle rebooted")
-            if time_ms <= last:
-                return  # duplicate or reordered sample
+        if numeric and last is not None and time_ms < last - 1000:
+            self._rebooted(last, time_ms)
         if self.assembler is None:
             if numeric:
                 self.clock.advance(time_ms)
             return
-        snapshot = self.assembler.on_message(msg)
-        if numeric and math.isfinite(time_ms):
-            self.clock.sample(time_ms)
-        if snapshot is not None:
+        if numeric and last is not None and time_ms <= last:
+            if time_ms == last or not self.assembler.accepts(time_ms):
+                self._count_unplaced(time_ms == last)
+                return
+            self.samples_late += 1  # late, but still placed in order
+            self._hold_for_late_samples()
+        done = self.assembler.take(msg)
+        if numeric:
+            self.samples_accepted += 1
+            if last is None or time_ms > last:
+                self.clock.sample(time_ms)
+        for snapshot in done:
             self._queue(snapshot)
+
+    def _rebooted(self, last_ms: float, time_ms: float) -> None:
+        """The vehicle's clock went back: it rebooted. The clock and the assembler start again,
+        snapshots of the old boot are dropped, and the next :meth:`wait` raises VehicleRebooted
+        (once): a procedure stops there, while a restore under way carries on with the new boot."""
+        self.clock.restart(time_ms)
+        if self.assembler is not None:
+            self.assembler.restart()
+        self._unread.clear()
+        self._returned_ms = None
+        self.reboot = f"time_boot_ms went back from {last_ms:.0f} to {time_ms:.0f}: the vehicle rebooted"
+        log.warning("%s", self.reboot)
+
+    def _count_unplaced(self, duplicate: bool) -> None:
+        """A sample repeated, or arriving after newer snapshots were returned: dropped, counted."""
+        if duplicate:
+            self.samples_duplicate += 1
+        else:
+            self.samples_late += 1
+            self.samples_dropped_late += 1
+            self._hold_for_late_samples()
+
+    def _hold_for_late_samples(self) -> None:
+        """From now on, hold complete snapshots a little so later late samples find their place. Not
+        in lockstep: the simulator sends the next sample only once the last one returned is
+        acknowledged, so a held snapshot would wait for a sample that never comes."""
+        if self.assembler is not None and not self.clock.lockstep:
+            self.assembler.hold_ms = max(self.assembler.hold_ms, REORDER_HOLD_SAMPLES * self.clock.sample_period_ms)
 
     def _on_telemetry(self, msg: Any) -> None:
         if self.assembler is not None and self.transport.from_vehicle(msg):
-            snapshot = self.assembler.on_message(msg)  # ArduPilot: SERVO_OUTPUT_RAW completes a snapshot
-            if snapshot is not None:
+            for snapshot in self.assembler.take(msg):  # an output message can complete waiting snapshots
                 self._queue(snapshot)
 
     def on_heartbeat(self, msg: Any) -> None:
@@ -108,6 +153,7 @@ class TelemetryFeed:
             self.clock.acknowledge(self._returned_ms if self._returned_ms is not None else 0)
         deadline = time.monotonic() + timeout_s
         while not self._unread:
+            self._report_reboot()
             remaining = deadline - time.monotonic()
             if remaining <= 0.0:
                 silent = time.monotonic() - self.transport.last_rx_wall
@@ -118,6 +164,12 @@ class TelemetryFeed:
                 self.clock.unstall()
             else:
                 self.transport.pump(min(remaining, 0.5))
+        self._report_reboot()
+
+    def _report_reboot(self) -> None:
+        if self.reboot is not None:
+            reason, self.reboot = self.reboot, None
+            raise VehicleRebooted(reason)
 
     def pop(self) -> Telemetry:
         """The oldest queued snapshot (call :meth:`wait` first)."""
@@ -141,6 +193,15 @@ class TelemetryFeed:
     def latest(self) -> Telemetry | None:
         """The most recent snapshot (whether or not it was returned yet)."""
         return self.assembler.latest if self.assembler else None
+
+    def quality(self) -> dict:
+        """Link quality as the attitude samples arrived: accepted, late (reordered), duplicated, and
+        snapshots released without their own output sample (it was lost)."""
+        lost_outputs = self.assembler.released_without_outputs if self.assembler is not None else 0
+        return {"samples": self.samples_accepted, "late": self.samples_late,
+                "late_dropped": self.samples_dropped_late, "duplicate": self.samples_duplicate,
+                "outputs_lost": lost_outputs, "dropped_unread": self.snapshots_dropped,
+                "hold_ms": self.assembler.hold_ms if self.assembler is not None else 0.0}
 
     def servo_pwm(self) -> list[float]:
         """The latest SERVO_OUTPUT_RAW, outputs 1..16 in µs (empty before the first one)."""

@@ -78,6 +78,14 @@ class VehicleAnnouncements:
         if self.transport.from_vehicle(msg):
             self.capabilities = int(msg.capabilities)
 
+    def warnings_since(self, since_count: int) -> str:
+        """The warnings (or worse) the vehicle sent after ``since_count`` texts, joined ("" if none)."""
+        new_count = self.statustext_count - since_count
+        if new_count <= 0:
+            return ""
+        recent = list(self.statustexts)[-min(new_count, len(self.statustexts)):]
+        return "; ".join(text for _time, severity, text in recent if severity <= MAV_SEVERITY_WARNING)
+
     def refusal_naming(self, name: str, since_count: int) -> str | None:
         """The newest STATUSTEXT warning (or worse) received after ``since_count`` texts that names ``name``."""
         new_count = self.statustext_count - since_count

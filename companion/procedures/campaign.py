@@ -280,6 +280,7 @@ class IdentificationCampaign(Behaviour):
         self.original_gains = dict(original_gains or {})
         self.events: list[CampaignEvent] = []  # drained by the application (companion.procedures.app)
         self.accepted: list[IdentificationAttempt] = []
+        self.attempts: list[IdentificationAttempt] = []  # every attempt, accepted or not
         self.manoeuvres: list[dict] = []
         self.designs: dict[str, GainDesign] = {}
         self.design_errors: dict[str, str] = {}
@@ -299,6 +300,11 @@ class IdentificationCampaign(Behaviour):
     @property
     def heading_design(self) -> GainDesign | None:
         return self.designs.get(self.heading_kind.name) if self.heading_kind is not None else None
+
+    @property
+    def records_rejected_for_link(self) -> int:
+        """Attempts not used because the link lost too much of their records."""
+        return sum(1 for attempt in self.attempts if attempt.rejected_for)
 
     @property
     def kept_parameters(self) -> frozenset[str]:
@@ -445,6 +451,7 @@ class IdentificationCampaign(Behaviour):
             self.phase_times = _add_times(self.phase_times, behavior.stage_times)
             self.manoeuvres.append({k: v for k, v in behavior.result().items() if k != "attempts"})
             for attempt in behavior.attempts:
+                self.attempts.append(attempt)
                 self.events.append(AttemptRecorded(attempt))
                 if attempt.accepted:
                     self.accepted.append(attempt)

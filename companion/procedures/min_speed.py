@@ -132,4 +132,4 @@ def min_speed_procedure(link, abort, config: MinSpeedProcedureConfig = MinSpeedP
                         analytic: dict | None = None, limits: SafetyLimits | None = None) -> ProcedureResult:
     """Build and run the minimum-speed procedure under one restore point (module docstring)."""
     procedure = MinSpeedProcedure(config, depth_gains=read_depth_gains(link), analytic=analytic)
-    return run_for_result(link, procedure, abort_requested=abort, limits=limits or SafetyLimits())
+    return run_for_result(link, procedure, abort_requested=abort, limits=limits)

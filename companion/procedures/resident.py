@@ -34,6 +34,8 @@ from pymavlink.dialects.v20.common import MAV_RESULT_DENIED
 
 from behaviors.gain_scheduling import GainDesign, GainScheduler, SchedulingConfig
 from behaviors.base import Footprint
+from companion.errors import UserError
+from companion.link.errors import LinkError
 from companion.numerics.drift import DriftConfig
 from companion.numerics.gains import GainBounds
 from companion.numerics.schedule import YawSchedule
@@ -271,6 +273,11 @@ class Companion:
                 self.link.ground.send_command_ack(command, MAV_RESULT_ACCEPTED if status == "completed" else MAV_RESULT_FAILED,
                                            100 if status == "completed" else 0)
                 entry = {"procedure": name, "status": status, "summary": ran.summary}
+        except (LinkError, UserError) as exc:  # expected conditions: a sentence
+            log.warning("procedure %d failed: %s", command, exc)
+            log.debug("procedure %d failed", command, exc_info=True)
+            self.link.ground.send_command_ack(command, MAV_RESULT_FAILED)
+            entry = {"procedure": name, "status": "failed", "reason": str(exc)}
         except Exception as exc:  # noqa: BLE001 - the resident loop must survive a failed procedure
             log.exception("procedure %d failed", command)
             self.link.ground.send_command_ack(command, MAV_RESULT_FAILED)

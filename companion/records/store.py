@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import socket
 import sqlite3
 import stat
 import time
@@ -122,6 +123,30 @@ MIGRATIONS: tuple[str, ...] = (
         recorded_utc TEXT NOT NULL
     );
     CREATE INDEX sweep_cases_sweep ON sweep_cases(sweep);
+    """,
+    # version 3: the trail a procedure leaves: how the vehicle was found, stored before its first
+    # change, and every change as it is made (the next start follows it if the process died)
+    """
+    CREATE TABLE restore_points (
+        campaign_id INTEGER PRIMARY KEY REFERENCES campaigns(id),
+        restore_json TEXT NOT NULL,
+        vehicle_json TEXT NOT NULL DEFAULT '{}',
+        owner_pid INTEGER,
+        owner_host TEXT,
+        recorded_utc TEXT NOT NULL,
+        restored_utc TEXT,
+        problems_json TEXT,
+        notes_json TEXT
+    );
+    CREATE TABLE changes (
+        id INTEGER PRIMARY KEY,
+        campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+        vehicle_time_s REAL,
+        kind TEXT NOT NULL,
+        detail_json TEXT NOT NULL,
+        recorded_utc TEXT NOT NULL
+    );
+    CREATE INDEX changes_campaign ON changes(campaign_id);
     """,
 )
 
@@ -335,7 +360,7 @@ class Store:
                 self._db.execute(f"PRAGMA application_id={APPLICATION_ID}")
 
     def _transaction(self):
-        return _Transaction(self._db)
+        return _Transaction(self._db, self.path)
 
     @property
     def schema_version(self) -> int:
@@ -368,6 +393,48 @@ class Store:
         with self._transaction():
             self._db.execute("UPDATE campaigns SET status=?, reason=?, finished_utc=? WHERE id=?",
                              (status, reason, _now(), campaign_id))
+
+    # ------------------------------------------------------------------ the trail
+    def save_restore_point(self, campaign_id: int, restore: dict, vehicle: dict) -> None:
+        """How the vehicle was found, before the procedure's first change, with this process's
+        identity (a trail whose owner is gone was interrupted)."""
+        with self._transaction():
+            self._db.execute(
+                "INSERT OR REPLACE INTO restore_points(campaign_id, restore_json, vehicle_json, owner_pid, owner_host,"
+                " recorded_utc) VALUES (?,?,?,?,?,?)",
+                (campaign_id, _json(restore), _json(vehicle), os.getpid(), socket.gethostname(), _now()))
+
+    def add_change(self, campaign_id: int, vehicle_time_s: float | None, kind: str, detail: dict) -> None:
+        """One change to the vehicle, recorded before it is sent."""
+        self._insert("INSERT INTO changes(campaign_id, vehicle_time_s, kind, detail_json, recorded_utc)"
+                     " VALUES (?,?,?,?,?)", (campaign_id, vehicle_time_s, kind, _json(detail), _now()))
+
+    def finish_restore(self, campaign_id: int, problems: list[str], notes: list[str]) -> None:
+        """The restore ran: what it could not do and what it decided."""
+        with self._transaction():
+            self._db.execute("UPDATE restore_points SET restored_utc=?, problems_json=?, notes_json=?"
+                             " WHERE campaign_id=?", (_now(), _json(problems), _json(notes), campaign_id))
+
+    def open_trails(self) -> list[dict]:
+        """Procedures whose restore never ran (or whose campaign row is still ``running``), oldest
+        first, with their restore point, vehicle, owner and changes; the caller decides whether the
+        owner is gone."""
+        rows = self._db.execute(
+            "SELECT c.id AS campaign_id, c.kind, c.status, c.started_utc, p.restore_json, p.vehicle_json,"
+            " p.owner_pid, p.owner_host, p.restored_utc FROM campaigns c"
+            " LEFT JOIN restore_points p ON p.campaign_id = c.id"
+            " WHERE c.status = 'running' OR (p.campaign_id IS NOT NULL AND p.restored_utc IS NULL)"
+            " ORDER BY c.id").fetchall()
+        out = []
+        for row in rows:
+            item = dict(row)
+            item["restore"] = json.loads(item.pop("restore_json")) if item["restore_json"] else None
+            item["vehicle"] = json.loads(item.pop("vehicle_json")) if item["vehicle_json"] else {}
+            item["changes"] = [{"vehicle_time_s": c["vehicle_time_s"], "kind": c["kind"],
+                                "detail": json.loads(c["detail_json"])}
+                               for c in self._select("changes", campaign_id=item["campaign_id"])]
+            out.append(item)
+        return out
 
     def add_run(self, campaign_id: int, attempt: IdentificationAttempt) -> int:
         """Store one identification attempt; an accepted attempt also becomes a model row, in the
@@ -525,22 +592,50 @@ class Store:
 
 
 class _Transaction:
-    """BEGIN IMMEDIATE … COMMIT, or ROLLBACK on error (the connection is in autocommit mode)."""
+    """``BEGIN IMMEDIATE`` … ``COMMIT`` (rolled back on an error); an SQLite error inside becomes a
+    StoreError with one sentence (a full disk, a lock held too long), never a traceback."""
 
-    def __init__(self, db: sqlite3.Connection) -> None:
+    def __init__(self, db: sqlite3.Connection, path: Path) -> None:
         self._db = db
+        self._path = path
         self._outer = False
 
     def __enter__(self):
         self._outer = not self._db.in_transaction
         if self._outer:
-            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                self._db.execute("BEGIN IMMEDIATE")
+            except sqlite3.Error as exc:
+                raise StoreError(_write_failure(self._path, exc)) from None
         return self._db
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if not self._outer:
             return
         if exc_type is None:
-            self._db.execute("COMMIT")
-        else:
+            try:
+                self._db.execute("COMMIT")
+                return
+            except sqlite3.Error as commit_error:
+                self._rollback()
+                raise StoreError(_write_failure(self._path, commit_error)) from None
+        self._rollback()
+        if isinstance(exc, sqlite3.Error):
+            raise StoreError(_write_failure(self._path, exc)) from None
+
+    def _rollback(self) -> None:
+        try:
             self._db.execute("ROLLBACK")
+        except sqlite3.Error:  # nothing to roll back (SQLite already did)
+            pass
+
+
+def _write_failure(path: Path, exc: sqlite3.Error) -> str:
+    """One sentence for an SQLite write error."""
+    text = str(exc)
+    if "full" in text:
+        return (f"the store {path} could not be written: the disk is full (everything written before is kept; "
+                "free some space)")
+    if "locked" in text or "busy" in text:
+        return f"the store {path} could not be written: another process held it locked for {BUSY_TIMEOUT_S:g} s"
+    return f"the store {path} could not be written ({text})"

@@ -161,6 +161,7 @@ def keys(profiles: tuple[str, ...], procedures: tuple[str, ...], schedules: tupl
             "allowed": Key("procedures", names(procedures), "--procedures"),
             "procedure": Key("procedure", choice("quick", "thesis"), "--procedure"),
             "thrusts": Key("thrusts", thrusts, "--thrusts"),
+            "recover_interrupted": Key("yes", boolean, "--yes"),
         },
         "scheduling": {
             "enabled": Key("schedule_gains", boolean, "--no-scheduling"),

@@ -32,6 +32,7 @@ class RunSettings:
     procedures: tuple[str, ...] | None = None  # allowed from the ground station (None: all)
     procedure: str = "quick"
     thrusts: tuple[float, ...] | None = None
+    yes: bool = False  # put the vehicle back after an interrupted procedure without asking (a service)
     schedule_gains: bool = True
     schedules: tuple[str, ...] | None = None
     scheduling_min_interval_s: float | None = None

@@ -5,8 +5,11 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.cli.commands._common import (add_procedure_argument, add_schedules_argument, ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
-                                       print_json, thrust_list)
+from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_procedure_argument,
+                                            add_recovery_argument, add_schedules_argument, add_store_argument,
+                                            connected_vehicle, follow_interrupted_trails, link_fit_for_identification, link_quality_record,
+                                            print_json,
+                                            thrust_list)
 
 
 def add_parser(subparsers) -> None:
@@ -21,6 +24,7 @@ def add_parser(subparsers) -> None:
                              "ArduPilot DataFlash .bin, a PX4 .ulg or a CSV (t, yaw, rudder, speed); ordinary course "
                              "changes at steady speed are enough (--profile decodes the actuators; default sim)")
     add_store_argument(parser)
+    add_recovery_argument(parser)
     parser.add_argument("--thrusts", type=thrust_list, default=None,
                         help="thrust settings (default: the autopilot's: 60..100%% on our simulator and ArduRover, "
                              "45..65%% on ArduSub)")
@@ -87,20 +91,32 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         with connected_vehicle(args) as (link, abort), Store(args.store) as store:
+            if not follow_interrupted_trails(link, store, args):  # an earlier procedure left it changed
+                return 1
+            if not link_fit_for_identification(link):
+                return 1
             campaign, outcome, campaign_id = run_campaign(
                 link, store, config, vehicle_id=vehicle_record(store, link), abort=abort,
                 console=ConsoleProgress("identification", enabled=not args.json))
-            report = str(write_report(store, campaign_id, args.report)) if args.report else None
+            link_quality = link_quality_record(link, campaign)
+            report = str(write_report(store, campaign_id, args.report)) if args.report and not outcome.store_problems \
+                else None
     except ConnectFailed as exc:
         print(exc, file=sys.stderr)
         return 1
     result = {"campaign_id": campaign_id, "status": outcome.status, "reason": outcome.reason,
-              "restore_problems": outcome.restore_problems, "store": args.store, "report": report,
+              "restore_problems": outcome.restore_problems, "restore_notes": outcome.restore_notes,
+              "store_problems": outcome.store_problems, "link_quality": link_quality,
+              "store": args.store, "report": report,
               **{k: v for k, v in campaign.result().figures.items() if k in ("accepted", "design", "steps", "final_gains")}}
     if args.json:
         print_json(result)
     else:
         print(f"campaign {campaign_id}: {outcome.status}" + (f" ({outcome.reason})" if outcome.reason else ""))
+        for line in outcome.restore_problems:
+            print(f"  NOT restored: {line}")
+        for line in outcome.restore_notes + outcome.store_problems:
+            print(f"  {line}")
         for a in result["accepted"]:
             model = ", ".join(f"{k} {v:.4f}" for k, v in a["model"].items() if isinstance(v, float))
             print(f"  {a['axis']:5s} thrust {a['thrust']:.2f} speed {a['speed']:.2f} m/s R2 {a['r2']:.3f}: {model}")

@@ -7,8 +7,9 @@ import logging
 import os
 import sys
 
-from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_procedure_argument, add_store_argument,
-                                       connected_vehicle, thrust_list)
+from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_procedure_argument,
+                                            add_recovery_argument, add_store_argument, connected_vehicle,
+                                            follow_interrupted_trails, thrust_list)
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +53,7 @@ def add_parser(subparsers) -> None:
                         help="TOML configuration file (example: deploy/companion.toml); flags override it")
     add_connect_arguments(parser, required=False)
     add_store_argument(parser)
+    add_recovery_argument(parser)
     parser.add_argument("--report-dir", metavar="DIR", default=None,
                         help="write each identification campaign's HTML report into DIR/campaign-N (default: none)")
     parser.add_argument("--no-scheduling", action="store_true", default=None,
@@ -98,6 +100,7 @@ def settings_from(args: argparse.Namespace):
     flags["schedule_gains"] = False if args.no_scheduling else None
     flags["health"] = False if args.no_health else None
     flags["log_level"] = {1: "info", 2: "debug"}.get(min(verbose, 2)) if verbose else None
+    flags["yes"] = True if getattr(args, "yes", False) else None
     return merge(from_file, flags, {"store": os.environ.get("COMPANION_STORE", DEFAULT_STORE)})
 
 
@@ -119,8 +122,8 @@ def run(args: argparse.Namespace) -> int:
         print("companion run: error: no vehicle to connect to: give --connect ENDPOINT or connect in the "
               "[connection] section of --config FILE", file=sys.stderr)
         return 2
-    for name in ("connect", "profile", "signing_key", "rudder_full_scale", "rudder_rate"):
-        setattr(args, name, getattr(settings, name))  # what connected_vehicle reads
+    for name in ("connect", "profile", "signing_key", "rudder_full_scale", "rudder_rate", "yes"):
+        setattr(args, name, getattr(settings, name))  # what connected_vehicle and the recovery read
     try:
         return _serve(args, settings, config)
     except HttpConfigError as exc:
@@ -151,6 +154,8 @@ def _serve(args: argparse.Namespace, settings, config) -> int:
         print(f"status page: {server.url}", file=sys.stderr, flush=True)
     try:
         with connected_vehicle(args) as (link, stop), Store(settings.store) as store:
+            if not follow_interrupted_trails(link, store, args):  # an earlier procedure left it changed
+                return 1
             link.ground.allowed_senders.update(settings.allowed_senders)
             feed = None
             if server is not None or report_dir is not None:

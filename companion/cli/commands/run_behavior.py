@@ -7,8 +7,9 @@ import math
 import sys
 from dataclasses import replace
 
-from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
-                                       print_json)
+from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_recovery_argument,
+                                            add_store_argument, connected_vehicle, follow_interrupted_trails,
+                                            print_json)
 
 
 def add_parser(subparsers) -> None:
@@ -24,6 +25,7 @@ def add_parser(subparsers) -> None:
     parser.add_argument("behavior", choices=("roll", "min-speed", "steady-state"))
     add_connect_arguments(parser)
     add_store_argument(parser)
+    add_recovery_argument(parser)
     parser.add_argument("--duration", type=float, default=None,
                         help="vehicle seconds of closed-loop operation (default: roll 60, min-speed 200); "
                              "steady-state: per leg and per turn (default 120 and 150)")
@@ -99,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
                          turns=replace(steady.turns, turn_s=args.duration))
     try:
         with connected_vehicle(args) as (link, abort), Store(args.store) as store:
+            if not follow_interrupted_trails(link, store, args):  # an earlier procedure left it changed
+                return 1
             outcome = run_named_behavior(name, link, store, vehicle_id=vehicle_record(store, link), campaign_id=None,
                                          abort=abort, preset=args.preset, simulator=args.simulator_hooks,
                                          roll_config=roll, min_speed_config=min_speed, steady_config=steady)

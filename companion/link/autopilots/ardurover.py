@@ -59,8 +59,8 @@ PROFILE = AutopilotProfile(
     strategy="ardurover",
     water_speed_sensor=False,
     depth_from_pressure=False,
+    vehicle_kind="surface",
     depth_setpoint=False,
-    servo_follows_attitude=True,
     actuator_hold="zoh",
     output_lead_s=0.010,  # 25 Hz snapshots of the 50 Hz rover loop (STREAMS below)
     # yaw only (a boat has no dive plane); thrusts are fractions of WP_SPEED: 60, 80, 100 %
@@ -72,7 +72,7 @@ PROFILE = AutopilotProfile(
 #: GLOBAL_POSITION_INT joins the base streams (the autopilot's own position and altitude).
 #: ATTITUDE and SERVO_OUTPUT_RAW at 25 Hz, every second loop of the 50 Hz rover loop: at 20 Hz the
 #: samples come 40 and 60 ms apart in turn (measured), and 50 Hz is refused (DENIED). Each snapshot
-#: pairs a loop's attitude with that loop's outputs (``servo_follows_attitude``), which the next
+#: pairs a loop's attitude with that loop's outputs (by their time stamps, ``companion.link.snapshot``), which the next
 #: physics step applies: a zero-order hold for the identifier (``actuator_hold``). Pairing with the
 #: previous message instead scattered a22 and b2 by ±5 %, and same-loop pairing with a first-order
 #: hold biased them by −13 % (measured on SITL).
@@ -192,6 +192,13 @@ class Strategy(ArduPilotStrategy):
             self._override_bias[actuator] = held["command"] - held["target"]
             log.debug("%s held at %.4f reads %.4f: override now %.4f", actuator, held["target"], read, held["command"])
             self.ports.overrides.override(actuator, held["command"])
+
+    def not_ready(self, telemetry: Telemetry) -> str | None:
+        """GUIDED (the campaign's holding mode) needs the EKF's position: Rover refuses the mode without
+        it (measured on SITL before its EKF used GPS: MAV_RESULT_FAILED)."""
+        if not telemetry.finite("north", "east"):
+            return "no position estimate yet (GUIDED, the holding mode, needs one: the EKF is still initialising)"
+        return None
 
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
         if self._excitation is None and self._in_guided() and telemetry.time_s - self._sent_at >= self.refresh_s:

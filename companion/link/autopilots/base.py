@@ -113,6 +113,11 @@ class AutopilotStrategy:
     def mode_changed(self, neutral: str) -> None:
         """Called after the link switched mode (targets a new mode needs are sent here)."""
 
+    def not_ready(self, telemetry: Telemetry) -> str | None:
+        """Why a procedure cannot start on this vehicle yet (an estimator still initialising ...),
+        None when it can."""
+        return None
+
     # ------------------------------------------------------------------ upkeep
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
         """Per-snapshot upkeep (refresh targets); may complete the snapshot (e.g. a commanded
