@@ -2,16 +2,17 @@
 
 systemd stops the service with one SIGTERM and kills it ``TimeoutStopSec`` later; a kill in the
 middle of a restore leaves the vehicle half restored, so ``deploy/marine-companion.service`` must
-give more than this. The restore (``companion.procedures.runner.RestorePoint.restore``) tries each
+give more than this. The restore (``companion.procedures.restore.RestorePoint.restore``) tries each
 item up to ``RESTORE_TRIES`` times and never stops half-way; the worst case here is a live link at
 1× (telemetry flows, so every wait lasts its full vehicle time) on which every answer to the
-restore's requests is lost, each item failing all its tries:
+restore's requests is lost or overtaken, each item failing all its tries:
 
 * noticing the stop: the runner reads the abort flag once per snapshot (at most the telemetry
   timeout without one), and a parameter write under way finishes first;
 * releasing the overrides (through the autopilot's strategy: on ArduRover a mode change);
 * each parameter: a read and a write (``_write_if_changed``), each of ``PARAM_RETRIES`` tries;
-* each set-point put back and confirmed (three command periods);
+* each set-point put back: acknowledged (three command periods), then confirmed by the vehicle's
+  state (up to ``CONFIRM_TIMEOUT_S``), sent again when overtaken (``CONFIRM_RESENDS`` times);
 * the mode (its tries of one command period each);
 * after the procedure, the resident loop writes back the gains that were in place before it
   started scheduling (each one a read and a write, as above).
@@ -26,7 +27,7 @@ import math
 from dataclasses import dataclass
 
 from companion.link.clock import LinkTimeouts
-from companion.procedures.runner import RESTORE_TRIES
+from companion.procedures.restore_items import CONFIRM_RESENDS, CONFIRM_TIMEOUT_S, RESTORE_TRIES
 
 #: tries of one parameter read or write (``ParameterChannel.get_param/set_param``'s default)
 PARAM_RETRIES = 3
@@ -55,11 +56,12 @@ def stop_budget(parameters: int, scheduled: int, setpoints: int = 2, timeouts: L
     command_try = max(timeouts.command_s, timeouts.min_try_wall_s)
     mode_change = max(int(math.ceil(timeouts.mode_s / timeouts.command_s)), 1) * command_try
     write_back = 2 * PARAM_RETRIES * param_try
+    setpoint = (1 + CONFIRM_RESENDS) * (SETPOINT_PERIODS * command_try + CONFIRM_TIMEOUT_S)
     return StopBudget({
         "notice the stop": TELEMETRY_TIMEOUT_S + write_back,
         "release the overrides": tries * mode_change,
         "parameters": parameters * tries * write_back,
-        "set-points": setpoints * tries * SETPOINT_PERIODS * command_try,
+        "set-points": setpoints * tries * setpoint,
         "mode": tries * mode_change,
         "scheduled gains": scheduled * tries * write_back,
     })
