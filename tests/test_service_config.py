@@ -36,6 +36,7 @@ def test_the_example_file_is_valid_and_documents_every_key():
     assert settings.connect == "udpin:127.0.0.1:14551" and settings.store == "companion.sqlite"
     assert settings.http == "127.0.0.1:8080" and not settings.http_allow_remote
     assert settings.report_dir == "reports" and settings.log_level == "info"
+    assert settings.yes is True  # a service puts the vehicle back after a crash without asking
     text = EXAMPLE.read_text()
     for section, table in keys((), (), ()).items():
         assert f"[{section}]" in text, section
