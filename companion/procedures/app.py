@@ -163,7 +163,8 @@ class ConsoleProgress:
 
 def vehicle_record(store: Store, link, name: str | None = None, config: dict | None = None) -> int:
     profile = getattr(getattr(link, "profile", None), "name", None)
-    system_id = getattr(link, "system_id", None)
+    # the in-process link carries its system id itself, a VehicleLink on its transport
+    system_id = getattr(link, "system_id", None) or getattr(getattr(link, "transport", None), "system_id", None)
     return store.add_vehicle(name or f"sysid-{system_id}", profile, config or {})
 
 
