@@ -1,7 +1,8 @@
 """Minimum-speed seeking (SPEC C7; thesis 002, §5.3, Fig. 5.16–5.17, 5.22–5.26).
 
 Runs in the heading-and-depth holding mode: the autopilot holds heading and depth (depth PI →
-desired pitch θd → pitch PI → elevator) and this behaviour moves only the thrust set-point. It starts
+desired pitch θd → pitch PI → elevator) and this behaviour moves the thrust set-point (the levelled
+start below also offsets the depth set-point for a while, and always puts it back). It starts
 from the nominal thrust (SetThrust 0.70) and every Ts seconds of vehicle time applies the fuzzy
 decision (:mod:`companion.numerics.fuzzy_seeker`) T_R(k) = T_R(k−1) + {−ΔT, 0, +ΔT} (eq. 5.62),
 clamped to [thrust floor, 1]. It never stops seeking by itself (it keeps following disturbances)
@@ -82,6 +83,37 @@ seeds 1-6). Tried and not better: a smaller budget (0.20 m: 68-98 s), a larger o
 the first decision (the low-speed depth loop needs 25-40 s for that), and a fine cell (ΔT 0.002 once
 δs > δmax − 0.017), which the recovery transient drove below the feasible T_R (0.4375) into slow limit
 cycles.
+
+Levelled start (``start_feedforward``, with ``start_thrust`` and ``start_pitch_curve``;
+``MinSpeedProcedureConfig.levelled()``): the set-point falls at ``start_feedforward_rate`` (0.02/s, 13 s
+from 0.70 to T_R* + 0.008) and the curve's level-flight pitch change is fed forward through a depth
+set-point offset Δ = (F − D)/Kpz (:mod:`companion.numerics.trim_feedforward`), so the autopilot's depth
+P term gives the new trim pitch at once instead of its integrator after ∫e dt = 10.7 m·s; the offset
+(≤ 0.46 m deeper) fades with Kpz/Kiz = 15 s as the integrator takes the pitch over and is then sent
+back exactly (any end of the behaviour sends it back too). The companion can command only
+set-points; the shadow depth loop integrates the offset as the autopilot does. Measured
+(bench/bench_min_speed.py --predicted, seeds 1-6): the depth within 0.11-0.13 m (the governed move:
+0.27-0.29 m), final T_R 0.440 on every seed, ≤ 1 reversal, re-converges after the kick (62-119 s, 0.44
+at 300 s on every seed); but settled after 52-123 s, not ≤ 60 s (only seed 3). Once the depth
+integrator no longer bounds the move, the autopilot's *pitch* integrator does: the pitch PI holds the
+trim elevator δ with the error θ − θd = (δ − I_θ)/|Kpθ| (the seeker's θe), and I_θ follows δ only with
+Kpθ/Kiθ = 200 s, so at T_R 0.44 (δ ≈ 0.246 of 0.26, saturated for the seeker) θe < θe_TS = 0.01 needs
+I_θ ≥ 0.046 rad, ≥ 37 s of δ at its trim after the speed has fallen, and 15 s of keeps with the filtered
+θe's noise (≈ 0.001 rad) later still. Holding T_R* + 0.008 after the levelled move without seeking moves,
+the seeker's own decisions on the recorded inputs would keep for 15 s only from 58-145 s on
+(bench/bench_min_speed.py --cause): no move that ends at T_R* + 2 % can hand over a vehicle the seeker
+keeps within 60 s. Diagnostics that confirm it (not product options): the simulated autopilot's PIT_I
+5× settles the levelled move in 26-48 s on five seeds (100 s on one; the governed move stays at 66-79 s,
+bound by the depth integrator); the seeker's θe crossover at 0.02 (SPEC C7's value at sea) settles it in
+28-46 s on every seed, but after the kick the seeker then stays at 0.45 (+4.1 %) on three seeds of six.
+Tried and not taken (settle on seeds 1-6, max depth error): the speed's lag 0 s (62-132 s, 0.11-0.14 m)
+and 5 s (46-123 s, 0.20-0.21 m); 0.01/s (95-123 s) and 0.04/s (20-95 s, 0.12-0.18 m); a 0.02 m quantum
+(halves the set-point messages: 67-103 s, 0.12-0.14 m); the pitch loop's own error (δ − I_θ)/Kpθ fed
+forward too, from the model's trim elevator and a shadow pitch integrator (73-99 s, 0.10-0.16 m); the
+trim at the measured water speed instead of the lagged set-point (78-136 s); waiting 6-30 s after the
+move before the first decision (72-135 s). In each the seeker met T_R 0.44 before the pitch integrator
+let it keep, or the elevator saturated (at 0.44 it has 0.014 rad left: a fed-forward pitch 0.001 rad
+too far saturates it and stops the pitch integrator).
 
 Settling rule: the seeker has settled when its thrust set-point has not changed for
 ``settle_window_s`` (15 s, i.e. 15 decisions at Ts = 1 s); ``settle_time_s`` is the time from the
