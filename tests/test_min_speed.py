@@ -385,7 +385,10 @@ def test_run_behavior_start_options_choose_the_move_and_refuse_what_cannot_work(
     assert min_speed_start("ramp", None, analytic=True).start_margin == 0.04
     assert min_speed_start("governed", 0.02, analytic=True, nominal_thrust=0.8).start_margin == 0.02
     assert min_speed_start("nominal", None, analytic=True, nominal_thrust=0.8).nominal_thrust == 0.8
-    for start, margin, analytic in (("governed", None, False), ("nominal", 0.02, True), (None, float("nan"), True)):
+    levelled = min_speed_start("levelled", None, analytic=True)
+    assert levelled == procedure.MinSpeedProcedureConfig.levelled() and levelled.start_feedforward
+    for start, margin, analytic in (("governed", None, False), ("levelled", None, False), ("nominal", 0.02, True),
+                                    (None, float("nan"), True)):
         with pytest.raises(ValueError):
             min_speed_start(start, margin, analytic=analytic)
 
