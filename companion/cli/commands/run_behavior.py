@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     except ConnectFailed as exc:
         print(exc, file=sys.stderr)
         return 1
-    summary = outcome["summary"]
+    summary = outcome.summary
     if args.json:
         print_json(summary)
     else:
