@@ -2,7 +2,11 @@
 design is checked by heading steps through the autopilot before it is kept").
 
 The gains go on the vehicle as a trial, the thrust is set, and the vehicle settles on its course
-only until it is steady (the steadiness rule: speed and yaw rate; no fixed wait). Then one step of
+only until it is steady (the steadiness rule: speed and yaw rate; no fixed wait) — or, when the
+step is chained right after a record at the same thrust (``steady_now``), only until the speed has
+stopped changing (``chained_speed_change``: re-entering the holding mode to engage a new trim runs
+the thrust at the autopilot's cruise value until the set-point follows, and a step flown while the
+speed recovers is disturbed and flown twice). Then one step of
 ``step`` rad (its sign alternating, so a campaign stays near its course) and the record **ends
 when it has decided**: once the heading has been within the settle band (5 % of the step) for
 ``band_hold_s`` after its peak, or after ``max_s`` without settling. A step that cannot decide is
@@ -41,11 +45,14 @@ class VerificationConfig:
     max_speed_change: float = 0.10  # relative change of the water speed during the step: disturbed
     max_saturated_s: float = 2.0  # rudder at its limit longer than this: the step cannot decide
     repeats: int = 1  # an undecided step is flown again this many times
+    chained_speed_change: float = 0.015  # relative spread of three mean speeds below which a chained step starts
+    chained_window_s: float = 1.0  # vehicle seconds in each of those means
     steadiness: SteadinessRule = field(default_factory=SteadinessRule)
 
     def __post_init__(self) -> None:
         require_range(self, "step", math.radians(2.0), math.radians(90.0))
-        require_positive(self, "settle_max_s", "band_hold_s", "max_s", "max_speed_change", "max_saturated_s")
+        require_positive(self, "settle_max_s", "band_hold_s", "max_s", "max_speed_change", "max_saturated_s",
+                         "chained_speed_change", "chained_window_s")
         if not (isinstance(self.repeats, int) and 0 <= self.repeats <= 3):
             raise ValueError(f"VerificationConfig.repeats must be an integer in 0..3, not {self.repeats!r}")
 
@@ -58,9 +65,13 @@ class VerificationStep(Behaviour):
     step's size and sign, the speed, and the series for the report."""
 
     def __init__(self, thrust: float, gains: dict[str, float], config: VerificationConfig = VerificationConfig(),
-                 *, sign: float = 1.0, rudder_max: float = math.inf, label: str = "scheduled") -> None:
+                 *, sign: float = 1.0, rudder_max: float = math.inf, label: str = "scheduled",
+                 steady_now: bool = False) -> None:
         super().__init__(f"verify {label} at {thrust:.2f}")
         self.footprint = Footprint.of(parameters=tuple(gains), setpoints=("mode", "thrust", "heading"))
+        # chained right after a record that ended steady at this thrust (a validation record ends
+        # 4 s after its doublet, on course): the step starts at once, without a settle of its own
+        self.steady_now = steady_now
         self.thrust, self.gains, self.config, self.label = thrust, dict(gains), config, label
         self.sign = 1.0 if sign >= 0 else -1.0
         self.rudder_max = rudder_max
@@ -77,6 +88,7 @@ class VerificationStep(Behaviour):
         self._peaked = False
         self.flights = 0
         self.why_undecided: str | None = None
+        self._recent_speeds: list[tuple[float, float]] = []  # (time, water speed) of a chained start
         self.metrics: dict = {}
         self.series: dict[str, list[float]] = {"time": [], "heading": [], "target": [], "rudder": [], "speed": []}
         self.stage_times: dict[str, float] = {}
@@ -110,6 +122,10 @@ class VerificationStep(Behaviour):
             return []
         now = telemetry.time_s
         heading = self._unwrapped(telemetry.yaw)
+        if self._phase == "settle" and self.steady_now and self.flights == 0:
+            if self._speed_steady(now, telemetry.speed_water) or now - self._phase_start >= self.config.settle_max_s:
+                return self._begin_step(now, heading)
+            return []
         if self._phase == "settle":
             self._steady.add(now, telemetry.speed_water, telemetry.yaw_rate, telemetry.pitch_rate, telemetry.yaw)
             if self._steady.steady(now) or now - self._phase_start >= self.config.settle_max_s:
@@ -120,6 +136,24 @@ class VerificationStep(Behaviour):
         if verdict is None:
             return []
         return self._conclude(verdict, now, heading)
+
+    def _speed_steady(self, now: float, speed: float) -> bool:
+        """The chained start (module docstring): the means of the water speed over the last three
+        ``chained_window_s`` windows differ by less than ``chained_speed_change`` of the speed. Three
+        windows, not a slope: a slope or two means are flat on the crest of a transient."""
+        if math.isfinite(speed):
+            self._recent_speeds.append((now, speed))
+        window = self.config.chained_window_s
+        while self._recent_speeds and self._recent_speeds[0][0] < now - 3 * window:
+            self._recent_speeds.pop(0)
+        if not self._recent_speeds or self._recent_speeds[0][0] > now - 2.9 * window:
+            return False
+        times, speeds = np.array(self._recent_speeds).T
+        means = [speeds[(times > now - (k + 1) * window) & (times <= now - k * window)] for k in range(3)]
+        if any(len(part) < 3 for part in means):
+            return False
+        levels = [float(np.mean(part)) for part in means]
+        return max(levels) - min(levels) < self.config.chained_speed_change * max(abs(levels[0]), 1e-6)
 
     def _begin_step(self, now: float, heading: float) -> list[Command]:
         self.flights += 1

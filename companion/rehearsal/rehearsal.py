@@ -267,7 +267,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                            restore_problems=outcome.restore_problems, restore_notes=outcome.restore_notes,
                            records_rejected_for_link=campaign.records_rejected_for_link,
                            vehicle_time_s=outcome.vehicle_time_s,
-                           vehicle_time_by_phase={k: round(v, 2) for k, v in campaign.vehicle_time_by_phase.items()},
+                           vehicle_time_by_phase={k: round(v, 2) for k, v in campaign.phases_in_order().items()},
                            identification_stage_s={k: round(v, 2) for k, v in campaign.phase_times.items()})
             extra: dict = {}
             if outcome.status == "completed":
@@ -292,6 +292,8 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                                      "iae_s": finite_or_none(s.get("iae_s")), "oscillations": s.get("oscillations")}
                                     for s in campaign.step_results]
         summary["verification"] = campaign.verification or ("passed" if campaign.final_gains else None)
+        summary["checks"] = campaign.config.checked
+        summary["verified"] = campaign.verifier.summary() if campaign.verifier is not None else None
         summary["final_gains"] = campaign.final_gains
         summary["store"] = str(store_path)
         summary["report"] = str(out / "report.html") if config.report else None

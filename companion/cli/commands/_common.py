@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import json
 import math
 import os
@@ -139,6 +140,18 @@ def add_procedure_argument(parser: argparse.ArgumentParser) -> None:
                              "short validation records, the noise-aware stopping rule, heading gains for ζ = 0.75; "
                              "thesis: the seeds' fixed timings (40 s settles, 16.5 s records), eq. 3.39 and eq. 3.57")
     parser.add_argument("--quick", dest="procedure", action="store_const", const="quick", help=argparse.SUPPRESS)
+    parser.add_argument("--full-comparison", action="store_true",
+                        help="fly the thesis' comparison: ±20° heading steps with the original, the constant "
+                             "(QuickTune on ArduPilot) and the scheduled gains at every thrust (the quick procedure "
+                             "flies the designed gains' step at the lowest and highest speed and predicts the rest)")
+
+
+def apply_procedure(config, args: argparse.Namespace):
+    """The campaign configuration for ``--procedure`` and ``--full-comparison``."""
+    config = config.for_procedure(args.procedure)
+    if getattr(args, "full_comparison", False) and config.step_labels:
+        config = replace(config, checks="compare")
+    return config
 
 
 def print_json(value) -> None:

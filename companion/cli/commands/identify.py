@@ -5,7 +5,8 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_procedure_argument,
+from companion.cli.commands._campaign_text import phase_line, verification_lines
+from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_procedure_argument, apply_procedure,
                                             add_recovery_argument, add_schedules_argument, add_store_argument,
                                             connected_vehicle, follow_interrupted_trails, link_fit_for_identification, link_quality_record,
                                             print_json,
@@ -64,7 +65,7 @@ def campaign_config(args: argparse.Namespace):
         config = replace(config, depth=args.depth)
     if args.no_steps:
         config = replace(config, step_labels=())
-    config = config.for_procedure(args.procedure)
+    config = apply_procedure(config, args)
     if args.thesis_estimator:
         config = config.with_thesis_estimator()
     if args.no_write:
@@ -118,7 +119,8 @@ def run(args: argparse.Namespace) -> int:
               "restore_problems": outcome.restore_problems, "restore_notes": outcome.restore_notes,
               "store_problems": outcome.store_problems, "link_quality": link_quality,
               "store": args.store, "report": report,
-              **{k: v for k, v in campaign.result().figures.items() if k in ("accepted", "design", "steps", "final_gains")}}
+              **{k: v for k, v in campaign.result().figures.items() if k in ("accepted", "design", "steps", "final_gains", "checks", "verified",
+                                                               "vehicle_time_s", "vehicle_time_by_phase")}}
     if args.json:
         print_json(result)
     else:
@@ -130,6 +132,9 @@ def run(args: argparse.Namespace) -> int:
         for a in result["accepted"]:
             model = ", ".join(f"{k} {v:.4f}" for k, v in a["model"].items() if isinstance(v, float))
             print(f"  {a['axis']:5s} thrust {a['thrust']:.2f} speed {a['speed']:.2f} m/s R2 {a['r2']:.3f}: {model}")
+        for line in filter(None, [phase_line(result.get("vehicle_time_s"), result.get("vehicle_time_by_phase") or {}),
+                                  *verification_lines(result.get("verified"))]):
+            print(f"  {line}")
         if result["final_gains"]:
             print(f"  gains written: {result['final_gains']}")
         if report:
