@@ -133,9 +133,9 @@ def test_an_output_range_that_cannot_be_a_servo_is_refused():
 
 def test_the_snapshot_of_a_skid_boat_carries_the_equivalent_rudder_and_the_throttle():
     profile = replace(ROVER, actuation=skid())
-    assembler = TelemetryAssembler(replace(profile, servo_follows_attitude=False))
+    assembler = TelemetryAssembler(profile)
     pwm = rover_outputs(0.2, 0.5, left=(1100, 1520, 1900, False), right=(1000, 1500, 2000, True))
-    message = SimpleNamespace(get_type=lambda: "SERVO_OUTPUT_RAW", time_usec=0,
+    message = SimpleNamespace(get_type=lambda: "SERVO_OUTPUT_RAW", time_usec=1_000_000,  # paired by its time stamp
                               **{f"servo{i + 1}_raw": value for i, value in enumerate(pwm)})
     assembler.on_message(message)
     snapshot = assembler.on_message(SimpleNamespace(get_type=lambda: "ATTITUDE", time_boot_ms=1000, roll=0.0,
