@@ -236,7 +236,8 @@ class IdentificationManoeuvre(Behaviour):
         detector = self._steadiness
         if detector is None:
             return False
-        detector.add(telemetry.time_s, telemetry.speed_water, telemetry.yaw_rate, telemetry.pitch_rate, telemetry.yaw)
+        detector.add(telemetry.time_s, telemetry.speed_water, telemetry.yaw_rate, telemetry.pitch_rate, telemetry.yaw,
+                     telemetry.thrust_ratio)
         return detector.steady(telemetry.time_s)
 
     def update(self, telemetry: Telemetry) -> Sequence[Command]:

@@ -182,6 +182,7 @@ def test_steady_state_squares_and_turns_against_the_connected_firmware(tmp_path)
                                sim.endpoint, "--profile", "ardurover", "--rudder-rate", "5", "--duration", "60",
                                "--thrust", "0.6", "--store", str(tmp_path / "s.sqlite"), "--json"],
                               capture_output=True, text=True, timeout=300, check=False)
+        assert done.stdout.strip(), done.stderr[-2000:]
         summary = json.loads(done.stdout)
         assert done.returncode == 0 and summary["status"] == "completed", done.stderr[-2000:]
         assert len(summary["turns"]) == 2

@@ -33,6 +33,7 @@ class ModeControl:
         self._confirmed_boot = 0  # the boot it was confirmed on (``clock.reboots`` then)
         self._listeners: list[Callable[[str], None]] = []
         self._request_listeners: list[Callable[[str], None]] = []
+        self._accepted_listeners: list[Callable[[str], None]] = []
 
     @property
     def commanded(self) -> str | None:
@@ -56,6 +57,11 @@ class ModeControl:
         """Call ``listener(neutral)`` after every verified mode change the companion made."""
         self._listeners.append(listener)
 
+    def on_accepted(self, listener: Callable[[str], None]) -> None:
+        """Call ``listener(neutral)`` as soon as the autopilot acknowledges a mode change (ACCEPTED),
+        before a HEARTBEAT verifies it: for what a new mode needs at once (ArduRover's GUIDED loiters
+        until it gets a target)."""
+        self._accepted_listeners.append(listener)
     def on_request(self, listener: Callable[[str], None]) -> Callable[[], None]:
         """Call ``listener(neutral)`` before the companion asks for a mode (a crash trail records
         it, whoever asked); returns the unsubscribe call."""
@@ -89,7 +95,18 @@ class ModeControl:
             def shown() -> bool:
                 return self.announcements.heartbeat_count > since_hb and self.announcements.custom_mode == target
 
-            self.clock.wait_until(lambda: refused() is not None or shown(), timeouts.command_s)
+            told = {"accepted": False}
+
+            def settled() -> bool:
+                if not told["accepted"] and self._accepted_listeners:
+                    answer = self.commands.answered_since(MAV_CMD_DO_SET_MODE, since_ack)
+                    if answer is not None and answer[0] == MAV_RESULT_ACCEPTED:
+                        told["accepted"] = True
+                        for listener in self._accepted_listeners:
+                            listener(neutral)
+                return refused() is not None or shown()
+
+            self.clock.wait_until(settled, timeouts.command_s)
             result = refused()
             if result is not None:
                 said = self.announcements.warnings_since(since_text)

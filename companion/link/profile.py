@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
+from companion.link.actuation import Actuation
 from companion.link.errors import ProfileError
 
 #: PWM values that mean "no data" in SERVO_OUTPUT_RAW / RC fields, and the plausible PWM range.
@@ -112,6 +113,10 @@ class AutopilotProfile:
     campaign_defaults: CampaignDefaults = field(default_factory=CampaignDefaults)
     # what a thrust level (SetThrust, 0..1) is on this autopilot: the one statement of its unit
     thrust_meaning: str = "the thruster's thrust ratio"
+    # what drives the boat, read from the vehicle at connect (its SERVOn_FUNCTION): a steering servo
+    # and a throttle, or a skid-steered pair un-mixed into steering and throttle; None: the fixed
+    # ``servo_outputs`` above (companion.link.actuation)
+    actuation: Actuation | None = None
     angle_full_scale_rad: float = 0.5236  # fin angle at pwm_center ± pwm_half_range
     pwm_center: int = 1500
     pwm_half_range: int = 500

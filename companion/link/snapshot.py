@@ -5,7 +5,8 @@
 clock: it is fed messages (live, or from a recorded log) and is unit-tested with fabricated ones.
 
 Field sources: ATTITUDE → attitude, rates, time; SERVO_OUTPUT_RAW → actual actuator positions
-(profile conversions); LOCAL_POSITION_NED → north/east/down, NED velocities; VFR_HUD → water speed
+(profile conversions; a boat's steering and throttle through the actuation read from the vehicle,
+un-mixed for a skid-steered pair, eq. S.1); LOCAL_POSITION_NED → north/east/down, NED velocities; VFR_HUD → water speed
 (airspeed) and ground speed; SCALED_PRESSURE → depth (LOCAL_POSITION_NED.z until a pressure
 arrives); HEARTBEAT → mode (neutral name) and armed. Non-finite or non-numeric fields become NaN
 and are logged once per field, never raised.
@@ -221,9 +222,14 @@ class TelemetryAssembler:
                           for i in range(1, 17)]
         actuators: dict[str, float] = {}
         outputs = self.profile.servo_outputs
+        actuation = self.profile.actuation
+        if actuation is not None:  # read from the vehicle: steering and throttle (un-mixed for a pair)
+            steering, throttle = actuation.demands(self.servo_pwm)
+            self._fields["rudder"] = steering * self.profile.angle_full_scale_rad
+            self._fields["thrust_ratio"] = throttle
         for actuator, telemetry_field in (("rudder", "rudder"), ("elevator", "elevator"), ("thrust", "thrust_ratio")):
             output = outputs.get(actuator)
-            if output is None:
+            if output is None or (actuation is not None and actuator != "elevator"):
                 continue
             pwm = self._number(msg, f"servo{output}_raw")
             actuators[telemetry_field] = (

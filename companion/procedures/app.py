@@ -23,7 +23,7 @@ from pymavlink.dialects.v20.common import (MAV_RESULT_ACCEPTED, MAV_RESULT_FAILE
 
 from companion.interface import Behavior, Telemetry
 from companion.procedures.campaign import (AttemptRecorded, CampaignConfig, DesignMade, GainsWritten,
-                                           IdentificationCampaign, StepsChecked)
+                                           IdentificationCampaign, SpeedTuned, StepsChecked)
 from behaviors.base import footprint_of
 from companion.procedures.readiness import await_ready
 from companion.procedures.registry import PROCEDURES, ProcedureContext
@@ -182,6 +182,8 @@ def drain_campaign_events(store: Store, campaign_id: int, campaign: Identificati
             store.add_gains(campaign_id, event.speed, event.before, event.after)
         elif isinstance(event, DesignMade):
             store.add_design(campaign_id, event.design)
+        elif isinstance(event, SpeedTuned):
+            store.add_behavior_result(campaign_id, "speed_loop", event.status, event.result)
         else:
             raise TypeError(f"unknown campaign event {event!r}")
         campaign.events.pop(0)

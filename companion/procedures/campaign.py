@@ -35,6 +35,7 @@ from behaviors.gain_scheduling import GainDesign, ScheduleKind
 from behaviors.heading_steps import HeadingStepTest, reengage_hold
 from behaviors.identification import TRAIN, VALIDATE, IdentificationAttempt, IdentificationManoeuvre
 from behaviors.sequence import Deferred, Instant, ParallelBehavior, SequenceBehavior
+from behaviors.speed_tuning import SPEED_CONTEXT, SPEED_GAINS, SpeedTuning, SurgeRecorder
 from behaviors.verification import VerificationStep
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.cascade_gains import quicktune_feed_forward
@@ -78,8 +79,16 @@ class GainsWritten:
     after: dict
 
 
+@dataclass(frozen=True)
+class SpeedTuned:
+    """The speed loop was identified, designed and checked (or could not be): its figures."""
+
+    status: str
+    result: dict
+
+
 #: what the campaign hands the application to store, in order
-CampaignEvent = Union[AttemptRecorded, StepsChecked, DesignMade, GainsWritten]
+CampaignEvent = Union[AttemptRecorded, StepsChecked, DesignMade, GainsWritten, SpeedTuned]
 
 
 class IdentificationCampaign(Behaviour):
@@ -107,6 +116,10 @@ class IdentificationCampaign(Behaviour):
         if config.checked != "none" and self.heading_kind is not None:
             parameters |= set(self.heading_kind.parameters)
         self.verification: str | None = None
+        self.surge = SurgeRecorder()  # the settles' speed and throttle, for the speed loop
+        self.speed: SpeedTuning | None = None
+        if config.speed.enabled:
+            parameters |= set(SPEED_GAINS + SPEED_CONTEXT)
         self.verifier: CampaignVerification | None = None  # the short campaign's ("verify")
         if config.checked == "verify" and self.heading_kind is not None:
             parameters |= set(LIMIT_PARAMETERS)  # read for the predictions (restored unchanged)
@@ -158,6 +171,9 @@ class IdentificationCampaign(Behaviour):
             for thrust in cfg.thrusts:
                 for label in cfg.step_labels:
                     items.append(Deferred(self._step_test_factory(thrust, label), self._heading_gains))
+        if cfg.speed.enabled:
+            items.append(Deferred(lambda: SpeedTuning(self.surge.record, self.original_gains, cfg.speed),
+                                  Footprint.of(SPEED_GAINS, ("mode", "thrust", "heading"))))
         items.append(Deferred(self._final_gains_step, self.footprint))
         # progress counts the manoeuvres and the checks (the design and the final write are instants)
         checks = {"verify": 2, "compare": len(cfg.thrusts) * len(cfg.step_labels)}.get(cfg.checked, 0)
@@ -282,6 +298,8 @@ class IdentificationCampaign(Behaviour):
             speed = telemetry.speed_water if telemetry.finite("speed_water") else low
             speeds.append(speed)
             gains.update(self._kind(name).gains(design.schedule, speed))
+        if self.speed is not None and self.speed.kept:  # verified by its own speed steps
+            gains.update(self.speed.kept)
         self.final_gains = gains
         speed = speeds[0]
         before = {k: v for k, v in self.original_gains.items() if k in gains}
@@ -311,6 +329,9 @@ class IdentificationCampaign(Behaviour):
             result = behavior.result()
             self.step_results.append(result)
             self.events.append(StepsChecked(result))
+        elif isinstance(behavior, SpeedTuning):
+            self.speed = behavior
+            self.events.append(SpeedTuned(behavior.status.value, behavior.result()))
         elif isinstance(behavior, VerificationStep):
             result = self._verifier().record(behavior, self.accepted)
             self.step_results.append(result)
@@ -343,10 +364,22 @@ class IdentificationCampaign(Behaviour):
                 return []
             self._sequence = self._build(telemetry.yaw)
         self._count_phase_time(telemetry.time_s)
+        self._record_surge(telemetry)
         commands = list(self._sequence.tick(telemetry))
         if self._sequence.done:
             commands += self._conclude()
         return commands
+
+    def _record_surge(self, telemetry: Telemetry) -> None:
+        """The yaw manoeuvre's settles feed the surge model (behaviors/speed_tuning.py)."""
+        current = self._sequence.current if self._sequence is not None else None
+        if isinstance(current, ParallelBehavior):
+            current = next((c for c in current.children if isinstance(c, IdentificationManoeuvre)
+                            and c.config.axis == "yaw"), None)
+        if isinstance(current, IdentificationManoeuvre):
+            self.surge.add(telemetry, current.thrust, current.stage)
+        else:
+            self.surge.add(telemetry, None, None)
 
     def _count_phase_time(self, now: float) -> None:
         """Vehicle seconds per phase of the campaign (what the campaign costs at sea), by what the
@@ -396,6 +429,7 @@ class IdentificationCampaign(Behaviour):
             "verified": self.verifier.summary() if self.verifier is not None else None,
             "vehicle_time_by_phase": self.phases_in_order(),
             "final_gains": self.final_gains,
+            "speed_loop": self.speed.result() if self.speed is not None else None,
         }
         return ProcedureResult.of("identification", self.status, self.reason, figures)
 
@@ -410,7 +444,7 @@ def _add_times(total: dict[str, float], more: dict[str, float]) -> dict[str, flo
 
 
 #: the campaign's phases of vehicle time, in the order they are flown (``_phase_of``)
-PHASES = ("settle", "excitation", "validation", "verification", "heading_steps", "design_writes")
+PHASES = ("settle", "excitation", "validation", "verification", "heading_steps", "speed_steps", "design_writes")
 
 #: what the vehicle is doing in each stage of an identification manoeuvre
 _STAGE_PHASES = {TRAIN: "excitation", VALIDATE: "validation"}
@@ -428,4 +462,6 @@ def _phase_of(current: Behaviour | None) -> str:
         return "verification"
     if isinstance(current, HeadingStepTest):
         return "heading_steps"
+    if isinstance(current, SpeedTuning):
+        return "speed_steps"
     return "design_writes"

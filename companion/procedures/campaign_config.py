@@ -18,6 +18,7 @@ from companion.checks import check_thrust_levels, require_non_negative, require_
 from companion.numerics.cascade_gains import CascadeRules
 from companion.numerics.gains import CAMPAIGN_DAMPING, GainBounds
 from companion.procedures.verified_design import KeepRule
+from behaviors.speed_tuning import SpeedLoopConfig
 
 DEFAULT_THRUSTS = (0.60, 0.70, 0.80, 0.90, 1.00)
 #: the quick procedure's yaw stopping rule (ConvergenceRule.noise_band): Θ within 0.5 σ of itself over
@@ -83,6 +84,11 @@ class CampaignConfig:
     parallel_axes: bool = False
     # fields the user set explicitly: the autopilot's campaign defaults do not replace them
     user_set: tuple[str, ...] = ()
+    # the b2 speed law of the vehicle's actuation, kept when the models cannot tell ("u2" rudder, "u"
+    # differential thrust, eq. S.3); None: the thesis' u², or the profile's actuation (resolved_for)
+    speed_law: str | None = None
+    # the speed loop identified from the settles, designed and checked by speed steps (behaviors/speed_tuning.py)
+    speed: SpeedLoopConfig = SpeedLoopConfig()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "thrusts", check_thrust_levels(self.thrusts, "CampaignConfig.thrusts"))
@@ -90,6 +96,8 @@ class CampaignConfig:
             raise ValueError(f"CampaignConfig.axes must be yaw and/or pitch, each once, not {self.axes!r}")
         if self.depth is not None:
             require_positive(self, "depth")
+        if self.speed_law not in (None, "u2", "u"):
+            raise ValueError(f"CampaignConfig.speed_law must be 'u2', 'u' or None, not {self.speed_law!r}")
         if self.checks not in CHECKS:
             raise ValueError(f"CampaignConfig.checks must be one of {', '.join(CHECKS)}, not {self.checks!r}")
         for label in self.step_labels:
@@ -148,7 +156,7 @@ class CampaignConfig:
     def kinds(self) -> list[ScheduleKind]:
         """The requested gain schedules (heading with this config's bounds, cascade with its rules)."""
         options = {"heading": self.bounds, "cascade": self.cascade}
-        return [schedule_kind(name, options.get(name)) for name in self.schedules]
+        return [schedule_kind(name, options.get(name), self.speed_law) for name in self.schedules]
 
     def with_profile_defaults(self, profile) -> "CampaignConfig":
         """This configuration with the autopilot's campaign defaults (``profile.campaign_defaults``:
@@ -182,6 +190,11 @@ class CampaignConfig:
                                          **getattr(profile, "gain_ranges", {})))
         if not getattr(profile, "depth_setpoint", True):
             config = replace(config, depth=None)
+        if config.speed.enabled is None:  # tuned where the autopilot has a speed loop
+            config = replace(config, speed=replace(config.speed, enabled="speed_p" in getattr(profile, "params", {})))
+        actuation = getattr(profile, "actuation", None)
+        if actuation is not None and config.speed_law is None:
+            config = replace(config, speed_law="u" if actuation.skid else "u2")
         # a modelled servo deflection is continuous (first-order hold); a raw loop output is held (zero-order)
         hold = "foh" if getattr(profile, "actuator_rate_rad_s", None) else getattr(profile, "actuator_hold", "foh")
         if hold != "foh":

@@ -331,7 +331,7 @@ class _TakeoverWatchdog:
         """The snapshot predates the heartbeat that confirmed the companion's latest mode change: it
         may still show the mode before it, however late the link delivered it."""
         confirmed = getattr(getattr(self.link, "modes", None), "commanded_at_s", math.nan)
-        return isinstance(confirmed, float) and math.isfinite(confirmed) and telemetry.time_s < confirmed
+        return isinstance(confirmed, float) and math.isfinite(confirmed) and telemetry.time_s <= confirmed
 
     def check(self, telemetry: Telemetry) -> str | None:
         if self.limits.require_armed:

@@ -33,6 +33,8 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--axes", default=None,
                         help="axes to identify: yaw and/or pitch (default: yaw,pitch; yaw on ArduPilot)")
     parser.add_argument("--no-steps", action="store_true", help="skip the heading-step checks")
+    parser.add_argument("--step-deg", type=float, default=None,
+                        help="size of the heading-step checks in degrees (default: 20)")
     add_schedules_argument(parser)
     add_procedure_argument(parser)
     parser.add_argument("--thesis-estimator", action="store_true",
@@ -65,6 +67,12 @@ def campaign_config(args: argparse.Namespace):
         config = replace(config, depth=args.depth)
     if args.no_steps:
         config = replace(config, step_labels=())
+    if getattr(args, "step_deg", None) is not None:
+        import math
+
+        step = math.radians(args.step_deg)
+        config = replace(config, step_test=replace(config.step_test, step=step),
+                         verification=replace(config.verification, step=step))
     config = apply_procedure(config, args)
     if args.thesis_estimator:
         config = config.with_thesis_estimator()
@@ -119,8 +127,9 @@ def run(args: argparse.Namespace) -> int:
               "restore_problems": outcome.restore_problems, "restore_notes": outcome.restore_notes,
               "store_problems": outcome.store_problems, "link_quality": link_quality,
               "store": args.store, "report": report,
-              **{k: v for k, v in campaign.result().figures.items() if k in ("accepted", "design", "steps", "final_gains", "checks", "verified",
-                                                               "vehicle_time_s", "vehicle_time_by_phase")}}
+              **{k: v for k, v in campaign.result().figures.items()
+                 if k in ("accepted", "design", "steps", "final_gains", "speed_loop", "checks", "verified",
+                          "vehicle_time_s", "vehicle_time_by_phase")}}
     if args.json:
         print_json(result)
     else:
@@ -132,6 +141,10 @@ def run(args: argparse.Namespace) -> int:
         for a in result["accepted"]:
             model = ", ".join(f"{k} {v:.4f}" for k, v in a["model"].items() if isinstance(v, float))
             print(f"  {a['axis']:5s} thrust {a['thrust']:.2f} speed {a['speed']:.2f} m/s R2 {a['r2']:.3f}: {model}")
+        speed = result.get("speed_loop")
+        if speed:
+            print(f"  speed loop: {speed['reason'] or speed['verdict']}" + (f"; {speed['surge'].describe()}"
+                                                                          if speed.get("surge") else ""))
         for line in filter(None, [phase_line(result.get("vehicle_time_s"), result.get("vehicle_time_by_phase") or {}),
                                   *verification_lines(result.get("verified"))]):
             print(f"  {line}")

@@ -80,6 +80,11 @@ class AutopilotStrategy:
         """The newest telemetry snapshot."""
         return self.ports.telemetry.latest
 
+    def configure(self) -> AutopilotProfile:
+        """The profile completed with what this vehicle says about itself, read at connect (the
+        handshake installs the result); the profile unchanged by default."""
+        return self.profile
+
     def in_mode(self, neutral: str) -> bool:
         """The latest HEARTBEAT shows the profile's mode ``neutral``."""
         return self.ports.announcements.custom_mode == self.profile.modes[neutral]
@@ -113,6 +118,8 @@ class AutopilotStrategy:
     def mode_changed(self, neutral: str) -> None:
         """Called after the link switched mode (targets a new mode needs are sent here)."""
 
+    def mode_accepted(self, neutral: str) -> None:
+        """Called when the autopilot acknowledged a mode change, before a HEARTBEAT verifies it."""
     # ------------------------------------------------------------------ endings
     def forget_targets(self) -> None:
         """A procedure's restore is done: targets the strategy refreshes on its own (a GUIDED
