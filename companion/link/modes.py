@@ -30,6 +30,12 @@ class ModeControl:
         self.profile = None  # the autopilot profile, once known
         self.commanded: str | None = None  # the last mode the companion itself switched to
         self._listeners: list[Callable[[str], None]] = []
+        self._before: list[Callable[[str], None]] = []
+
+    def before_change(self, listener: Callable[[str], None]) -> None:
+        """Call ``listener(neutral)`` before every mode change the companion asks for (an autopilot
+        that accepts a mode only while set-points already stream, PX4's OFFBOARD, starts them there)."""
+        self._before.append(listener)
 
     def on_change(self, listener: Callable[[str], None]) -> None:
         """Call ``listener(neutral)`` after every verified mode change the companion made."""
@@ -45,6 +51,8 @@ class ModeControl:
         profile = self._profile()
         target = profile.mode_number(neutral)
         params = profile.mode_command_params(target)
+        for listener in self._before:
+            listener(neutral)
         timeouts = self.clock.timeouts
         tries = max(int(math.ceil(timeouts.mode_s / timeouts.command_s)), 1)
         for _attempt in range(tries):

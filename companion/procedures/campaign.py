@@ -38,7 +38,7 @@ from behaviors.sequence import Deferred, Instant, ParallelBehavior, SequenceBeha
 from behaviors.steadiness import SteadinessRule
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.cascade_gains import CascadeRules, quicktune_feed_forward
-from behaviors.schedules import schedule_kind
+from behaviors.schedules import CASCADE_RULED, schedule_kind
 from companion.checks import check_thrust_levels, require_choice, require_non_negative, require_positive
 from companion.numerics.gains import CAMPAIGN_DAMPING, GainBounds
 from companion.procedures.results import ProcedureResult
@@ -186,7 +186,7 @@ class CampaignConfig:
 
     def kinds(self) -> list[ScheduleKind]:
         """The requested gain schedules (heading with this config's bounds, cascade with its rules)."""
-        options = {"heading": self.bounds, "cascade": self.cascade}
+        options = {"heading": self.bounds, **{name: self.cascade for name in CASCADE_RULED}}
         return [schedule_kind(name, options.get(name)) for name in self.schedules]
 
     def with_profile_defaults(self, profile) -> "CampaignConfig":
