@@ -291,9 +291,9 @@ class Px4Strategy(AutopilotStrategy):
             log.warning("PX4 not back in its found mode %.0f s after the release", self.RELEASE_GRACE_S)
             self._stop("grace period over")
             return telemetry
-        if now - self._sticks_sent_at >= self.STICK_PERIOD_S:
+        if now - self._sticks_sent_at >= self.STICK_PERIOD_S - 1e-3:  # vehicle times are ms: no float drift
             self._send_sticks()
-        if now - self._target_sent_at >= self.SETPOINT_PERIOD_S:
+        if now - self._target_sent_at >= self.SETPOINT_PERIOD_S - 1e-3:
             self.send_target()
             self._target_sent_at = now
         self._check_sticks_obeyed(telemetry)
