@@ -58,13 +58,21 @@ def simulator(autopilot: str, folder: Path, speedup: float = 5.0, seed: int = 1)
                             extra_args=["--truth-log", str(folder / "truth.csv")])
 
 
+def client_endpoint(sim) -> str:
+    """Where a companion listens for PX4 (``udpin:127.0.0.1:14540+I``, where PX4 sends first). PX4's
+    UDP instance locks onto its first partner's address and port until it restarts: a client on an
+    ephemeral port (``udpout:``) is heard, and every later one is not (measured); one that listens on
+    PX4's remote port may come and go."""
+    return f"udpin:127.0.0.1:{14540 + sim.port - 14580}"
+
+
 def connect_armed(sim, relay: "UdpRelay | None" = None):
     """The companion's link to a started simulator (through ``relay`` if given), PX4 armed in Hold (a
     user arms it; a procedure never does)."""
     from companion.link.vehicle import VehicleLink
     from companion.rehearsal.rehearsal import arm_px4_when_ready
 
-    link = VehicleLink.connect(relay.endpoint if relay is not None else sim.endpoint, heartbeat_timeout_s=60.0)
+    link = VehicleLink.connect(relay.endpoint if relay is not None else client_endpoint(sim), heartbeat_timeout_s=60.0)
     arm_px4_when_ready(link, patience_s=120.0)
     return link
 

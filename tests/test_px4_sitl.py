@@ -25,7 +25,8 @@ from pathlib import Path
 import pytest
 
 from companion.records.store import Store
-from harness.px4 import SCENARIOS, UdpRelay, connect_armed, found_state, px4_bin, run_scenario, simulator
+from harness.px4 import (SCENARIOS, UdpRelay, client_endpoint, connect_armed, found_state, px4_bin, run_scenario,
+                         simulator)
 
 pytestmark = [pytest.mark.e2e, pytest.mark.skipif(
     px4_bin() is None, reason="PX4_SITL_BIN is not set to a PX4 SITL build folder (with bin/px4)")]
@@ -60,7 +61,7 @@ def identified(request, tmp_path_factory):
         found = found_state(link)
         link.close()
         done = subprocess.run([sys.executable, "-m", "companion", "identify", "--connect",
-                               sim.endpoint, "--profile", autopilot, "--store", str(folder / "s.sqlite"), "--json"],
+                               client_endpoint(sim), "--profile", autopilot, "--store", str(folder / "s.sqlite"), "--json"],
                               capture_output=True, text=True, timeout=900, check=False)
         assert done.stdout, done.stderr[-3000:]
         result = json.loads(done.stdout)

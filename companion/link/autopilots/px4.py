@@ -126,7 +126,7 @@ class Px4Strategy(AutopilotStrategy):
     SETPOINT_PERIOD_S = 0.1  # between offboard set-points (OFFBOARD is left after COM_OF_LOSS_T)
     RELEASE_GRACE_S = 10.0  # released sticks stop anyway after this long outside the mode found
     IGNORED_AFTER_S = 1.0  # MANUAL output unlike the sticks for this long: PX4 takes another source
-    IGNORED_TOLERANCE = 0.02  # rad of rudder between the sticks and the read-back
+    IGNORED_TOLERANCE = 0.005  # rad of rudder between a stick asked for and the read-back (a few µs of PWM)
 
     def __init__(self, ports) -> None:
         super().__init__(ports)
@@ -276,6 +276,11 @@ class Px4Strategy(AutopilotStrategy):
     def _send_sticks(self) -> None:
         if self.sticks is None:
             return
+        if self._excitation is not None:  # every rudder asked for in this excitation (the check's)
+            asked = self._excitation["asked"]
+            rudder = self.stick_rudder(self.sticks)
+            if math.isfinite(rudder) and asked[-1] != rudder:
+                asked.append(rudder)
         x, y, z, r = self.sticks.fields()
         log.debug("sticks at %.2f: x %d y %d z %d r %d (%s)", self.now, x, y, z, r, self.ports.announcements.mode)
         transport = self.ports.transport
@@ -314,10 +319,7 @@ class Px4Strategy(AutopilotStrategy):
         if excitation is None or self._releasing_since is not None or telemetry.mode != "manual":
             self._unlike_since = None
             return
-        asked = excitation.setdefault("asked", [])
-        expected = self.stick_rudder(self.sticks)
-        if math.isfinite(expected) and (not asked or asked[-1] != expected):
-            asked.append(expected)
+        asked = excitation["asked"]
         if not math.isfinite(telemetry.rudder) or not asked or \
                 min(abs(value - telemetry.rudder) for value in asked) <= self.IGNORED_TOLERANCE:
             self._unlike_since = None
