@@ -25,10 +25,16 @@ GAIN_SCHEDULES: dict[str, Callable[..., ScheduleKind]] = {
 CASCADE_RULED = ("cascade", "px4_rover", "px4_uuv")
 
 
-def schedule_kind(name: str, bounds=None) -> ScheduleKind:
-    """The registered kind ``name`` (with ``bounds`` when given); ValueError for an unknown name."""
+#: the kinds whose fit takes the b2 speed law of the vehicle's actuation (eq. S.3)
+SPEED_LAW_KINDS = ("heading", "cascade")
+
+
+def schedule_kind(name: str, bounds=None, speed_law: str | None = None) -> ScheduleKind:
+    """The registered kind ``name`` (with ``bounds`` when given, and the actuation's b2 speed law for
+    the yaw kinds); ValueError for an unknown name."""
     try:
         factory = GAIN_SCHEDULES[name]
     except KeyError:
         raise ValueError(f"unknown gain schedule {name!r} (known: {', '.join(GAIN_SCHEDULES)})") from None
-    return factory(bounds) if bounds is not None else factory()
+    extra = {"speed_law": speed_law} if speed_law is not None and name in SPEED_LAW_KINDS else {}
+    return factory(bounds, **extra) if bounds is not None else factory(**extra)

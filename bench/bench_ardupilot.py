@@ -1,93 +1,286 @@
-"""Figures of the campaign on the real ArduPilot firmware: identification error against
-the simulator's linearised truth, validation R², and ±20° heading-step overshoot and step error
-(IAE) for the vehicle's default gains, Rover QuickTune's FF rule and the designed schedule.
+"""Figures of the campaign on the real ArduPilot firmware: per speed, the identified a22 and b2
+against the stated truth (median and worst over the runs), validation R², the chosen speed law,
+heading steps (overshoot and time to stay within 5 %) with the vehicle's default gains, Rover
+QuickTune's FF rule and the design, speed steps with the default and the designed speed loop, and
+the campaign's vehicle time.
 
 ArduPilot SITL (built by you from ArduPilot's sources; its bin folder in ``ARDUPILOT_SITL_BIN`` or
-``--ardupilot-bin``) flies our physics through the JSON backend, on loopback. Run it inside a private
-network namespace if you can (``unshare -n``, then ``ip link set lo up``).
+``--ardupilot-bin``) flies our physics through the JSON backend, on loopback. Run it inside a
+private network namespace (``unshare -n``, then ``ip link set lo up``).
 
-    python bench/bench_ardupilot.py --autopilot ardurover --repeats 3
+    python bench/bench_ardupilot.py --frame rudder --physics 3dof --repeats 3
+    python bench/bench_ardupilot.py --frame skid --physics 3dof --repeats 3
+    python bench/bench_ardupilot.py --frame rudder --physics nomoto          # the first-order boat
+    python bench/bench_ardupilot.py --frame skid --physics ardupilot         # SITL's own motorboat-skid
+    python bench/bench_ardupilot.py --autopilot ardusub                      # our AUV on ArduSub
+
+The truth of a 3-DOF hull is its doublet-equivalent first-order model (eq. S.6, at each run's own
+doublet, speed and record); Nomoto's classic K/T and the nonlinear hull's fit at the flown
+amplitude are printed beside it. ``--physics ardupilot`` flies ArduPilot's own motorboat model
+(``--model motorboat[-skid]`` with rover.parm, motorboat.parm and, skid, rover-skid.parm; waves and
+wind off unless ``--waves``), which has no truth to score against: it runs
+``companion identify --connect`` as a user would and prints what happened.
 """
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
 from dataclasses import replace
+from pathlib import Path
 
-from companion.rehearsal.rehearsal import RehearsalConfig, preset_defaults, rehearse
 from companion.link.profiles import get_profile
 from companion.procedures.campaign import CampaignConfig
+from companion.rehearsal.rehearsal import RehearsalConfig, preset_defaults, rehearse
 
-PRESETS = {"ardurover": "boat", "ardusub": "starfish"}
+PRESETS = {("ardurover", "rudder", "nomoto"): "boat", ("ardurover", "rudder", "3dof"): "boat-3dof",
+           ("ardurover", "skid", "3dof"): "boat-skid", ("ardusub", "rudder", "nomoto"): "starfish"}
+
+
+def med(values):
+    values = [v for v in values if v is not None and math.isfinite(v)]
+    return statistics.median(values) if values else float("nan")
+
+
+def worst(values):
+    values = [abs(v) for v in values if v is not None and math.isfinite(v)]
+    return max(values) if values else float("nan")
+
+
+def fmt(value, spec=".1f"):
+    return format(value, spec) if isinstance(value, (int, float)) and math.isfinite(value) else "-"
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--autopilot", choices=sorted(PRESETS), default="ardurover")
+    parser.add_argument("--autopilot", choices=("ardurover", "ardusub"), default="ardurover")
+    parser.add_argument("--frame", choices=("rudder", "skid"), default="rudder",
+                        help="rudder: steering servo and throttle; skid: twin thrusters (ArduRover)")
+    parser.add_argument("--physics", choices=("nomoto", "3dof", "ardupilot"), default="3dof",
+                        help="nomoto: our first-order boat; 3dof: our surge-sway-yaw hull; ardupilot: SITL's own "
+                             "motorboat model (no truth)")
     parser.add_argument("--ardupilot-bin", default=os.environ.get("ARDUPILOT_SITL_BIN"))
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--speedup", type=float, default=20.0)
-    parser.add_argument("--thrusts", default=None, help="comma-separated (default: the autopilot's three)")
+    parser.add_argument("--speedup", type=float, default=10.0)
+    parser.add_argument("--thrusts", default=None, help="comma-separated (default: the autopilot's)")
+    parser.add_argument("--step-deg", type=float, default=40.0, help="heading-step size (default 40)")
+    parser.add_argument("--waves", action="store_true", help="--physics ardupilot: waves and wind on (robustness)")
+    parser.add_argument("--wp-speed", type=float, default=None,
+                        help="--physics ardupilot: WP_SPEED set on the boat (m/s) before the campaign (default: "
+                             "the frame's, 3 m/s)")
     parser.add_argument("--procedure", choices=("quick", "thesis"), default="quick",
                         help="the campaign procedure (default: quick, what identify --connect flies)")
     args = parser.parse_args()
     if not args.ardupilot_bin:
         print("no ArduPilot SITL: pass --ardupilot-bin DIR or set ARDUPILOT_SITL_BIN", file=sys.stderr)
         return 2
-    preset = PRESETS[args.autopilot]
-    # the campaign ``identify --connect`` flies on this autopilot: its profile's thrusts, axes, doublets
+    if args.physics == "ardupilot":
+        return motorboat(args)
+    preset = PRESETS.get((args.autopilot, args.frame if args.autopilot == "ardurover" else "rudder", args.physics))
+    if preset is None:
+        print(f"no preset for {args.autopilot} {args.frame} {args.physics} (skid boats exist as 3dof only)",
+              file=sys.stderr)
+        return 2
+    return ours(args, preset)
+
+
+def campaign_of(args) -> CampaignConfig:
+    """The campaign ``identify --connect`` flies on this autopilot (its profile's thrusts, axes, doublets),
+    with heading steps of ``--step-deg``."""
     campaign = CampaignConfig().with_profile_defaults(get_profile(args.autopilot)).for_procedure(args.procedure)
+    campaign = replace(campaign, step_test=replace(campaign.step_test, step=math.radians(args.step_deg)))
     if args.thrusts:
-        campaign = replace(campaign, thrusts=tuple(float(t) for t in args.thrusts.split(",")))
-    thrusts = campaign.thrusts
-    errors_a22, errors_b2, r2s, overshoot, iae, walls, vehicle_s, outcomes = [], [], [], {}, {}, [], [], []
-    print(f"{args.autopilot} SITL + preset {preset}, thrusts {thrusts}, {args.repeats} repeats at {args.speedup:g}x, "
-          f"{args.procedure} procedure")
-    print("errors against the simulator's linearised truth at the physics' own speed (its truth log); 'est.' is the")
-    print("autopilot's speed estimate, which the schedule uses")
-    print(f"{'run':>3} {'thrust':>6} {'speed':>6} {'est.':>6} {'a22 err%':>9} {'b2 err%':>8} {'R2':>6}")
+        campaign = replace(campaign, thrusts=tuple(float(t) for t in args.thrusts.split(",")),
+                           user_set=("thrusts",))
+    return campaign
+
+
+def ours(args, preset: str) -> int:
+    campaign = campaign_of(args)
+    summaries, walls = [], []
+    print(f"{args.autopilot} SITL + our {preset} physics, {args.repeats} runs at {args.speedup:g}x, {args.procedure} "
+          f"procedure, ±{args.step_deg:g}° heading steps")
     for repeat in range(args.repeats):
         with tempfile.TemporaryDirectory() as out:
             config = RehearsalConfig(preset=preset, speedup=args.speedup, seed=repeat + 1, out_dir=out,
-                                     campaign=campaign, behaviors=(), progress=False,
+                                     campaign=campaign, behaviors=(), progress=False, report=False,
                                      current=preset_defaults(preset)["current"], autopilot=args.autopilot,
                                      ardupilot_bin=args.ardupilot_bin)
             started = time.monotonic()
-            summary = rehearse(config)
+            summaries.append(rehearse(config))
             walls.append(time.monotonic() - started)
-        outcomes.append(summary.get("status"))
-        vehicle_s.append(summary.get("vehicle_time_s") or 0.0)
-        for run in summary.get("runs", []):
-            ea = 100.0 * (run["a22"] / run["true_a22"] - 1.0)
-            eb = 100.0 * (run["b2"] / run["true_b2"] - 1.0)
-            errors_a22.append(abs(ea))
-            errors_b2.append(abs(eb))
-            r2s.append(run["r2"])
-            true = run.get("true_speed") or float("nan")
-            print(f"{repeat + 1:>3} {run['thrust']:>6.2f} {true:>6.3f} {run['speed']:>6.3f} {ea:>9.1f} {eb:>8.1f} "
-                  f"{run['r2']:>6.3f}")
-        for step in summary.get("heading_steps", []):
-            overshoot.setdefault(step["label"], []).append(step["max_overshoot_pct"])
-            iae.setdefault(step["label"], []).append(step["iae_s"])
-        if summary.get("status") != "completed":
-            print(f"    run {repeat + 1}: {summary.get('status')} ({summary.get('reason')})")
+        s = summaries[-1]
+        print(f"run {repeat + 1}: {s.get('status')}" + (f" ({s.get('reason')})" if s.get("reason") else "")
+              + f", vehicle time {fmt(s.get('vehicle_time_s'), '.0f')} s")
+    identification_table(summaries)
+    law_table(summaries)
+    heading_table(summaries)
+    speed_table(summaries)
+    times = [s.get("vehicle_time_s") for s in summaries]
+    phases = {}
+    for s in summaries:
+        for phase, seconds in (s.get("vehicle_time_by_phase") or {}).items():
+            phases.setdefault(phase, []).append(seconds)
+    print(f"\nvehicle time per campaign: median {fmt(med(times), '.0f')} s ("
+          + ", ".join(f"{k} {fmt(med(v), '.0f')} s" for k, v in sorted(phases.items()))
+          + f"); wall time median {fmt(med(walls), '.0f')} s at {args.speedup:g}x")
+    print(f"outcomes: {[s.get('status') for s in summaries]}")
+    return 0
 
-    def med(values):
-        return statistics.median(values) if values else float("nan")
 
-    print()
+def identification_table(summaries) -> None:
+    rows = {}
+    for s in summaries:
+        for run in s.get("runs", []):
+            rows.setdefault(run["thrust"], []).append(run)
+    print("\nidentification against the stated truth (3-DOF: doublet-equivalent first order, eq. S.6; first order:"
+          " the linearisation) at the physics' own speed; error % median / worst over the runs")
+    print(f"{'thrust':>6} {'speed':>6} {'a22':>7} {'truth':>7} {'err%':>11} {'b2':>6} {'truth':>6} {'err%':>11} "
+          f"{'R2 min':>6} | {'K/T a22':>7} {'b2':>6} | {'at amp. a22':>11} {'b2':>6}")
+    for thrust, runs in sorted(rows.items()):
+        ea = [100 * (r["a22"] / r["true_a22"] - 1) for r in runs if r.get("true_a22")]
+        eb = [100 * (r["b2"] / r["true_b2"] - 1) for r in runs if r.get("true_b2")]
+        print(f"{thrust:>6.2f} {fmt(med([r.get('true_speed') or r['speed'] for r in runs]), '.3f'):>6} "
+              f"{fmt(med([r['a22'] for r in runs]), '.3f'):>7} {fmt(med([r.get('true_a22') for r in runs]), '.3f'):>7} "
+              f"{fmt(med(ea), '+.1f'):>5}/{fmt(worst(ea), '.1f'):>5} "
+              f"{fmt(med([r['b2'] for r in runs]), '.3f'):>6} {fmt(med([r.get('true_b2') for r in runs]), '.3f'):>6} "
+              f"{fmt(med(eb), '+.1f'):>5}/{fmt(worst(eb), '.1f'):>5} {fmt(min(r['r2'] for r in runs), '.3f'):>6} | "
+              f"{fmt(med([r.get('true_a22_nomoto') for r in runs]), '.3f'):>7} "
+              f"{fmt(med([r.get('true_b2_nomoto') for r in runs]), '.3f'):>6} | "
+              f"{fmt(med([r.get('true_a22_amplitude') for r in runs]), '.3f'):>11} "
+              f"{fmt(med([r.get('true_b2_amplitude') for r in runs]), '.3f'):>6}")
+    errors_a = [100 * (r["a22"] / r["true_a22"] - 1) for runs in rows.values() for r in runs if r.get("true_a22")]
+    errors_b = [100 * (r["b2"] / r["true_b2"] - 1) for runs in rows.values() for r in runs if r.get("true_b2")]
+    print(f"|a22 error| median {fmt(med([abs(e) for e in errors_a]))} %, worst {fmt(worst(errors_a))} %; "
+          f"|b2 error| median {fmt(med([abs(e) for e in errors_b]))} %, worst {fmt(worst(errors_b))} %  (goal ≤ 5 %)")
+
+
+def law_table(summaries) -> None:
+    for index, s in enumerate(summaries):
+        for name, design in (s.get("design") or {}).items():
+            schedule = design.get("schedule") or {}
+            print(f"run {index + 1} {name} schedule: b2 law {schedule.get('b2_law')}: {schedule.get('b2_law_reason')}")
+
+
+def heading_table(summaries) -> None:
+    rows = {}
+    for s in summaries:
+        for step in s.get("heading_steps", []):
+            rows.setdefault((step["thrust"], step["label"]), []).append(step)
+    if not rows:
+        return
+    print("\nheading steps: overshoot % and time to stay within 5 % (s), median / worst over the runs")
+    print(f"{'thrust':>6} {'gains':>10} {'overshoot':>12} {'to 5 %':>12} {'IAE':>6}")
+    for (thrust, label), steps in sorted(rows.items()):
+        over = [s["max_overshoot_pct"] for s in steps]
+        settle = [s["settling_time_s"] if s.get("settling_time_s") is not None else math.inf for s in steps]
+        print(f"{thrust:>6.2f} {label:>10} {fmt(med(over)):>5} / {fmt(worst(over)):>5} "
+              f"{fmt(med(settle)):>5} / {fmt(max(settle)):>5} {fmt(med([s['iae_s'] for s in steps]), '.2f'):>6}")
+    design = [s for (_, label), steps in rows.items() if label == "scheduled" for s in steps]
+    print(f"designed gains: worst overshoot {fmt(worst([s['max_overshoot_pct'] for s in design]))} % (goal ≤ 10 %)")
+
+
+def speed_table(summaries) -> None:
+    loops = [s.get("speed_loop") for s in summaries if s.get("speed_loop")]
+    if not loops:
+        return
+    print("\nspeed loop (surge model eq. S.4; design eq. S.5; steps in GUIDED there and back)")
+    for index, loop in enumerate(loops):
+        surge, design = loop.get("surge"), loop.get("design")
+        print(f"run {index + 1}: {loop['status']} ({loop.get('reason') or loop.get('verdict')})")
+        if surge:
+            print(f"  surge: {surge['describe']}, R² {fmt(surge.get('r2'), '.4f')}")
+        if design:
+            gains = design["gains"]
+            print(f"  design: CRUISE_SPEED {gains['cruise_speed']:.2f}, CRUISE_THROTTLE {100 * gains['cruise_thrust']:.1f},"
+                  f" ATC_SPEED_P {gains['speed_p']:.3f}, ATC_SPEED_I {gains['speed_i']:.3f} (original "
+                  + ", ".join(f"{k} {v:.3g}" for k, v in (loop.get("original") or {}).items()) + ")")
+        for label, steps in (loop.get("steps") or {}).items():
+            detail = "; ".join(f"{x['start']:.2f}→{x['target']:.2f} m/s: {fmt(x['overshoot_pct'])} %, "
+                               f"{fmt(x['settling_time_s'])} s" for x in steps["steps"])
+            print(f"  {label:>8}: {detail}")
+
+
+# ---------------------------------------------------------------------------- ArduPilot's own boat
+def motorboat(args) -> int:
+    """SITL's own motorboat (skid or rudder) and ``companion identify --connect`` against it."""
+    from companion.link.vehicle import VehicleLink
+    from companion.rehearsal.rehearsal import arm_when_ready
+    from sim.ardupilot_sitl import free_instance
+
+    source = Path(args.ardupilot_bin).resolve().parents[2] / "Tools" / "autotest" / "default_params"
+    model = "motorboat-skid" if args.frame == "skid" else "motorboat"
+    files = ["rover.parm", "motorboat.parm"] + (["rover-skid.parm"] if args.frame == "skid" else [])
+    outcomes = []
+    for repeat in range(args.repeats):
+        with tempfile.TemporaryDirectory() as work:
+            extra = Path(work) / "bench.parm"
+            extra.write_text(("SIM_WAVE_ENABLE 1\nSIM_WIND_SPD 3\n" if args.waves else "SIM_WAVE_ENABLE 0\nSIM_WIND_SPD 0\n")
+                             + (f"WP_SPEED {args.wp_speed:g}\n" if args.wp_speed else ""))
+            defaults = ",".join([str(source / f) for f in files] + [str(extra)])
+            instance = free_instance()
+            port = 5760 + 10 * instance
+            command = [str(Path(args.ardupilot_bin) / "ardurover"), "--model", model, "--speedup", f"{args.speedup:g}",
+                       "-I", str(instance), "--home", "-35.363262,149.165237,0,0", "--defaults", defaults]
+            print(f"run {repeat + 1}: {' '.join(command)}")
+            sitl = subprocess.Popen(command, cwd=work, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+            try:
+                time.sleep(2.0)
+                endpoint = f"tcp:127.0.0.1:{port}"
+                link = VehicleLink.connect(endpoint, heartbeat_timeout_s=60.0)
+                try:
+                    arm_when_ready(link, patience_s=120.0)  # a user arms the boat; the campaign never does
+                finally:
+                    link.close()
+                identify = [sys.executable, "-m", "companion", "identify", "--connect", endpoint, "--store",
+                            str(Path(work) / "s.sqlite"), "--step-deg", f"{args.step_deg:g}", "--json"]
+                if args.thrusts:
+                    identify += ["--thrusts", args.thrusts]
+                print("  " + " ".join(identify[2:]))
+                started = time.monotonic()
+                done = subprocess.run(identify, capture_output=True, text=True, timeout=3600)
+                wall = time.monotonic() - started
+            finally:
+                sitl.terminate()
+                try:
+                    sitl.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    sitl.kill()
+        try:
+            result = json.loads(done.stdout)
+        except json.JSONDecodeError:
+            print(f"  exit {done.returncode}: {done.stderr[-800:]}")
+            outcomes.append(("error", done.stderr[-200:]))
+            continue
+        outcomes.append((result["status"], result.get("reason")))
+        print(f"  exit {done.returncode}: {result['status']}" + (f" ({result['reason']})" if result.get("reason") else "")
+              + f", {wall:.0f} s of wall time")
+        for a in result.get("accepted") or []:
+            model_ = a["model"]
+            print(f"  thrust {a['thrust']:.2f} speed {a['speed']:.2f} m/s: a22 {model_['a22']:.3f} b2 {model_['b2']:.3f} "
+                  f"R² {a['r2']:.3f}")
+        for name, design in (result.get("design") or {}).items():
+            schedule = design.get("schedule") or {}
+            print(f"  {name} schedule: b2 law {schedule.get('b2_law')}: {schedule.get('b2_law_reason')}")
+        for step in result.get("steps") or []:
+            settle = [x.get("settling_time_s") for x in step.get("steps", [])]
+            print(f"  heading steps thrust {step['thrust']:.2f} {step['label']:>10}: overshoot "
+                  f"{fmt(step.get('max_overshoot_pct'))} %, to 5 % {', '.join(fmt(x) for x in settle)} s")
+        loop = result.get("speed_loop")
+        if loop:
+            print(f"  speed loop: {loop.get('reason') or loop.get('verdict')}")
+            for label, steps in (loop.get("steps") or {}).items():
+                detail = "; ".join(f"{x['start']:.2f}→{x['target']:.2f} m/s: {fmt(x['overshoot_pct'])} %, "
+                                   f"{fmt(x['settling_time_s'])} s" for x in steps["steps"])
+                print(f"    {label:>8}: {detail}")
+        print(f"  final gains: {result.get('final_gains')}")
     print(f"outcomes: {outcomes}")
-    print(f"|a22 error| median {med(errors_a22):.1f} %, max {max(errors_a22, default=float('nan')):.1f} %  (goal ≤ 5 %)")
-    print(f"|b2 error|  median {med(errors_b2):.1f} %, max {max(errors_b2, default=float('nan')):.1f} %  (goal ≤ 5 %)")
-    print(f"validation R² min {min(r2s, default=float('nan')):.3f}, median {med(r2s):.3f}  (goal ≥ 0.9)")
-    for label, values in sorted(overshoot.items()):
-        print(f"heading steps, {label:>9}: overshoot median {med(values):5.1f} %, max {max(values):5.1f} %; "
-              f"step error (IAE) median {med(iae[label]):5.1f} s" + ("  (goal ≤ 10 %)" if label == "scheduled" else ""))
-    print(f"vehicle time per campaign {med(vehicle_s):.0f} s; wall time {med(walls):.0f} s at {args.speedup:g}x")
     return 0
 
 

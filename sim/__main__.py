@@ -105,6 +105,10 @@ def build_parser() -> argparse.ArgumentParser:
     group = lin.add_mutually_exclusive_group(required=True)
     group.add_argument("--speed", type=float, help="water speed U (m/s)")
     group.add_argument("--thrust", type=float, help="thrust ratio TR (0..1): steady speed first")
+    lin.add_argument("--doublet", metavar="AMP,PRE,PERIOD,WINDOW", default=None,
+                     help="a 3-DOF vessel: also the doublet-equivalent first-order model of this training doublet "
+                          "(rad, s, s, s), of the linearised hull (the stated truth) and of the nonlinear one at "
+                          "this amplitude (sim/doublet_truth.py)")
     lin.add_argument("--json", action="store_true", help="print JSON (the only format)")
     lin.set_defaults(func=_linearize)
 
@@ -253,6 +257,16 @@ def _linearize(args: argparse.Namespace) -> int:
         return 2
     if args.thrust is not None:
         result["thrust_ratio"] = args.thrust
+    if args.doublet and preset.is_3dof:
+        from sim.doublet_truth import Doublet, doublet_response_fit
+
+        try:
+            doublet = Doublet(*(float(v) for v in args.doublet.split(",")))
+        except (TypeError, ValueError) as exc:
+            print(f"error: --doublet AMP,PRE,PERIOD,WINDOW: {exc}", file=sys.stderr)
+            return 2
+        result["doublet_equivalent"] = doublet_response_fit(preset, speed, doublet)
+        result["doublet_nonlinear"] = doublet_response_fit(preset, speed, doublet, linear=False)
     print(json.dumps(result))
     return 0
 

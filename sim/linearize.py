@@ -7,7 +7,10 @@ level-flight equilibrium of the dive-plane model (thesis eq. 5.18) with scipy.
 A 3-DOF surface vessel (a preset with a ``hull``) is linearised about its straight run instead
 (``sim/nomoto.py``): Nomoto's 2nd-order model of the sway–yaw linearisation and its first-order
 approximation K, T = T1 + T2 − T3 (+ the propeller lag of a skid vessel), a22 = −1/T, b2 = K/T; its
-steady speed comes from the surge balance (``sim/physics/straight_run.py``).
+steady speed comes from the surge balance (``sim/physics/straight_run.py``). The truth a doublet
+identification of such a hull is scored against is the doublet-equivalent first-order model of that
+linearisation (eq. S.6, ``sim/doublet_truth.py``; ``python -m sim linearize --doublet``), reported beside
+the classic K/T.
 """
 from __future__ import annotations
 

@@ -114,7 +114,7 @@ def test_a_pilot_mode_change_aborts_and_the_companion_does_not_fight_back(rover,
     def pilot():  # the pilot selects ACRO (another MAVLink client would; here the same link, by number)
         if not state["done"] and link.vehicle_time_s - start > 12.0:
             state["done"] = True
-            link._command_long(176, (1, 1))  # MAV_CMD_DO_SET_MODE custom 1 = ACRO, not via set_mode
+            link.commands.send(176, (1, 1))  # MAV_CMD_DO_SET_MODE custom 1 = ACRO, not via set_mode
         return None
 
     _, outcome, _ = _campaign_with(link, pilot, tmp_path)
@@ -182,6 +182,7 @@ def test_steady_state_squares_and_turns_against_the_connected_firmware(tmp_path)
                                sim.endpoint, "--profile", "ardurover", "--rudder-rate", "5", "--duration", "60",
                                "--thrust", "0.6", "--store", str(tmp_path / "s.sqlite"), "--json"],
                               capture_output=True, text=True, timeout=300, check=False)
+        assert done.stdout.strip(), done.stderr[-2000:]
         summary = json.loads(done.stdout)
         assert done.returncode == 0 and summary["status"] == "completed", done.stderr[-2000:]
         assert len(summary["turns"]) == 2

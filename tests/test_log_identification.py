@@ -65,6 +65,7 @@ def test_command_line_stores_a_log_campaign(survey_tlog, tmp_path, capsys):
     assert main(["identify", "--log", survey_tlog, "--store", store_path, "--json"]) == 0
     out = _strict(capsys.readouterr().out)
     assert out["status"] == "completed" and out["gains_written"] is None
+    assert out["export"].endswith(f"--campaign {out['campaign_id']} --export gains.parm")  # how to hand them on
     assert {"checks", "rudder_source", "speed_source"} <= set(out["log"])
     used = [s for s in out["segments"] if s["number"] is not None]
     assert all(s["validated_on"] not in (None, s["number"]) for s in used)
@@ -162,7 +163,7 @@ def test_dataflash_fixture(synthetic, tmp_path):
     """An ArduPilot .bin: ATT in degrees (FMTU unit), the steering output found by SERVOn_FUNCTION 26
     in the PARM messages and scaled by its min/trim/max, GPS speed."""
     record = read_steering_log(_dataflash(synthetic, tmp_path / "rover.bin"), "ardurover")
-    assert record.kind == "bin" and record.rudder_source.startswith("RCOU C3")
+    assert record.kind == "bin" and "SERVO3 GroundSteering (min/trim/max" in record.rudder_source
     assert any("degrees" in c for c in record.checks)
     _check_truth(identify_log(record, profile=None))
     short = {k: v[:600] for k, v in synthetic.items()}  # 30 s are enough for the unit checks
@@ -209,3 +210,82 @@ def test_tlog_servo_clock_that_wraps(tmp_path):
     record = read_steering_log(str(tmp_path / "late.tlog"))
     assert record.t[0] == pytest.approx(offset_ms / 1000.0)
     assert record.rudder == pytest.approx(d["rudder"], abs=0.0011)  # 1 µs of PWM
+
+
+def _skid_pwm(rudder: float, throttle: float = 0.4, asym: float = 1.0) -> tuple[int, int]:
+    """ThrottleLeft/Right PWM of ArduRover's skid mix for an equivalent rudder (rad) at a throttle."""
+    s = rudder / 0.5236
+    left, right = throttle + s, throttle - s
+    left, right = (left * asym if left < 0 else left), (right * asym if right < 0 else right)
+    return int(1500 + int(500 * left)), int(1500 + int(500 * right))
+
+
+def test_a_skid_boats_dataflash_log_is_un_mixed_from_its_parm_functions(synthetic, tmp_path):
+    """A twin-thruster ArduRover .bin: SERVO1/3_FUNCTION 73/74 in PARM, the two motors un-mixed into
+    the equivalent rudder and the throttle (eq. S.1); the models are the vehicle's; a log whose
+    functions name no steering is refused with what to set."""
+    d = synthetic
+    w = DataFlashWriter()
+    w.define("PARM", "QNf", "TimeUS,Name,Value")
+    w.define("ATT", "QccC", "TimeUS,Roll,Pitch,Yaw")
+    w.define("RCOU", "QHHHH", "TimeUS,C1,C2,C3,C4")
+    w.define("GPS", "QBf", "TimeUS,I,Spd")
+    for name, value in (("SERVO1_FUNCTION", 73.0), ("SERVO3_FUNCTION", 74.0), ("SERVO2_FUNCTION", 0.0)):
+        w.write("PARM", 0, name, value)
+    for k, t in enumerate(d["t"]):
+        stamp = int(t * 1e6) + 5000
+        left, right = _skid_pwm(d["rudder"][k])
+        w.write("ATT", stamp, 0.0, 0.0, math.degrees(d["heading"][k]) % 360.0)
+        w.write("RCOU", stamp + 100, left, 1500, right, 1500)
+        if k % 4 == 0:
+            w.write("GPS", stamp + 200, 0, d["speed"][k])
+    path = str(w.save(tmp_path / "skid.bin"))
+    record = read_steering_log(path, "ardurover")
+    assert record.actuation.skid and "skid steering" in record.rudder_source
+    held = np.concatenate([[False], np.diff(d["rudder"]) == 0.0])  # RCOU follows ATT by 100 µs: not at steps
+    assert record.rudder[held] == pytest.approx(d["rudder"][held], abs=0.0025)  # PWM truncation, twice
+    assert record.thrust == pytest.approx(0.4, abs=0.003)
+    _check_truth(identify_log(record, profile=None))
+    one = {k: v[:600] for k, v in synthetic.items()}
+    w2 = DataFlashWriter()
+    w2.define("PARM", "QNf", "TimeUS,Name,Value")
+    w2.define("ATT", "QccC", "TimeUS,Roll,Pitch,Yaw")
+    w2.define("RCOU", "QHHHH", "TimeUS,C1,C2,C3,C4")
+    w2.define("GPS", "QBf", "TimeUS,I,Spd")
+    w2.write("PARM", 0, "SERVO1_FUNCTION", 73.0)  # the right motor's function is missing
+    for k, t in enumerate(one["t"]):
+        w2.write("ATT", int(t * 1e6) + 5000, 0.0, 0.0, 10.0)
+        w2.write("RCOU", int(t * 1e6) + 5100, 1500, 1500, 1500, 1500)
+        w2.write("GPS", int(t * 1e6) + 5200, 0, 1.5)
+    with pytest.raises(LogError, match="74 ThrottleRight"):
+        read_steering_log(str(w2.save(tmp_path / "half.bin")), "ardurover")
+
+
+def test_a_skid_boats_tlog_is_un_mixed_from_the_parameters_it_recorded(tmp_path):
+    """A ground station's tlog of a twin-thruster boat: PARAM_VALUE carries SERVO1/3_FUNCTION 73/74 and
+    MOT_THST_ASYM 1.5; SERVO_OUTPUT_RAW 1/3 are the motors (not a rudder and a throttle)."""
+    import struct
+
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    d = synth_steering(60.0, truth=TRUTH, seed=3)
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    with open(tmp_path / "skid.tlog", "wb") as handle:
+        stamp = struct.pack(">Q", 1_700_000_000_000_000)
+        for index, (name, value) in enumerate((("SERVO1_FUNCTION", 73.0), ("SERVO3_FUNCTION", 74.0),
+                                               ("MOT_THST_ASYM", 1.5))):
+            handle.write(stamp + mavlink.MAVLink_param_value_message(name.encode(), value, 9, 3, index).pack(mav))
+        for k, t in enumerate(d["t"]):
+            ms = 1000 + int(round(t * 1000))
+            left, right = _skid_pwm(d["rudder"][k], throttle=0.1, asym=1.5)  # a pivot: the slower motor astern
+            for msg in (mavlink.MAVLink_servo_output_raw_message(ms * 1000, 0, left, 1500, right, 1500, 1500, 1500,
+                                                                  1500, 1500),
+                        mavlink.MAVLink_attitude_message(ms, 0.0, 0.0, d["heading"][k], 0.0, 0.0, 0.0),
+                        mavlink.MAVLink_vfr_hud_message(1.5, 1.5, 0, 70, 0.0, 0.0)):
+                handle.write(struct.pack(">Q", 1_700_000_000_000_000 + ms * 1000) + msg.pack(mav))
+    record = read_steering_log(str(tmp_path / "skid.tlog"), "ardurover")
+    assert record.actuation.skid and record.actuation.thrust_asymmetry == 1.5
+    assert record.rudder == pytest.approx(d["rudder"], abs=0.0025)
+    assert record.thrust == pytest.approx(0.1, abs=0.003)
+    raw = read_steering_log(str(tmp_path / "skid.tlog"), "sim")  # the profile does not matter: the log says it
+    assert raw.rudder == pytest.approx(record.rudder)

@@ -28,7 +28,7 @@ def test_ardurover_bin_gives_the_boat_models(tmp_path):
 
     path = record_sitl_bin(tmp_path / "rover.bin", bin_dir=BIN, speedup=10.0)
     record = read_steering_log(str(path), ARDUROVER)
-    assert record.kind == "bin" and record.rudder_source.startswith("RCOU C1")
+    assert record.kind == "bin" and "SERVO1 GroundSteering" in record.rudder_source
     result = identify_log(record, profile=ARDUROVER)
     preset = load_preset("boat")
     speeds = set()

@@ -75,6 +75,11 @@ def _msg(kind: str, **fields):
 
 def test_rover_reads_steering_and_motor_back_from_servo_output_raw():
     assembler = TelemetryAssembler(ROVER)
+    earlier = {f"servo{i}_raw": 0 for i in range(1, 17)} | {"servo1_raw": 1500, "servo2_raw": 1500}
+    for time_ms in (11460, 11480, 11500, 11520):  # a stream of outputs, each after its attitude (50 Hz)
+        assembler.on_message(_msg("ATTITUDE", time_boot_ms=time_ms, roll=0.0, pitch=0.0, yaw=0.1, rollspeed=0.0,
+                                  pitchspeed=0.0, yawspeed=0.0))
+        assembler.on_message(_msg("SERVO_OUTPUT_RAW", time_usec=time_ms * 1000, **earlier))
     assert assembler.on_message(_msg("ATTITUDE", time_boot_ms=11540, roll=0.0, pitch=0.0, yaw=0.1, rollspeed=0.0,
                                      pitchspeed=0.0, yawspeed=0.0)) is None  # waits for the same loop's outputs
     outputs = {f"servo{i}_raw": 0 for i in range(1, 17)} | {"servo1_raw": 1800, "servo2_raw": 1750}

@@ -3,8 +3,10 @@
 After the autopilot's first HEARTBEAT: ask for AUTOPILOT_VERSION, recognise the autopilot from a
 marker parameter only it has (cheaper than a full PARAM_REQUEST_LIST of ~1000 ArduPilot parameters
 over a radio) unless the caller named it, build its strategy, ask for the telemetry streams it
-needs, and read the ground station's system id, the RC override timeout and the integer parameter
-encoding (AUTOPILOT_VERSION.capabilities, falling back to the profile's).
+needs, let the strategy read what it needs from the vehicle (a boat's actuation: which outputs
+steer and drive it, ``companion.link.actuation``), and read the ground station's system id, the RC
+override timeout and the integer parameter encoding (AUTOPILOT_VERSION.capabilities, falling back
+to the profile's).
 """
 from __future__ import annotations
 
@@ -41,6 +43,19 @@ def detect(ports: LinkPorts) -> AutopilotProfile:
                        "answer parameter requests (a link too slow or one-way?); name the autopilot with --profile")
 
 
+def _configured(ports: LinkPorts, chosen: AutopilotProfile, strategy: AutopilotStrategy) -> AutopilotProfile:
+    """The profile completed with what the strategy reads from this vehicle (its actuation: which
+    outputs steer and drive it); ProfileError when the vehicle cannot be understood."""
+    configured = strategy.configure()
+    if configured is not chosen:
+        ports.profile = configured
+        for part in (ports.modes, ports.parameters, ports.overrides, ports.telemetry.assembler):
+            part.profile = configured
+        if configured.actuation is not None:
+            log.info("actuation: %s", configured.actuation.describe())
+    return configured
+
+
 def request_streams(ports: LinkPorts, rates: dict[int, float]) -> None:
     """MAV_CMD_SET_MESSAGE_INTERVAL for each message id → Hz (0 or less: stop it)."""
     for message_id, rate_hz in rates.items():
@@ -55,6 +70,13 @@ class Setup:
     strategy: AutopilotStrategy
     stream_rates: dict[int, float]
     override_timeout_s: float = 3.0
+
+
+def _rebooted(ports: LinkPorts, strategy: AutopilotStrategy) -> None:
+    """The vehicle rebooted: set-points sent to the old boot are no longer awaited, and the strategy
+    forgets what it kept of it (targets, an excitation)."""
+    ports.commands.abandon()
+    strategy.on_reboot()
 
 
 def setup(ports: LinkPorts, profile: str | None, stream_rates: dict[int, float] | None, depth_sensor: DepthSensor,
@@ -75,10 +97,13 @@ def setup(ports: LinkPorts, profile: str | None, stream_rates: dict[int, float] 
     ports.telemetry.refine = strategy.on_snapshot
     ports.modes.on_change(strategy.mode_changed)
     ports.modes.before_change(strategy.before_mode_change)
+    ports.modes.on_accepted(strategy.mode_accepted)
+    ports.telemetry.on_reboot(lambda: _rebooted(ports, strategy))
     rates = dict(strategy.streams if stream_rates is None else stream_rates)
     request_streams(ports, rates)
     ports.parameters.int_encoding = chosen.int_encoding
     ports.telemetry.use(TelemetryAssembler(chosen, depth_sensor=depth_sensor), ports.announcements.last_heartbeat)
+    chosen = _configured(ports, chosen, strategy)
     if "gcs_sysid" in chosen.params:  # PX4 has no such parameter: any ground station may command it
         ports.ground.gcs_sysid = int(ports.parameters.read_first(chosen.native_candidates("gcs_sysid"), default=255.0))
     result = Setup(chosen, strategy, rates)

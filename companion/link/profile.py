@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
+from companion.link.actuation import Actuation
 from companion.link.errors import ProfileError
 
 #: PWM values that mean "no data" in SERVO_OUTPUT_RAW / RC fields, and the plausible PWM range.
@@ -84,9 +85,12 @@ class AutopilotProfile:
     water_speed_sensor: bool = True  # False: VFR_HUD.airspeed is not a water speed; ground speed stands in
     depth_from_pressure: bool = True  # False: depth is the autopilot's own estimate (GLOBAL_POSITION_INT)
     depth_setpoint: bool = True  # False: no depth target can be commanded (a boat; ArduSub ALT_HOLD)
-    # the autopilot sends each loop's SERVO_OUTPUT_RAW right after that loop's ATTITUDE (ArduPilot):
-    # a snapshot then waits for it, so attitude and actuator come from the same loop
-    servo_follows_attitude: bool = False
+    # what the vehicle is, for the envelope a procedure keeps (companion.procedures.limits): "surface"
+    # (no depth: never checked on it), "underwater", or "any" (our simulator: boat or AUV by preset,
+    # its depth is a pressure reading either way)
+    vehicle_kind: str = "any"
+    # NAV_CONTROLLER_OUTPUT.target_bearing is the heading set-point the holding mode holds (our simulator)
+    reports_heading_target: bool = False
     # how the actuator read-back behaves between samples, for the identifier's input filter:
     # "foh" a physical deflection (our simulator reports the rudder itself), "zoh" an output held
     # from one control loop to the next (ArduPilot reports its commanded output)
@@ -112,6 +116,10 @@ class AutopilotProfile:
     campaign_defaults: CampaignDefaults = field(default_factory=CampaignDefaults)
     # what a thrust level (SetThrust, 0..1) is on this autopilot: the one statement of its unit
     thrust_meaning: str = "the thruster's thrust ratio"
+    # what drives the boat, read from the vehicle at connect (its SERVOn_FUNCTION): a steering servo
+    # and a throttle, or a skid-steered pair un-mixed into steering and throttle; None: the fixed
+    # ``servo_outputs`` above (companion.link.actuation)
+    actuation: Actuation | None = None
     angle_full_scale_rad: float = 0.5236  # fin angle at pwm_center ± pwm_half_range
     pwm_center: int = 1500
     pwm_half_range: int = 500

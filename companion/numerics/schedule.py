@@ -9,7 +9,10 @@ Laws fitted over the stored models (one per speed):
   otherwise get gains ~25 % too high at low speed (Kp ∝ a22²), i.e. ~10 % step overshoot instead of
   the design's 5.8 % (bench/bench_identification.py);
 - b2(u) = k·u² + c: weighted linear least squares in u² (``numpy.linalg.lstsq``; Fig. 3.8 /
-  eq. 3.51: b2 = 0.31·u² + 0.26), since control authority scales with dynamic pressure;
+  eq. 3.51: b2 = 0.31·u² + 0.26), since a fin's authority scales with dynamic pressure, **or**
+  b2(u) = k·u + c, the law of differential thrust (eq. S.2), whichever the models support
+  (``companion.numerics.speed_law``, eq. S.3; the vehicle's actuation is the prior when they cannot
+  tell);
 - δ0(u) ≈ constant: the weighted mean.
 
 Weights default to 1 (pass e.g. each model's validation R²).
@@ -31,12 +34,13 @@ import numpy as np
 
 from .gains import GainBounds, HeadingGains, design_heading_gains
 from .identification import YawModel
+from .speed_law import LAW_EXPONENTS, LAW_TEXT, choose_speed_law
 
 
 @dataclass
 class YawSchedule:
     a22: float
-    b2_slope: float  # k in b2 = k·u² + c, s⁻² per (m/s)²
+    b2_slope: float  # k in b2 = k·u^e + c (e = 2 for the law "u2", 1 for "u"), s⁻² per (m/s)^e
     b2_intercept: float  # c, s⁻²
     delta0: float
     speed_range: tuple[float, float]
@@ -48,6 +52,12 @@ class YawSchedule:
     margin: float = 0.2
     b2_floor_fraction: float = 0.5
     speeds: list[float] = field(default_factory=list)
+    # the speed law of b2 and the evidence for it (companion.numerics.speed_law, eq. S.3)
+    b2_law: str = "u2"
+    b2_law_reason: str = ""
+    b2_law_rms: dict = field(default_factory=dict)  # law → residual RMS of its fit, s⁻²
+    b2_exponent: float = math.nan  # n̂ of b2 = k·uⁿ
+    b2_exponent_sigma: float = math.nan
 
     def clamp_speed(self, speed: float) -> float:
         """The speed at which the laws are evaluated (clamped extrapolation, see module docstring)."""
@@ -56,7 +66,7 @@ class YawSchedule:
 
     def b2_at(self, speed: float) -> float:
         u = self.clamp_speed(speed)
-        b2 = self.b2_slope * u * u + self.b2_intercept
+        b2 = self.b2_slope * u ** LAW_EXPONENTS.get(self.b2_law, 2.0) + self.b2_intercept
         return max(b2, self.b2_floor_fraction * self.b2_min_identified)
 
     def a22_at(self, speed: float) -> float:
@@ -77,17 +87,21 @@ class YawSchedule:
                    " (significant trend with speed)")
         else:
             a22 = f"a22 = {self.a22:.3f} s⁻¹ (constant)"
-        return f"{a22}, b2 = {self.b2_slope:.3f}·u² + {self.b2_intercept:.3f} s⁻², δ0 = {self.delta0:.4f} rad"
+        power = "u²" if self.b2_law == "u2" else "u"
+        return f"{a22}, b2 = {self.b2_slope:.3f}·{power} + {self.b2_intercept:.3f} s⁻², δ0 = {self.delta0:.4f} rad"
 
 
-def constant_schedule(speed: float, model: YawModel) -> YawSchedule:
+def constant_schedule(speed: float, model: YawModel, prior_law: str | None = None) -> YawSchedule:
     """One speed cannot fit b2(u): that model's gains at every speed (no extrapolation of an
-    unknown law) -- the honest fallback of :func:`schedule_from_models`."""
+    unknown law) -- the honest fallback of :func:`schedule_from_models`; the actuation's law is
+    recorded, not used."""
     if not (model.a22 < 0 and model.b2 > 0):
         raise ValueError("the model needs a22 < 0 and b2 > 0")
+    law = prior_law or "u2"
     return YawSchedule(a22=model.a22, b2_slope=0.0, b2_intercept=model.b2, delta0=model.delta0,
                        speed_range=(speed, speed), b2_min_identified=model.b2, a22_reference_speed=speed,
-                       speeds=[speed])
+                       speeds=[speed], b2_law=law,
+                       b2_law_reason=f"one speed: its model at every speed ({LAW_TEXT[law]} is this actuation's law)")
 
 
 def schedule_from_models(
@@ -95,16 +109,18 @@ def schedule_from_models(
     models: Sequence[YawModel],
     weights: Sequence[float] | None = None,
     margin: float = 0.2,
+    prior_law: str | None = None,
 ) -> YawSchedule:
     """The one schedule fit of the product: the laws of :func:`fit_yaw_schedule` over models at
     ≥ 2 distinct speeds, :func:`constant_schedule` of the last model when all share one speed.
+    ``prior_law`` is the b2 law of the vehicle's actuation ("u2" rudder, "u" skid; None: "u2").
     ValueError when no model is usable."""
     usable = [(float(u), m) for u, m in zip(speeds, models) if math.isfinite(u)]
     if not usable:
         raise ValueError("no model with a measured speed")
     if len({round(u, 3) for u, _ in usable}) == 1:
-        return constant_schedule(*usable[-1])
-    return fit_yaw_schedule(speeds, models, weights, margin)
+        return constant_schedule(*usable[-1], prior_law)
+    return fit_yaw_schedule(speeds, models, weights, margin, prior_law)
 
 
 def fit_yaw_schedule(
@@ -112,8 +128,10 @@ def fit_yaw_schedule(
     models: Sequence[YawModel],
     weights: Sequence[float] | None = None,
     margin: float = 0.2,
+    prior_law: str | None = None,
 ) -> YawSchedule:
-    """Fit the speed laws to ≥ 2 models at ≥ 2 distinct speeds (ValueError otherwise)."""
+    """Fit the speed laws to ≥ 2 models at ≥ 2 distinct speeds (ValueError otherwise); b2's law is
+    chosen by :func:`companion.numerics.speed_law.choose_speed_law` (eq. S.3)."""
     speeds_arr = np.asarray(speeds, dtype=float)
     if speeds_arr.size != len(models):
         raise ValueError("speeds and models must have the same length")
@@ -129,24 +147,26 @@ def fit_yaw_schedule(
         raise ValueError("every model needs a22 < 0 and b2 > 0")
     a22_mean = float(np.average(a22, weights=w))
     a22_std = float(math.sqrt(np.average((a22 - a22_mean) ** 2, weights=w)))
-    sqrt_w = np.sqrt(w)
-    design = np.column_stack([speeds_arr**2, np.ones_like(speeds_arr)])
-    (slope, intercept), *_ = np.linalg.lstsq(design * sqrt_w[:, None], b2 * sqrt_w, rcond=None)
-    residual = b2 - (slope * speeds_arr**2 + intercept)
+    law = choose_speed_law(speeds_arr, b2, w, prior_law)
     a22_slope, reference_speed = _a22_trend(speeds_arr, a22, w)
     return YawSchedule(
         a22=a22_mean,
-        b2_slope=float(slope),
-        b2_intercept=float(intercept),
+        b2_slope=law.slope,
+        b2_intercept=law.intercept,
         delta0=float(np.average(delta0, weights=w)),
         speed_range=(float(speeds_arr.min()), float(speeds_arr.max())),
-        b2_residual_rms=float(np.sqrt(np.mean(residual**2))),
+        b2_residual_rms=law.residual_rms[law.law],
         a22_std=a22_std,
         b2_min_identified=float(b2.min()),
         a22_per_speed=a22_slope,
         a22_reference_speed=reference_speed,
         margin=margin,
         speeds=speeds_arr.tolist(),
+        b2_law=law.law,
+        b2_law_reason=law.reason,
+        b2_law_rms=dict(law.residual_rms),
+        b2_exponent=law.exponent,
+        b2_exponent_sigma=law.exponent_sigma,
     )
 
 

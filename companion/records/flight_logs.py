@@ -5,14 +5,18 @@ Formats (chosen by content, not by the name alone: a DataFlash log starts with i
 ``A3 95 80``, a ULog with ``ULog\\x01\\x12\\x35``, a CSV is text):
 
 * **MAVLink tlog** (ground station, our simulator or ArduPilot; pymavlink): heading from ATTITUDE
-  (rad, ``time_boot_ms``), the rudder from SERVO_OUTPUT_RAW decoded with the autopilot profile
-  (our simulator: output 1 is the rudder deflection; ArduRover: output 1 the steering servo;
-  ArduSub: the vectored thrusters un-mixed into the yaw demand), speed from VFR_HUD (its airspeed
-  is the water speed on our simulator; a boat's ground speed otherwise) or LOCAL_POSITION_NED.
+  (rad, ``time_boot_ms``), the rudder from SERVO_OUTPUT_RAW decoded with the boat's actuation when
+  the log carries its SERVOn_FUNCTION (PARAM_VALUE, as a ground station records them: a steering
+  servo 26/21 with a throttle 70, or a skid-steered pair 73/74 un-mixed, ``companion.link.actuation``,
+  eq. S.1), else with the autopilot profile (our simulator: output 1 is the rudder deflection;
+  ArduRover: output 1 the steering servo; ArduSub: the vectored thrusters un-mixed into the yaw
+  demand), speed from VFR_HUD (its airspeed is the water speed on our simulator; a boat's ground
+  speed otherwise) or LOCAL_POSITION_NED.
 * **ArduPilot DataFlash .bin** (pymavlink DFReader): ATT.Yaw (degrees by its FMTU unit; a yaw
-  beyond 360 is taken as centidegrees and said so), RCOU (servo PWM, with SERVOn_MIN/TRIM/MAX and
-  SERVOn_FUNCTION from the PARM messages when the log has them: the steering output is the one with
-  function 26, GroundSteering, or 21, Rudder), speed from GPS.Spd or XKF1.VN/VE; ``TimeUS``.
+  beyond 360 is taken as centidegrees and said so), RCOU (servo PWM, decoded with the actuation
+  the PARM messages describe: SERVOn_FUNCTION, SERVOn_MIN/TRIM/MAX/REVERSED, the skid mixer's MOT_*;
+  the profile's steering output when the log has no PARM), speed from GPS.Spd or XKF1.VN/VE;
+  ``TimeUS``. A log whose functions name no steering is refused with what to set.
 * **PX4 ULog .ulg** (pyulog): vehicle_attitude.q (yaw from the quaternion), the steering from
   actuator_controls_0.control[2] (normalised yaw), actuator_servos.control[0] (a rover's steering),
   vehicle_torque_setpoint.xyz[2] (a UUV's yaw torque demand: its thrusters make it an equivalent
@@ -38,6 +42,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from companion.link.actuation import Actuation, actuation_from_params
+from companion.link.errors import ProfileError
 from companion.link.profile import AutopilotProfile
 from companion.link.profiles import SIM, get_profile
 from companion.numerics.angles import wrap_pi
@@ -72,6 +78,7 @@ class SteeringRecord:
     rudder_source: str = ""
     speed_source: str = ""
     checks: list[str] = field(default_factory=list)
+    actuation: Actuation | None = None  # read from the log's SERVOn_FUNCTION, where it has them
 
     def __len__(self) -> int:
         return int(self.t.size)
@@ -195,14 +202,15 @@ def _select(record: SteeringRecord, mask: np.ndarray) -> SteeringRecord:
     return SteeringRecord(t=record.t[mask], heading=record.heading[mask], rudder=record.rudder[mask],
                           speed=record.speed[mask], thrust=None if record.thrust is None else record.thrust[mask],
                           rudder_limit=record.rudder_limit, source=record.source, kind=record.kind,
-                          rudder_source=record.rudder_source, speed_source=record.speed_source, checks=record.checks)
+                          rudder_source=record.rudder_source, speed_source=record.speed_source, checks=record.checks,
+                          actuation=record.actuation)
 
 
 # --------------------------------------------------------------------------- MAVLink tlog
 def _read_tlog(path: str, profile: AutopilotProfile, full_scale: float) -> SteeringRecord:
     from pymavlink import mavutil
 
-    from companion.link.autopilots.ardusub import unmix_vectored
+    from companion.link.autopilots.vectored_mix import unmix_vectored
 
     try:
         conn = mavutil.mavlink_connection(path, notimestamps=False)
@@ -225,14 +233,7 @@ def _read_tlog(path: str, profile: AutopilotProfile, full_scale: float) -> Steer
                 attitude.append((msg.time_boot_ms / 1000.0, msg.yaw))
             elif kind == "SERVO_OUTPUT_RAW":
                 pwm = [getattr(msg, f"servo{i}_raw", 0) or 0 for i in range(1, 17)]
-                if mixed:
-                    axes = unmix_vectored(pwm)
-                    rudder = axes.yaw * full_scale if axes is not None else math.nan
-                    thrust = axes.forward if axes is not None else math.nan
-                else:
-                    rudder = _scaled_angle(profile, pwm[rudder_output - 1], full_scale) if rudder_output else math.nan
-                    thrust = profile.pwm_to_thrust(pwm[thrust_output - 1]) if thrust_output else math.nan
-                servo.append((_unwrap_usec(msg.time_usec, last_ms), rudder, thrust))
+                servo.append((_unwrap_usec(msg.time_usec, last_ms), pwm))
             elif kind == "VFR_HUD":
                 if math.isfinite(last_ms):
                     hud.append((last_ms / 1000.0, msg.airspeed, msg.groundspeed))
@@ -249,7 +250,21 @@ def _read_tlog(path: str, profile: AutopilotProfile, full_scale: float) -> Steer
         except Exception:  # noqa: BLE001 - closing a file-backed connection must not mask the result
             pass
     att = _series(attitude, "fewer than 2 ATTITUDE messages (not a vehicle tlog?)", path)
-    srv = _series(servo, "no SERVO_OUTPUT_RAW messages: the log carries no actuator output", path)
+    actuation = _log_actuation(params, profile, path) if not mixed else None
+    decoded = []
+    for time_s, pwm in servo:
+        if mixed:
+            axes = unmix_vectored(pwm)
+            rudder = axes.yaw * full_scale if axes is not None else math.nan
+            thrust = axes.forward if axes is not None else math.nan
+        elif actuation is not None:
+            steering, thrust = actuation.demands(pwm)
+            rudder = steering * full_scale
+        else:
+            rudder = _scaled_angle(profile, pwm[rudder_output - 1], full_scale) if rudder_output else math.nan
+            thrust = profile.pwm_to_thrust(pwm[thrust_output - 1]) if thrust_output else math.nan
+        decoded.append((time_s, rudder, thrust))
+    srv = _series(decoded, "no SERVO_OUTPUT_RAW messages: the log carries no actuator output", path)
     checks: list[str] = []
     t = att[:, 0]
     _time_base_check(path, "SERVO_OUTPUT_RAW", t, srv[:, 0], checks)
@@ -267,11 +282,17 @@ def _read_tlog(path: str, profile: AutopilotProfile, full_scale: float) -> Steer
     limit = params.get("RUD_MAX") if profile.name == "sim" else None
     if limit is not None:
         checks.append(f"rudder limit RUD_MAX {limit:.3f} rad from the log's parameters")
-    rudder_source = ("SERVO_OUTPUT_RAW outputs 1-4 un-mixed (vectored frame yaw)" if mixed
-                     else f"SERVO_OUTPUT_RAW output {rudder_output} ({profile.name} profile)")
+    if mixed:
+        rudder_source = "SERVO_OUTPUT_RAW outputs 1-4 un-mixed (vectored frame yaw)"
+    elif actuation is not None:
+        rudder_source = f"SERVO_OUTPUT_RAW, {actuation.describe()} (PARAM_VALUE in the log)"
+        checks.append(f"actuation from the log's SERVOn_FUNCTION: {actuation.kind}")
+    else:
+        rudder_source = f"SERVO_OUTPUT_RAW output {rudder_output} ({profile.name} profile)"
     return SteeringRecord(t=t, heading=att[:, 1], rudder=rudder, speed=speed,
                           thrust=thrust if np.isfinite(thrust).any() else None, rudder_limit=limit,
-                          rudder_source=rudder_source, speed_source=speed_source, checks=checks)
+                          rudder_source=rudder_source, speed_source=speed_source, checks=checks,
+                          actuation=actuation)
 
 
 #: SERVO_OUTPUT_RAW.time_usec is a uint32: it wraps every 2³² µs (71.6 min of uptime)
@@ -339,7 +360,7 @@ def _collect_dataflash(reader, att: list, rcou: list, gps: list, xkf: list, para
 
 def _dataflash_record(path: str, profile: AutopilotProfile, full_scale: float, att, rcou, gps, xkf, params, units,
                       bad: int) -> SteeringRecord:
-    from companion.link.autopilots.ardusub import unmix_vectored
+    from companion.link.autopilots.vectored_mix import unmix_vectored
 
     a = _series(att, "fewer than 2 ATT messages", path)
     out = _series(rcou, "no RCOU messages: the log carries no servo output", path)
@@ -355,10 +376,17 @@ def _dataflash_record(path: str, profile: AutopilotProfile, full_scale: float, a
         checks.append(f"ATT.Yaw in degrees (unit {unit or 'not stated'}, values within 0–360)")
     t = a[:, 0]
     _time_base_check(path, "RCOU", t, out[:, 0], checks)
+    actuation = _log_actuation(params, profile, path) if profile.name != "ardusub" else None
+    thrust = None
     if profile.name == "ardusub":
         axes = [unmix_vectored(list(row[1:7])) for row in out]
         values = np.array([x.yaw * full_scale if x is not None else math.nan for x in axes])
         rudder_source = "RCOU C1-C4 un-mixed (vectored frame yaw)"
+    elif actuation is not None:
+        demands = np.array([actuation.demands(list(row[1:])) for row in out])
+        values, thrust = demands[:, 0] * full_scale, _on(a[:, 0], out[:, 0], demands[:, 1])
+        rudder_source = f"RCOU, {actuation.describe()} (PARM in the log)"
+        checks.append(f"actuation from the log's SERVOn_FUNCTION: {actuation.kind}")
     else:
         channel = _steering_channel(params, profile)
         trim = params.get(f"SERVO{channel}_TRIM", profile.pwm_center)
@@ -380,8 +408,9 @@ def _dataflash_record(path: str, profile: AutopilotProfile, full_scale: float, a
     else:
         raise LogError(f"{path}: no GPS or XKF1 messages: no speed")
     return SteeringRecord(t=t, heading=np.radians(yaw_deg), rudder=rudder, speed=speed,
+                          thrust=thrust if thrust is not None and np.isfinite(thrust).any() else None,
                           rudder_limit=full_scale, rudder_source=rudder_source, speed_source=speed_source,
-                          checks=checks)
+                          checks=checks, actuation=actuation)
 
 
 def _unit(msg, column: str) -> str:
@@ -389,6 +418,20 @@ def _unit(msg, column: str) -> str:
         return str(msg.fmt.get_unit(column) or "")
     except Exception:  # noqa: BLE001 - logs without FMTU have no units
         return ""
+
+
+def _log_actuation(params: dict[str, float], profile: AutopilotProfile, path: str) -> Actuation | None:
+    """The boat's actuation from the log's own parameters (None when it has no SERVOn_FUNCTION: the
+    profile's outputs then); LogError with what to set when they name no steering."""
+    if not any(name.startswith("SERVO") and name.endswith("_FUNCTION") for name in params):
+        return None
+    try:
+        actuation = actuation_from_params(params, where=os.path.basename(path))
+    except ProfileError as exc:
+        raise LogError(str(exc)) from None
+    if profile.name == "sim" and not actuation.skid:
+        return None  # our simulator's rudder boats report the deflection and a 1000-2000 µs thrust: the profile's
+    return actuation
 
 
 def _steering_channel(params: dict[str, float], profile: AutopilotProfile) -> int:

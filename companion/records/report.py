@@ -13,6 +13,7 @@ import html
 import json
 import logging
 import math
+import textwrap
 from pathlib import Path
 from typing import Callable
 
@@ -23,7 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from companion.numerics.turning import turning_performance  # noqa: E402
-from companion.records.serialise import to_json
+from companion.records.serialise import RECORD_TYPES, from_json, to_json
 from companion.records.store import Store  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -117,20 +118,23 @@ def plot_b2_law(runs: list[dict], schedule, truth: dict | None, path: Path) -> s
     if not accepted:
         return None
 
-    def draw():
-        u2 = np.array([r["speed"] ** 2 for r in accepted])
+    def draw():  # against u: the chosen law (u² + c or u + c, eq. S.3) drawn as written
+        u = np.array([r["speed"] for r in accepted])
         b2 = np.array([r["model"]["b2"] for r in accepted])
-        plt.plot(u2, b2, "o", label="identified")
+        plt.plot(u, b2, "o", label="identified")
         if schedule is not None:  # the law as written: clamped outside the identified range
-            grid = np.linspace(0, max(u2) * 1.15, 50)
-            plt.plot(grid, [schedule.b2_at(math.sqrt(g)) for g in grid], "-",
-                     label=f"schedule b2 = {schedule.b2_slope:.3f}·u² + {schedule.b2_intercept:.3f} (clamped)")
+            grid = np.linspace(0.05, max(u) * 1.15, 50)
+            power = "u" if getattr(schedule, "b2_law", "u2") == "u" else "u²"
+            plt.plot(grid, [schedule.b2_at(g) for g in grid], "-",
+                     label=f"schedule b2 = {schedule.b2_slope:.3f}·{power} + {schedule.b2_intercept:.3f} (clamped)")
         if truth:
             pts = sorted(truth.values(), key=lambda t: t["speed"])
-            plt.plot([t["speed"] ** 2 for t in pts], [t["b2"] for t in pts], "x", label="simulator truth")
-        plt.xlabel("u² (m²/s²)")
+            plt.plot([t["speed"] for t in pts], [t["b2"] for t in pts], "x", label="simulator truth")
+        plt.xlabel("u (m/s)")
         plt.ylabel("b2 (s⁻²)")
-        plt.title("Rudder authority against speed squared (Fig. 3.8)")
+        reason = getattr(schedule, "b2_law_reason", "") if schedule is not None else ""
+        wrapped = "\n".join(textwrap.wrap(reason, 100)[:3])
+        plt.title("Steering authority against speed (Fig. 3.8)" + (f"\n{wrapped}" if reason else ""), fontsize=8)
         plt.grid(True, alpha=0.3)
         plt.legend()
 
@@ -179,9 +183,50 @@ def plot_heading_steps(steps: list[dict], path: Path) -> str | None:
             ax.legend(fontsize=7, loc="upper right")
             ax.grid(True, alpha=0.3)
         ax.set_xlabel("time (s)")
-        plt.suptitle("±20° heading steps: original, constant and scheduled gains (Fig. 3.16)")
+        size = next((x.get("step_deg") for s in steps for x in s.get("steps", []) if x.get("step_deg")), 20.0)
+        plt.suptitle(f"±{abs(size):.0f}° heading steps: original, comparison and scheduled gains (Fig. 3.16)")
 
     return _figure(path, draw, (9, 2.2 * len(thrusts) + 1))
+
+
+def plot_speed_loop(result: dict, path: Path) -> str | None:
+    """The surge model on the settles it was fitted to (eq. S.4), and the speed steps with the
+    original and the designed speed-loop gains (eq. S.5)."""
+    record, surge = result.get("record") or {}, result.get("surge")
+    steps = result.get("steps") or {}
+    if not (record.get("time") or steps):
+        return None
+
+    def draw():
+        ax = plt.subplot(1, 2, 1)
+        t, u, thr = (np.asarray(record.get(k) or [], dtype=float) for k in ("time", "speed", "throttle"))
+        if t.size:
+            ax.plot(t, u, ".", ms=2, label="measured")
+            if surge is not None:
+                breaks = [0] + [k for k in range(1, t.size) if t[k] - t[k - 1] > 2.0] + [t.size]
+                for n, (a, b) in enumerate(zip(breaks[:-1], breaks[1:])):
+                    if b - a > 2:
+                        ax.plot(t[a:b], surge.simulate(t[a:b], thr[a:b], u[a]), "r-", lw=1,
+                                label="surge model" if n == 0 else None)
+            ax.set_xlabel("time (s)")
+            ax.set_ylabel("speed (m/s)")
+            ax.set_title(surge.describe() if surge is not None else "straight settles", fontsize=8)
+            ax.legend(fontsize=7)
+            ax.grid(True, alpha=0.3)
+        ax = plt.subplot(1, 2, 2)
+        for label, flown in steps.items():
+            series = flown.get("series") or {}
+            if series.get("time"):
+                times = np.asarray(series["time"]) - series["time"][0]
+                ax.plot(times, series["speed"], label=f"{label} (overshoot {flown['max_overshoot_pct']:.1f}%)")
+                ax.plot(times, series["demand"], "k:", lw=0.8)
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("speed (m/s)")
+        ax.set_title("speed steps in GUIDED: original and designed speed loop", fontsize=8)
+        ax.legend(fontsize=7)
+        ax.grid(True, alpha=0.3)
+
+    return _figure(path, draw, (12, 4.5))
 
 
 def plot_min_speed(result: dict, path: Path) -> str | None:
@@ -347,6 +392,39 @@ def _table(rows: list[dict], columns: list[tuple[str, str, str]]) -> str:
     return f"<table><tr>{head}</tr>{''.join(body)}</table>"
 
 
+def from_json_tree(value):
+    """A stored result with its records typed again (``serialise.from_json`` on every tagged dict)."""
+    if isinstance(value, dict):
+        if value.get("type") in RECORD_TYPES:
+            return from_json(value)
+        return {k: from_json_tree(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [from_json_tree(v) for v in value]
+    return value
+
+
+def _speed_loop_html(result: dict) -> str:
+    """The speed loop's surge model, design and steps beside the original gains, as text and a table."""
+    surge, design = result.get("surge"), result.get("design")
+    lines = [f"<p>{html.escape(str(result.get('reason') or result.get('verdict') or result.get('status')))}</p>"]
+    if surge is not None:
+        lines.append(f"<p>Surge model (eq. S.4): {html.escape(surge.describe())}, R² {surge.r2:.4f} over "
+                     f"{surge.stretches} straight stretches.</p>")
+    rows = []
+    original = result.get("original") or {}
+    designed = design.gains.params() if design is not None else {}
+    for label, gains in (("original", original), ("design", designed)):
+        flown = (result.get("steps") or {}).get(label) or {}
+        predicted = design.predicted.get(label if label == "original" else "design", {}) if design is not None else {}
+        rows.append({"gains": label, **gains, "predicted overshoot %": predicted.get("overshoot_pct"),
+                     "flown overshoot %": flown.get("max_overshoot_pct"),
+                     "flown settling s": flown.get("settling_time_s")})
+    names = ["cruise_speed", "cruise_thrust", "speed_p", "speed_i"]
+    lines.append(_table(rows, [("gains", "gains", "")] + [(n, n, ".3f") for n in names]
+                        + [(k, k, ".1f") for k in ("predicted overshoot %", "flown overshoot %", "flown settling s")]))
+    return "\n".join(lines)
+
+
 def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: dict | None = None,
                  extra_results: dict | None = None, summary: dict | None = None, delta_max: float = 0.26) -> Path:
     """Write ``report.html`` and its PNGs into ``out_dir``; returns the HTML path.
@@ -360,12 +438,13 @@ def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: 
     runs = store.runs(campaign_id, with_series=True)
     behaviour_rows = store.behavior_results(campaign_id)
     designs = {d.kind: d for d in store.designs(campaign_id)}  # typed, exactly as the campaign wrote them
-    design = designs.get("heading")
+    design = designs.get("heading") or designs.get("cascade")
     steps = [b["result"] for b in behaviour_rows if b["kind"] == "heading_steps"]
     extra = dict(extra_results or {})
     for row in behaviour_rows:
         if row["kind"] in ("roll", "min_speed", "steady_state", "health") and row["kind"] not in extra:
             extra[row["kind"]] = row["result"]
+    speed_loop = next((from_json_tree(row["result"]) for row in behaviour_rows if row["kind"] == "speed_loop"), None)
     alarms = [row["result"] for row in behaviour_rows if row["kind"] == "health_alarm"]
     if "health" not in extra and alarms:  # a session that died after its alarm: the alarm's evidence
         extra["health"] = {**alarms[-1], "alarm": {k: alarms[-1].get(k) for k in ("parameter", "time_s", "change_pct")}}
@@ -376,6 +455,8 @@ def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: 
         ("b2 against u²", plot_b2_law(runs, design.schedule if design else None, truth, out / "b2_law.png")),
         ("Turning performance", plot_turning(design, delta_max, out / "turning.png")),
         ("Heading steps", plot_heading_steps(steps, out / "heading_steps.png")),
+        ("Speed loop: surge model and speed steps",
+         plot_speed_loop(speed_loop, out / "speed_loop.png") if speed_loop else None),
         ("Roll stabilisation", plot_roll(extra["roll"], out / "roll.png") if "roll" in extra else None),
         ("Minimum-speed seeking", plot_min_speed(extra["min_speed"], out / "min_speed.png") if "min_speed" in extra else None),
         ("Health: drift of the identified parameters",
@@ -412,6 +493,8 @@ def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: 
                   # the schedule shown, machine-readable: exactly the record the gains were computed from
                   f"<script type='application/json' id='schedule-{html.escape(kind)}'>"
                   f"{json.dumps(to_json(kind_design.schedule), allow_nan=False)}</script>"]
+    if speed_loop:
+        parts += ["<h2>Speed loop</h2>", _speed_loop_html(speed_loop)]
     gains = store.gains(campaign_id)
     if gains:
         parts += ["<h2>Gains written</h2>", "<pre>" + html.escape(json.dumps(gains, indent=1)) + "</pre>"]

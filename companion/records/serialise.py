@@ -1,7 +1,7 @@
 """The one serialiser at the store boundary: typed records <-> JSON (SPEC C10).
 
 Every record the product stores (models, identification attempts, speed schedules with their
-trend, gain designs) is a dataclass. :func:`to_json` writes it with a ``"type"`` tag so
+trend, gain designs, surge models and speed-loop designs) is a dataclass. :func:`to_json` writes it with a ``"type"`` tag so
 :func:`from_json` gives back the same type with the same numbers; NaN and infinities become
 ``null`` (strict JSON), and come back as NaN for float fields. Nothing else in the product packs or
 unpacks these records by hand.
@@ -106,8 +106,11 @@ def _register_product_records() -> None:
     from companion.numerics.identification import PitchModel, YawModel
     from companion.numerics.pitch_gains import PitchSchedule
     from companion.numerics.schedule import YawSchedule
+    from companion.numerics.speed_gains import SpeedDesign, SpeedLoopGains
+    from companion.numerics.surge import SurgeModel
 
-    for cls in (YawModel, PitchModel, YawSchedule, PitchSchedule, DesignPoint, GainDesign, IdentificationAttempt):
+    for cls in (YawModel, PitchModel, YawSchedule, PitchSchedule, DesignPoint, GainDesign, IdentificationAttempt,
+                SurgeModel, SpeedLoopGains, SpeedDesign):
         register(cls)
 
 

@@ -22,23 +22,54 @@ from companion.link.autopilots.ardusub import CAMPAIGN_DEFAULTS as ARDUSUB_CAMPA
 from companion.procedures.app import AbortFlag, ConsoleProgress, run_campaign, vehicle_record
 from companion.procedures.campaign import CampaignConfig
 from companion.procedures.results import finite_or_none
-from companion.procedures.runner import SafetyLimits
 from companion.records.store import Store, json_safe
 
 log = logging.getLogger(__name__)
 
 
-def simulator_truth(preset: str, speed: float) -> dict | None:
-    """The preset's linearised yaw parameters at ``speed`` (SPEC C2), from ``python -m sim linearize``."""
+def simulator_truth(preset: str, speed: float, doublet: tuple[float, float, float, float] | None = None) -> dict | None:
+    """The preset's linearised yaw parameters at ``speed`` (SPEC C2), from ``python -m sim linearize``.
+
+    With ``doublet`` (amplitude, pre, period, window) a 3-DOF vessel's truth is the doublet-equivalent
+    first-order model of its linearisation (eq. S.6): "a22"/"b2" become that, Nomoto's classic
+    K/T moves to "a22_nomoto"/"b2_nomoto", and the nonlinear hull's fit at the doublet's amplitude is
+    "a22_amplitude"/"b2_amplitude" (how far the hull is from linear at that amplitude)."""
     if not math.isfinite(speed):
         return None
     command = [sys.executable, "-m", "sim", "linearize", "--preset", preset, "--speed", f"{speed:.6f}", "--json"]
+    if doublet is not None:
+        command += ["--doublet", ",".join(f"{value:.6f}" for value in doublet)]
     try:
         out = subprocess.run(command, capture_output=True, text=True, timeout=60, check=True).stdout
-        return json.loads(out)
+        truth = json.loads(out)
     except (subprocess.SubprocessError, json.JSONDecodeError) as exc:
         log.warning("no simulator truth at %.3f m/s: %s", speed, exc)
         return None
+    equivalent, nonlinear = truth.pop("doublet_equivalent", None), truth.pop("doublet_nonlinear", None)
+    if equivalent is not None:
+        truth.update(a22_nomoto=truth["a22"], b2_nomoto=truth["b2"], a22=equivalent["a22"], b2=equivalent["b2"],
+                     truth="doublet-equivalent first order of the linearised hull (eq. S.6)",
+                     doublet=equivalent["doublet"])
+    if nonlinear is not None:
+        truth.update(a22_amplitude=nonlinear["a22"], b2_amplitude=nonlinear["b2"])
+    return truth
+
+
+def training_doublet(attempt, yaw) -> tuple[float, float, float, float] | None:
+    """(amplitude, pre, period, window) of an attempt's training doublet as flown: the amplitude from
+    its recorded actuator (half its swing while the doublet ran: a skid boat's may have been scaled
+    into the mixer's room), the timing from the manoeuvre's configuration ``yaw`` and the record's
+    length."""
+    series = attempt.training or {}
+    times, actuator = series.get("time") or [], series.get("actuator") or []
+    if len(times) < 3:
+        return None
+    start, end = times[0] + yaw.pre_excitation_s, times[0] + yaw.pre_excitation_s + yaw.doublet_period_s
+    during = [a for t, a in zip(times, actuator) if start <= t < end and math.isfinite(a)]
+    if not during:
+        return None
+    window = max(times[-1] - times[0], yaw.pre_excitation_s + yaw.doublet_period_s)
+    return (max(during) - min(during)) / 2.0, yaw.pre_excitation_s, yaw.doublet_period_s, window
 
 
 def true_speed(truth_log: Path, attempt) -> float | None:
@@ -107,7 +138,7 @@ def preset_defaults(preset: str) -> dict:
     14 mm/s towards 300° (0.007 N, −0.012 E m/s) so the current estimate can be scored."""
     if preset.startswith("hugin"):
         return {"behaviors": (), "steady_state": True, "current": (0.007, -0.012)}
-    if preset == "boat":  # no rolling mass, no depth: neither behaviour applies
+    if preset == "boat" or preset.startswith("boat-"):  # no rolling mass, no depth: neither behaviour applies
         return {"behaviors": (), "steady_state": False, "current": (0.0, 0.0)}
     return {"behaviors": ("roll", "min_speed"), "steady_state": False, "current": (0.0, 0.0)}
 
@@ -137,12 +168,15 @@ def ardusub_campaign(campaign: CampaignConfig) -> CampaignConfig:
 
 def preset_vehicle(preset: str) -> dict:
     """What the companion is told about a simulated vehicle flown by a real autopilot, as it would be
-    told about a real one: the rudder servo's slew rate (the preset's data, read as a file)."""
+    told about a real one: the rudder servo's slew rate (the preset's data, read as a file); nothing
+    for a twin-thruster boat (no servo: its steering is the motors' difference)."""
     from companion.records.vehicle_files import preset_path
 
     try:
-        actuators = json.loads(preset_path(preset).read_text(encoding="utf-8"))["actuators"]
-        return {"actuator_rate_rad_s": float(actuators["rudder_rate"])}
+        data = json.loads(preset_path(preset).read_text(encoding="utf-8"))
+        if data.get("twin_thrusters"):  # steered by two motors: no rudder servo to model
+            return {}
+        return {"actuator_rate_rad_s": float(data["actuators"]["rudder_rate"])}
     except (OSError, KeyError, ValueError) as exc:
         log.warning("no servo rate for preset %r: %s", preset, exc)
         return {}
@@ -245,6 +279,8 @@ def _run_rows(campaign, truth: dict, speeds: dict | None = None) -> list[dict]:
             "r2": finite_or_none(attempt.r2),
             "converged_s": finite_or_none(attempt.converged_s) if attempt.converged_s is not None else None,
             "true_a22": true.get("a22"), "true_b2": true.get("b2"), "true_delta0": true.get("delta0"),
+            **{f"true_{key}": true[key] for key in ("a22_nomoto", "b2_nomoto", "a22_amplitude", "b2_amplitude")
+               if key in true},
             "kp": own.get("heading_p"), "ki": own.get("heading_i"),
         })
     return rows
@@ -293,10 +329,12 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                                         {"preset": config.preset, "seed": config.seed, **summary.get("variant", {})})
             console = ConsoleProgress("identification", enabled=config.progress)
             campaign, outcome, campaign_id = run_campaign(link, store, config.campaign, vehicle_id=vehicle_id,
-                                                          abort=abort, console=console, limits=SafetyLimits())
+                                                          abort=abort, console=console)
             summary.update(status=outcome.status, reason=outcome.reason, campaign_id=campaign_id,
+                           restore_problems=outcome.restore_problems, restore_notes=outcome.restore_notes,
+                           records_rejected_for_link=campaign.records_rejected_for_link,
                            vehicle_time_s=outcome.vehicle_time_s,
-                           vehicle_time_by_phase={k: round(v, 2) for k, v in campaign.vehicle_time_by_phase.items()},
+                           vehicle_time_by_phase={k: round(v, 2) for k, v in campaign.phases_in_order().items()},
                            identification_stage_s={k: round(v, 2) for k, v in campaign.phase_times.items()})
             extra: dict = {}
             if outcome.status == "completed":
@@ -305,6 +343,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                 extra["steady_state"] = _run_steady_state(link, store, config, campaign_id, abort, summary)
         finally:
             snapshots_dropped, wall_timeouts = link.telemetry.snapshots_dropped, link.clock.wall_timeouts
+            summary["link_quality"] = link.telemetry.quality()
             link.close()
         truth, speeds = {}, {}
         for attempt in campaign.accepted:
@@ -312,15 +351,22 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                 # our autopilot's speed sensor is the physics' (noise only); a real one's is an estimate
                 speed = true_speed(out / "truth.csv", attempt) if sim.real_autopilot else None
                 speeds[f"{attempt.thrust:.2f}"] = speed
-                truth[f"{attempt.thrust:.2f}"] = simulator_truth(sim_preset, speed if speed else attempt.speed)
+                truth[f"{attempt.thrust:.2f}"] = simulator_truth(sim_preset, speed if speed else attempt.speed,
+                                                                 training_doublet(attempt, campaign.config.yaw))
         summary["runs"] = _run_rows(campaign, truth, speeds if sim.real_autopilot else None)
         summary["design"] = campaign.design_summary()
         summary["heading_steps"] = [{"thrust": s["thrust"], "label": s["label"],
                                      "max_overshoot_pct": finite_or_none(s["max_overshoot_pct"]),
                                      "iae_s": finite_or_none(s.get("iae_s")), "oscillations": s.get("oscillations"),
-                                     "settling_time_s": _longest_settling(s)}
+                                     "step_deg": s["steps"][0].get("step_deg") if s.get("steps") else None,
+                                     # time to stay within 5 % of the step, the slower of the step and its return
+                                     "settling_time_s": finite_or_none(_slowest(x["settling_time_s"]
+                                                                                for x in s["steps"]))}
                                     for s in campaign.step_results]
+        summary["speed_loop"] = speed_loop_summary(campaign.speed)
         summary["verification"] = campaign.verification or ("passed" if campaign.final_gains else None)
+        summary["checks"] = campaign.checks
+        summary["verified"] = campaign.verifier.summary() if campaign.verifier is not None else None
         summary["final_gains"] = campaign.final_gains
         summary["store"] = str(store_path)
         summary["report"] = str(out / "report.html") if config.report else None
@@ -341,11 +387,32 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
     return summary
 
 
-def _longest_settling(result: dict) -> float | None:
-    """The longest time to stay within 5 % of a check's steps (None when one never settled)."""
-    times = [step.get("settling_time_s") for step in result.get("steps", [])]
-    finite = [t for t in times if isinstance(t, float) and math.isfinite(t)]
-    return max(finite) if finite and len(finite) == len(times) else None
+def _slowest(times) -> float:
+    """The largest of some settling times; NaN when there is none or one never settled."""
+    values = list(times)
+    return max(values) if values and all(math.isfinite(v) for v in values) else math.nan
+
+
+def speed_loop_summary(tuning) -> dict | None:
+    """The speed loop's figures for the summary: the surge model (eq. S.4), the designed gains and
+    their predicted steps, the flown speed steps per gain set, and the verdict (None: not tuned)."""
+    if tuning is None:
+        return None
+    surge, design = tuning.surge, tuning.design
+    steps = {label: {"max_overshoot_pct": finite_or_none(r["max_overshoot_pct"]),
+                     "settling_time_s": finite_or_none(r["settling_time_s"]), "speeds": r["speeds"],
+                     "steps": [{k: finite_or_none(v) for k, v in step.items()} for step in r["steps"]]}
+             for label, r in tuning.step_results.items()}
+    return {"status": tuning.status.value, "reason": tuning.reason, "verdict": tuning.verdict, "kept": tuning.kept,
+            "surge": None if surge is None else {"gain": surge.gain, "exponent": surge.exponent, "gamma": surge.gamma,
+                                                 "lag": surge.lag,
+                                                 "r2": finite_or_none(surge.r2), "levels": surge.levels,
+                                                 "describe": surge.describe()},
+            "design": None if design is None else {"gains": design.gains.params(), "speed": design.design_speed,
+                                                   "time_constant_s": design.time_constant_s,
+                                                   "step": list(design.step), "predicted": design.predicted,
+                                                   "clamped": list(design.clamped)},
+            "original": tuning.original, "steps": steps}
 
 
 def _run_steady_state(link, store, config: RehearsalConfig, campaign_id: int, abort: AbortFlag, summary: dict) -> dict:

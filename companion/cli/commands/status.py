@@ -32,6 +32,8 @@ def snapshot_record(link, telemetry) -> dict:
 
     return {
         "profile": link.profile.name,
+        # what drives the boat, as read from the vehicle at connect (None: the profile's fixed outputs)
+        "actuation": link.profile.actuation.describe() if link.profile.actuation is not None else None,
         "system_id": link.transport.system_id,
         "vehicle_time_s": telemetry.time_s,
         "mode": telemetry.mode,

@@ -16,18 +16,28 @@ Which mode each phase uses (decided here, documented in the README):
   slows in turns and b2 ∝ u² then drifts within the record (a22/b2 errors up to 10 %). The
   manoeuvre's next "hold" mode command ends the excitation: GUIDED again, targets re-sent.
 
-Actuators are read back from SERVO_OUTPUT_RAW (SERVO1 steering, SERVO3 throttle). Depth is not a
-boat's notion (a depth set-point is refused); the water speed is the ground speed (no water-speed
+Actuators are read back from SERVO_OUTPUT_RAW through the actuation read at connect
+(:meth:`Strategy.configure`: SERVOn_FUNCTION, ``companion.link.actuation``): a steering servo (26 or
+21) and a throttle (70), or a skid-steered pair (73/74) un-mixed into steering and throttle (eq. S.1);
+a vehicle with neither is refused with what to set. On a skid boat the doublet is held inside the
+mixer's room: MANUAL shrinks steering *and* throttle when |s| + |t| > 1 (Rover ``mode.cpp``), which
+would slow the boat within the record, so an excitation that would reach it is scaled down around
+its trim, and the strategy says so (STATUSTEXT); one that would be scaled to almost nothing is refused
+(ProfileError: the campaign stops and restores) with what to change. Depth is not a boat's notion (a depth set-point is refused); the water speed is the ground speed (no water-speed
 sensor; a current biases it). Rover refuses to arm with the throttle off neutral.
 """
 from __future__ import annotations
 
 import logging
 import math
+from dataclasses import replace
 from typing import ClassVar
 
 from companion.interface import Telemetry
+from companion.link.actuation import OUTPUTS
 from companion.link.autopilots.ardupilot import ArduPilotStrategy, yaw_quaternion
+from companion.link.autopilots.skid_room import doublet_scale, refusal, scaled, with_actuation
+from companion.link.errors import ProfileError
 from companion.link.profile import AutopilotProfile, CampaignDefaults, NativeScale
 
 log = logging.getLogger(__name__)
@@ -44,6 +54,7 @@ PROFILE = AutopilotProfile(
         "heading_rate_d": "ATC_STR_RAT_D", "heading_rate_ff": "ATC_STR_RAT_FF", "heading_rate_imax": "ATC_STR_RAT_IMAX",
         "turn_rate_max": "ATC_STR_RAT_MAX", "cruise_speed": "CRUISE_SPEED", "cruise_thrust": "CRUISE_THROTTLE",
         "speed_default": "WP_SPEED", "gcs_sysid": "MAV_GCS_SYSID", "override_timeout": "RC_OVERRIDE_TIME",
+        "speed_p": "ATC_SPEED_P", "speed_i": "ATC_SPEED_I", "accel_max": "ATC_ACCEL_MAX",
         "system_id": "MAV_SYSID",
     },
     aliases={"gcs_sysid": ("SYSID_MYGCS",), "system_id": ("SYSID_THISMAV",)},
@@ -59,8 +70,8 @@ PROFILE = AutopilotProfile(
     strategy="ardurover",
     water_speed_sensor=False,
     depth_from_pressure=False,
+    vehicle_kind="surface",
     depth_setpoint=False,
-    servo_follows_attitude=True,
     actuator_hold="zoh",
     output_lead_s=0.010,  # 25 Hz snapshots of the 50 Hz rover loop (STREAMS below)
     # yaw only (a boat has no dive plane); thrusts are fractions of WP_SPEED: 60, 80, 100 %
@@ -72,7 +83,7 @@ PROFILE = AutopilotProfile(
 #: GLOBAL_POSITION_INT joins the base streams (the autopilot's own position and altitude).
 #: ATTITUDE and SERVO_OUTPUT_RAW at 25 Hz, every second loop of the 50 Hz rover loop: at 20 Hz the
 #: samples come 40 and 60 ms apart in turn (measured), and 50 Hz is refused (DENIED). Each snapshot
-#: pairs a loop's attitude with that loop's outputs (``servo_follows_attitude``), which the next
+#: pairs a loop's attitude with that loop's outputs (by their time stamps, ``companion.link.snapshot``), which the next
 #: physics step applies: a zero-order hold for the identifier (``actuator_hold``). Pairing with the
 #: previous message instead scattered a22 and b2 by ±5 %, and same-loop pairing with a first-order
 #: hold biased them by −13 % (measured on SITL).
@@ -89,14 +100,39 @@ class Strategy(ArduPilotStrategy):
         self.speed_fraction = math.nan
         self._sent_at = -math.inf
         self._excitation: dict | None = None
+        self._refreshing = False  # targets of a procedure to refresh while in GUIDED (False once forgotten)
         #: learnt override corrections (actuator -> offset in its units), kept between excitations
         self._override_bias: dict[str, float] = {}
+
+    def configure(self):
+        """This boat's actuation (SERVOn_FUNCTION, required) and its pilot channels (RCMAP_ROLL and
+        RCMAP_THROTTLE: the steering and throttle sticks an override moves in MANUAL)."""
+        actuation = self.read_actuation(OUTPUTS, required=True)
+        outputs = actuation.outputs()
+        rcmap = self.read_present(("RCMAP_ROLL", "RCMAP_THROTTLE"), self.profile.marker_param)
+        channels = {"rudder": int(rcmap.get("RCMAP_ROLL", 1)), "thrust": int(rcmap.get("RCMAP_THROTTLE", 3))}
+        return replace(with_actuation(self.profile, actuation), channels=channels,
+                       servo_outputs={"rudder": outputs.get("steering", outputs.get("left")),
+                                      "thrust": outputs.get("throttle", outputs.get("right"))})
+
+    def _excitation_scale(self, throttle: float, steering: float, value: float) -> float:
+        """1, or the factor that keeps a skid boat's doublet inside MANUAL's room (``skid_room``)."""
+        scale, text = doublet_scale(self.profile.actuation, self.profile.angle_full_scale_rad, throttle, steering,
+                                    value)
+        if text is not None:
+            log.warning("%s", text)
+            self.ports.ground.status_text(text, 4)
+        reason = refusal(throttle, scale)
+        if reason is not None:
+            raise ProfileError(reason)
+        return scale
 
     def _in_guided(self) -> bool:
         return self.in_mode("guided")
 
     def set_heading(self, heading: float) -> None:
         self.heading = heading
+        self._refreshing = True
         self._send()
 
     def set_thrust(self, thrust_level: float) -> None:
@@ -104,13 +140,33 @@ class Strategy(ArduPilotStrategy):
         if not 0.0 <= thrust_level <= 1.0:
             raise ValueError(f"thrust (fraction of WP_SPEED) {thrust_level!r} outside 0..1")
         self.speed_fraction = thrust_level
+        self._refreshing = True
         self._send()
+
+    def forget_targets(self) -> None:
+        """After a restore the procedure's heading and speed are no longer refreshed: a boat left in
+        GUIDED then does what Rover does when its targets stop (it stops after 3 s), as it would had
+        the companion not been there; the next procedure sends its own."""
+        self.heading = self.speed_fraction = math.nan
+        self._refreshing = False
+
+    def forget_excitation(self) -> None:
+        self._excitation = None
 
     def set_depth(self, depth: float) -> None:
         raise self._cannot("depth set-point: it is a boat (run the campaign without a depth)")
 
-    def _send(self) -> None:
-        if not self._in_guided() or self._excitation is not None:
+    def mode_accepted(self, neutral: str) -> None:
+        """GUIDED accepted: send the targets at once. On entry a boat loiters, braking towards a
+        stopping point, until a target arrives; waiting for the HEARTBEAT that verifies the mode
+        (up to a second) let the speed dip (measured on the skid boat: the throttle fell from 0.60 to
+        0.13, even astern, and the speed from 1.5 to 0.9 m/s after every record), and the default
+        speed loop took longer than a resettle to recover."""
+        if self.profile.modes.get(neutral) == self.profile.modes["guided"]:
+            self._send(force=True)
+
+    def _send(self, *, force: bool = False) -> None:
+        if not force and (not self._in_guided() or self._excitation is not None):
             return  # kept, and sent when GUIDED is entered
         heading = self.heading
         if not math.isfinite(heading):
@@ -127,14 +183,22 @@ class Strategy(ArduPilotStrategy):
             steering = latest.rudder if latest is not None and math.isfinite(latest.rudder) else 0.0
             if throttle is None:
                 raise self._cannot("throttle read-back (SERVO3): the speed cannot be held open loop")
-            self._excitation = {"mode": self.ports.announcements.mode, "steering": steering, "held": {}}
+            self._excitation = {"mode": self.ports.announcements.mode, "steering": steering, "held": {},
+                                "scale": self._excitation_scale(throttle, steering, value)}
             self._hold("thrust", throttle)  # before the switch: MANUAL never sees a stopped stick
-            self.ports.overrides.override(actuator, value)
+            self.ports.overrides.override(actuator, self._scaled(actuator, value))
             self.ports.modes.set_mode("manual")
             return
         if self._excitation is not None:
             self._excitation["held"].pop(actuator, None)  # a doublet value: its read-back is what counts
-        self.ports.overrides.override(actuator, value)
+        self.ports.overrides.override(actuator, self._scaled(actuator, value))
+
+    def _scaled(self, actuator: str, value: float) -> float:
+        """A rudder override of the current excitation, scaled around its trim (skid room)."""
+        excitation = self._excitation
+        if excitation is None or actuator != "rudder" or excitation["scale"] == 1.0:
+            return value
+        return scaled(value, excitation["steering"], excitation["scale"])
 
     def release(self, actuator: str | None) -> None:
         if self._excitation is not None and actuator == "rudder":
@@ -151,6 +215,8 @@ class Strategy(ArduPilotStrategy):
             self._excitation = None  # whoever left MANUAL ended the excitation
         if ended:
             self.ports.overrides.release(None)
+        if self._in_guided():
+            self._refreshing = True  # the companion put it in GUIDED: its targets are kept alive
         self._send()
 
     # ------------------------------------------------------------------ held outputs
@@ -193,8 +259,16 @@ class Strategy(ArduPilotStrategy):
             log.debug("%s held at %.4f reads %.4f: override now %.4f", actuator, held["target"], read, held["command"])
             self.ports.overrides.override(actuator, held["command"])
 
+    def not_ready(self, telemetry: Telemetry) -> str | None:
+        """GUIDED (the campaign's holding mode) needs the EKF's position: Rover refuses the mode without
+        it (measured on SITL before its EKF used GPS: MAV_RESULT_FAILED)."""
+        if not telemetry.finite("north", "east"):
+            return "no position estimate yet (GUIDED, the holding mode, needs one: the EKF is still initialising)"
+        return None
+
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
-        if self._excitation is None and self._in_guided() and telemetry.time_s - self._sent_at >= self.refresh_s:
+        if (self._refreshing and self._excitation is None and self._in_guided()
+                and telemetry.time_s - self._sent_at >= self.refresh_s):
             self._send()
         self._trim_held(telemetry)
         return self.servo_model(telemetry)

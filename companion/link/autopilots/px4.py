@@ -116,7 +116,7 @@ class Px4Strategy(AutopilotStrategy):
     Subclasses say how actuators map to sticks and which set-point holds the vehicle."""
 
     #: ATTITUDE and SERVO_OUTPUT_RAW at 50 Hz: PX4 sends each SERVO_OUTPUT_RAW right after the
-    #: ATTITUDE of the same time stamp (measured), so a snapshot pairs them (servo_follows_attitude).
+    #: ATTITUDE of the same time stamp (measured): the snapshot pairs them by those stamps.
     #: PX4's onboard link also streams HIGHRES_IMU and ATTITUDE_QUATERNION at 50 Hz, ODOMETRY at 30,
     #: ALTITUDE and GPS_RAW_INT at 10: stopped (0), they were 60 % of the messages decoded, and a
     #: companion at a 10x desk speed-up fell seconds behind the stream (measured)

@@ -63,7 +63,6 @@ PROFILE = Px4Profile(
     water_speed_sensor=False,
     depth_from_pressure=False,
     depth_setpoint=False,
-    servo_follows_attitude=True,
     actuator_hold="zoh",
     output_lead_s=0.005,  # 50 Hz snapshots of the 100 Hz rover loop
     train_full_window=True,

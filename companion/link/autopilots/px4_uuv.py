@@ -60,7 +60,6 @@ PROFILE = Px4Profile(
     water_speed_sensor=False,
     depth_from_pressure=False,
     depth_setpoint=False,
-    servo_follows_attitude=True,
     actuator_hold="zoh",
     output_lead_s=0.005,
     train_full_window=True,

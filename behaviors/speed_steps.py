@@ -1,0 +1,112 @@
+"""Speed steps to check a set of speed-loop gains (the speed loop's counterpart of the heading steps).
+
+On an autopilot whose thrust level is a speed demand (ArduRover GUIDED: a fraction of WP_SPEED):
+write the gains, hold the course at the low speed until settled, demand the high speed, hold, demand
+the low speed again, hold. Each step is scored on the measured speed by the heading steps' metrics
+(``behaviors.heading_steps.step_metrics``: smoothed, overshoot in % of the step, time to stay
+within 5 % of it). A pure step function of telemetry on vehicle time.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Sequence
+
+import numpy as np
+
+from behaviors.base import Behaviour, Footprint, Status
+from behaviors.heading_steps import step_metrics
+from companion.checks import require_positive
+from companion.interface import Command, SetHeading, SetParameters, SetThrust, StatusText, Telemetry
+from companion.numerics.angles import wrap_pi
+
+
+@dataclass(frozen=True)
+class SpeedStepConfig:
+    settle_s: float = 20.0  # at the low speed, with the gains written
+    hold_s: float = 15.0  # after each step
+
+    def __post_init__(self) -> None:
+        require_positive(self, "settle_s", "hold_s")
+
+
+class SpeedStepTest(Behaviour):
+    """Write ``gains`` (neutral names), settle at ``speeds[0]``, step to ``speeds[1]`` and back;
+    ``speed_per_thrust`` (m/s) turns a speed into the thrust level that demands it."""
+
+    def __init__(self, gains: dict[str, float], speeds: tuple[float, float], speed_per_thrust: float,
+                 config: SpeedStepConfig = SpeedStepConfig(), label: str = "") -> None:
+        super().__init__(f"speed steps {label}".strip())
+        if not (speed_per_thrust > 0.0 and all(0.0 < s <= speed_per_thrust for s in speeds)):
+            raise ValueError(f"speed steps {speeds} need 0 < speed ≤ {speed_per_thrust:g} m/s (thrust level 1)")
+        self.gains = dict(gains)
+        self.speeds = speeds
+        self.speed_per_thrust = speed_per_thrust
+        self.config = config
+        self.label = label
+        self.footprint = Footprint.of(parameters=tuple(self.gains), setpoints=("mode", "thrust", "heading"))
+        self._course = math.nan
+        self._phase = "settle"
+        self._phase_start = math.nan
+        self._segment = 0
+        self.series: dict[str, list[float]] = {"time": [], "speed": [], "demand": [], "throttle": []}
+        self.steps: list[dict] = []
+
+    def _thrust(self, speed: float) -> SetThrust:
+        return SetThrust(min(1.0, speed / self.speed_per_thrust))
+
+    def initialise(self, telemetry: Telemetry) -> Sequence[Command]:
+        self._course = telemetry.yaw if telemetry.finite("yaw") else 0.0
+        self._phase_start = telemetry.time_s
+        return [SetParameters(self.gains), self._thrust(self.speeds[0]), SetHeading(wrap_pi(self._course)),
+                StatusText(f"speed steps {self.label}: {self.speeds[0]:.2f}-{self.speeds[1]:.2f} m/s"[:50])]
+
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
+        now = telemetry.time_s
+        demand = self.speeds[1] if self._phase == "up" else self.speeds[0]
+        for key, value in (("time", now), ("speed", telemetry.speed_water), ("demand", demand),
+                           ("throttle", telemetry.thrust_ratio)):
+            self.series[key].append(value)
+        elapsed = now - self._phase_start
+        if self._phase == "settle" and elapsed >= self.config.settle_s:
+            return self._begin("up", now, self.speeds[1])
+        if self._phase == "up" and elapsed >= self.config.hold_s:
+            self._score(*self.speeds)
+            return self._begin("down", now, self.speeds[0])
+        if self._phase == "down" and elapsed >= self.config.hold_s:
+            self._score(self.speeds[1], self.speeds[0])
+            self.finish(Status.SUCCESS)
+        return []
+
+    def _begin(self, phase: str, now: float, speed: float) -> list[Command]:
+        self._phase, self._phase_start = phase, now
+        self._segment = len(self.series["time"])
+        return [self._thrust(speed), SetHeading(wrap_pi(self._course))]
+
+    def _score(self, start: float, target: float) -> None:
+        first = self._segment
+        times = np.asarray(self.series["time"][first:], dtype=float)
+        speed = np.asarray(self.series["speed"][first:], dtype=float)
+        ok = np.isfinite(speed)
+        metrics = step_metrics(times[ok], speed[ok], start, target)
+        metrics.update(start=start, target=target)
+        self.steps.append(metrics)
+
+    def terminate(self, status: Status) -> Sequence[Command]:
+        if status is not Status.ABORTED:
+            return []
+        return [self._thrust(self.speeds[0])]
+
+    def result(self) -> dict:
+        overshoots = [s["overshoot_pct"] for s in self.steps if math.isfinite(s["overshoot_pct"])]
+        return {"label": self.label, "gains": self.gains, "speeds": list(self.speeds), "steps": self.steps,
+                "max_overshoot_pct": max(overshoots) if overshoots else math.nan,
+                "settling_time_s": _total([s["settling_time_s"] for s in self.steps], self.config.hold_s),
+                "config": asdict(self.config), "series": self.series, "aborted": self.status is Status.ABORTED}
+
+
+def _total(times: list[float], hold_s: float) -> float:
+    """Summed settling times, a step that never settled counting as its whole hold (NaN: no step)."""
+    if not times:
+        return math.nan
+    return float(sum(t if math.isfinite(t) else hold_s for t in times))

@@ -1,0 +1,219 @@
+"""The speed loop identified and tuned from a campaign's own settles, verified by speed steps.
+
+1. :class:`SurgeRecorder` keeps, while the identification manoeuvres settle at each thrust, the
+   vehicle time, the throttle the autopilot outputs and the speed (straight running only:
+   |yaw rate| below 3°/s), and the steady throttle and speed at the end of each level's last settle;
+2. :class:`SpeedTuning` (built when its turn comes, after the heading checks) fits the surge model
+   (``companion.numerics.surge``, eq. S.4), designs ArduRover's speed-loop gains
+   (``companion.numerics.speed_gains``, eq. S.5), flies speed steps in the holding mode (GUIDED) with
+   the vehicle's original gains and with the design (``behaviors.speed_steps``), and keeps the
+   design only when :class:`SpeedCheck` passes: at most 10 % overshoot on every step and settled
+   sooner, summed over the steps, than with the original gains. Otherwise nothing is kept (the
+   runner's restore point puts the original gains back, as for the heading gains).
+
+The campaign writes the kept gains with its final heading gains, so a campaign that keeps nothing
+(or fails) leaves the speed loop as it found it.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+from behaviors.base import Behaviour, Footprint, Status
+from behaviors.sequence import SequenceBehavior
+from behaviors.speed_steps import SpeedStepConfig, SpeedStepTest
+from companion.checks import require_non_negative
+from companion.interface import Command, StatusText, Telemetry
+from companion.numerics.speed_gains import SpeedDesign, SpeedLoopGains, SpeedRules, design_speed_gains
+from companion.numerics.surge import SurgeModel, fit_surge_model
+
+log = logging.getLogger(__name__)
+
+#: neutral parameters the speed tuning writes (and the restore point covers)
+SPEED_GAINS = ("cruise_speed", "cruise_thrust", "speed_p", "speed_i")
+#: neutral parameters it only reads: WP_SPEED (a thrust level's speed) and ATC_ACCEL_MAX
+SPEED_CONTEXT = ("speed_default", "accel_max")
+#: straight running: |yaw rate| below this (rad/s)
+STRAIGHT_RATE = math.radians(3.0)
+#: the steady level is the mean over this long before a settle ends (s)
+STEADY_WINDOW_S = 2.0
+
+
+@dataclass(frozen=True)
+class SpeedCheck:
+    """When the designed speed gains stay: every step within ``max_overshoot_pct``, and (with
+    ``faster_than_original``) the summed settling time below the original gains'."""
+
+    max_overshoot_pct: float = 10.0
+    faster_than_original: bool = True
+
+    def __post_init__(self) -> None:
+        require_non_negative(self, "max_overshoot_pct")
+
+    def verdict(self, original: dict | None, design: dict) -> str | None:
+        """None when the design passes, else the reason."""
+        for step in design["steps"]:
+            overshoot = step["overshoot_pct"]
+            if not (isinstance(overshoot, float) and math.isfinite(overshoot)):
+                return "a speed step without a measured overshoot"
+            if overshoot > self.max_overshoot_pct:
+                return f"speed step overshoot {overshoot:.1f} % > {self.max_overshoot_pct:.0f} %"
+        if self.faster_than_original and original is not None:
+            new, old = design["settling_time_s"], original["settling_time_s"]
+            if not new < old:
+                return f"not faster than the original gains (settled in {new:.1f} s against {old:.1f} s)"
+        return None
+
+
+@dataclass(frozen=True)
+class SpeedLoopConfig:
+    """Whether and how a campaign tunes the speed loop; ``enabled`` None: where the autopilot has one
+    (its profile names the speed-loop gains), decided by ``CampaignConfig.resolved_for``."""
+
+    enabled: bool | None = None
+    rules: SpeedRules = SpeedRules()
+    steps: SpeedStepConfig = SpeedStepConfig()
+    check: SpeedCheck = SpeedCheck()
+
+
+@dataclass
+class SurgeRecord:
+    """What :class:`SurgeRecorder` kept: the straight samples and the steady level of each thrust."""
+
+    time: list[float] = field(default_factory=list)
+    throttle: list[float] = field(default_factory=list)
+    speed: list[float] = field(default_factory=list)
+    levels: dict = field(default_factory=dict)  # thrust level → (throttle, speed) at the end of its settle
+
+    def stretches(self, max_gap_s: float = 0.5) -> list[tuple[int, int]]:
+        """Index ranges [start, stop) of samples no more than ``max_gap_s`` apart."""
+        out, start = [], 0
+        for k in range(1, len(self.time) + 1):
+            if k == len(self.time) or self.time[k] - self.time[k - 1] > max_gap_s:
+                if k > start:
+                    out.append((start, k))
+                start = k
+        return out
+
+
+class SurgeRecorder:
+    """Collects :class:`SurgeRecord` from the campaign's snapshots (module docstring, step 1)."""
+
+    def __init__(self) -> None:
+        self.record = SurgeRecord()
+        self._window: list[tuple[float, float, float]] = []  # the current settle's last samples
+        self._stage: tuple | None = None
+
+    def add(self, telemetry: Telemetry, level: float | None, stage: str | None) -> None:
+        """One snapshot; ``level`` the thrust level being identified, ``stage`` its manoeuvre stage."""
+        key = (level, stage)
+        if self._stage is not None and key != self._stage:
+            self._close(*self._stage)
+        self._stage = key if stage in ("settle", "resettle") else None
+        if self._stage is None or not (telemetry.finite("speed_water") and telemetry.finite("thrust_ratio")):
+            return
+        sample = (telemetry.time_s, telemetry.thrust_ratio, telemetry.speed_water)
+        self._window = [s for s in self._window if s[0] > telemetry.time_s - STEADY_WINDOW_S] + [sample]
+        if telemetry.finite("yaw_rate") and abs(telemetry.yaw_rate) < STRAIGHT_RATE:
+            self.record.time.append(sample[0])
+            self.record.throttle.append(sample[1])
+            self.record.speed.append(sample[2])
+
+    def _close(self, level: float | None, stage: str | None) -> None:
+        """A settle ended: its last samples are the level's steady throttle and speed (the last settle
+        of a level counts: the longer at a level, the more settled its speed loop)."""
+        if level is not None and self._window:
+            n = len(self._window)
+            self.record.levels[level] = (sum(s[1] for s in self._window) / n, sum(s[2] for s in self._window) / n)
+        self._window = []
+
+
+class SpeedTuning(Behaviour):
+    """Design from the record, then the speed steps with the original gains and the design."""
+
+    #: every n-th sample of the surge record goes into the result (the report's plot, a refit offline)
+    RECORD_DECIMATION = 5
+
+    def __init__(self, record: SurgeRecord, original: dict[str, float], config: SpeedLoopConfig = SpeedLoopConfig()) -> None:
+        super().__init__("speed loop")
+        self.record = record
+        self.config = config
+        self.original = {k: v for k, v in original.items() if k in SPEED_GAINS}
+        self.context = {k: v for k, v in original.items() if k in SPEED_CONTEXT}
+        self.footprint = Footprint.of(parameters=SPEED_GAINS, setpoints=("mode", "thrust", "heading"))
+        self.surge: SurgeModel | None = None
+        self.design: SpeedDesign | None = None
+        self.error: str | None = None
+        self.step_results: dict[str, dict] = {}
+        self.kept: dict[str, float] | None = None
+        self.verdict: str | None = None
+        self._sequence: SequenceBehavior | None = None
+        self._prepare(record)
+
+    def _prepare(self, record: SurgeRecord) -> None:
+        try:
+            levels = list(record.levels.values())
+            self.surge = fit_surge_model(record.time, record.throttle, record.speed, levels, record.stretches())
+            original = SpeedLoopGains.from_params(self.original) if len(self.original) == len(SPEED_GAINS) else None
+            speeds = [speed for _, speed in levels]
+            cruise = self.original.get("cruise_speed", math.nan)
+            self.design = design_speed_gains(self.surge, cruise, (min(speeds), max(speeds)), self.config.rules,
+                                             self.context.get("accel_max", 1.0), original)
+            per_thrust = self.context.get("speed_default", math.nan)
+            if not per_thrust > 0.0:
+                raise ValueError("no WP_SPEED: the speed a thrust level demands is unknown")
+            steps = [SpeedStepTest(gains, self.design.step, per_thrust, self.config.steps, label)
+                     for label, gains in (("original", self.original), ("design", self.design.gains.params()))
+                     if gains]
+            self._sequence = SequenceBehavior(steps, on_complete=self._on_step, name="speed steps")
+        except (ValueError, KeyError) as exc:
+            self.error = str(exc)
+            log.warning("speed loop not tuned: %s", exc)
+
+    def _on_step(self, step: Behaviour) -> None:
+        if isinstance(step, SpeedStepTest):
+            self.step_results[step.label] = step.result()
+
+    def initialise(self, telemetry: Telemetry) -> Sequence[Command]:
+        if self._sequence is None:
+            self.finish(Status.FAILURE, f"speed loop not tuned: {self.error}")
+            return [StatusText(f"speed loop not tuned: {self.error}"[:50], 4)]
+        return [StatusText(f"speed loop: {self.surge.describe()}"[:50])]
+
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
+        commands = list(self._sequence.tick(telemetry))
+        if self._sequence.done:
+            design = self.step_results.get("design")
+            if design is None:
+                self.verdict = "the design's speed steps did not complete"
+            else:
+                self.verdict = self.config.check.verdict(self.step_results.get("original"), design)
+            if self.verdict is None:
+                self.kept = self.design.gains.params()
+                self.finish(Status.SUCCESS)
+                commands.append(StatusText("speed gains verified"))
+            else:
+                self.finish(Status.FAILURE, f"speed gains rejected: {self.verdict}")
+                commands.append(StatusText(f"speed gains rejected: {self.verdict}"[:50], 4))
+        return commands
+
+    def terminate(self, status: Status) -> Sequence[Command]:
+        if status is Status.ABORTED and self._sequence is not None:
+            return self._sequence.stop(self.reason or "aborted")
+        return []
+
+    def result(self) -> dict:
+        """The figures, with the surge model and the design as typed records (the store serialises them)."""
+        return {"status": self.status.value, "reason": self.reason, "error": self.error, "surge": self.surge,
+                "design": self.design, "original": self.original, "context": self.context,
+                "steps": dict(self.step_results), "verdict": self.verdict or ("passed" if self.kept else None),
+                "kept": self.kept, "record": self._record_sample()}
+
+    def _record_sample(self) -> dict:
+        n = self.RECORD_DECIMATION
+        record = self.record
+        return {"time": record.time[::n], "throttle": record.throttle[::n], "speed": record.speed[::n],
+                "levels": [[level, throttle, speed] for level, (throttle, speed) in sorted(record.levels.items())],
+                "decimation": n}
