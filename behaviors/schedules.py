@@ -12,12 +12,17 @@ from behaviors.cascade_schedule import cascade_kind
 from behaviors.gain_scheduling import ScheduleKind
 from behaviors.heading_schedule import heading_kind
 from behaviors.pitch_schedule import pitch_kind
+from behaviors.px4_schedule import px4_rover_kind, px4_uuv_kind
 
 GAIN_SCHEDULES: dict[str, Callable[..., ScheduleKind]] = {
     "heading": heading_kind,
     "pitch": pitch_kind,
     "cascade": cascade_kind,  # ArduPilot's native heading gains (the ardurover/ardusub profiles' "heading")
+    "px4_rover": px4_rover_kind,  # PX4's Ackermann rover gains (the px4-rover profile's "heading")
+    "px4_uuv": px4_uuv_kind,  # PX4's UUV attitude gains (the px4-uuv profile's "heading")
 }
+#: the kinds designed with the cascade's rules (CampaignConfig.cascade, resolved for the profile)
+CASCADE_RULED = ("cascade", "px4_rover", "px4_uuv")
 
 
 #: the kinds whose fit takes the b2 speed law of the vehicle's actuation (eq. S.3)

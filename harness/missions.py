@@ -33,6 +33,9 @@ class SurveyPlan:
     course_changes_deg: tuple[float, ...] = (30.0, -45.0, 20.0, -30.0, 40.0, -15.0)
     depth: float | None = 2.0  # None: no depth set-point (a boat)
     base_course_deg: float = 0.0
+    # None: each course change is a step; else the course set-point turns at this rate (a vehicle
+    # whose thrusters also steer loses forward thrust when a step saturates its yaw torque)
+    turn_rate_deg_s: float | None = None
 
     @property
     def duration_s(self) -> float:
@@ -48,6 +51,12 @@ class SurveyPlan:
         done = index * per_thrust + legs
         cycle = self.course_changes_deg
         course = self.base_course_deg + sum(cycle[i % len(cycle)] for i in range(done))
+        if self.turn_rate_deg_s is not None and done > 0:  # the latest change, taken at the turn rate
+            changed_at = index * self.seconds_per_thrust + (self.settle_s + (legs - 1) * self.leg_s if legs else 0.0)
+            change = cycle[(done - 1) % len(cycle)]
+            remaining = abs(change) - self.turn_rate_deg_s * (t - changed_at)
+            if legs and remaining > 0.0:
+                course -= math.copysign(remaining, change)
         return self.thrusts[index], math.radians(course)
 
 

@@ -45,6 +45,9 @@ class FakeTransport:
     def from_vehicle(self, msg) -> bool:
         return True
 
+    def from_autopilot(self, msg) -> bool:
+        return True
+
     def send_as(self, system_id, component, send) -> None:
         self.sent_as.append((system_id, component))
         send(self.mav)
@@ -66,9 +69,14 @@ class FakeModes:
         self.announcements = announcements
         self.changes: list[str] = []
         self.strategy = None
+        self.commanded: str | None = None
 
     def set_mode(self, neutral: str) -> None:
+        before = getattr(self.strategy, "before_mode_change", None)
+        if before is not None:
+            before(neutral)
         self.changes.append(neutral)
+        self.commanded = neutral
         self.announcements.custom_mode = self.announcements.profile.mode_number(neutral)
         self.strategy.mode_changed(neutral)
 

@@ -59,7 +59,7 @@ def test_profiles_name_modes_channels_and_units():
     with pytest.raises(ProfileError):
         ARDUROVER.channel("elevator")
     assert SIM.flown and ARDUROVER.flown  # ArduRover: against its 4.7 SITL firmware
-    assert set(PROFILES) == {"sim", "ardusub", "ardurover"}
+    assert set(PROFILES) == {"sim", "ardusub", "ardurover", "px4-rover", "px4-uuv"}
 
 
 def test_ardupilot_profiles_name_their_native_heading_gains_one_to_one():

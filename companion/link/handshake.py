@@ -37,7 +37,8 @@ def detect(ports: LinkPorts) -> AutopilotProfile:
         ports.clock.wait_until(lambda: any(n in parameters.cache for n in markers), ports.clock.timeouts.param_try_s)
         found = {n for n in markers if n in parameters.cache}
         if found:
-            return detect_profile(found)
+            heartbeat = ports.announcements.last_heartbeat
+            return detect_profile(found, getattr(heartbeat, "type", None))
     raise ProfileError(f"no answer to the profile marker parameters {', '.join(markers)}: the vehicle did not "
                        "answer parameter requests (a link too slow or one-way?); name the autopilot with --profile")
 
@@ -95,6 +96,7 @@ def setup(ports: LinkPorts, profile: str | None, stream_rates: dict[int, float] 
     ports.overrides.send = strategy.send_overrides
     ports.telemetry.refine = strategy.on_snapshot
     ports.modes.on_change(strategy.mode_changed)
+    ports.modes.before_change(strategy.before_mode_change)
     ports.modes.on_accepted(strategy.mode_accepted)
     ports.telemetry.on_reboot(lambda: _rebooted(ports, strategy))
     rates = dict(strategy.streams if stream_rates is None else stream_rates)
@@ -102,7 +104,8 @@ def setup(ports: LinkPorts, profile: str | None, stream_rates: dict[int, float] 
     ports.parameters.int_encoding = chosen.int_encoding
     ports.telemetry.use(TelemetryAssembler(chosen, depth_sensor=depth_sensor), ports.announcements.last_heartbeat)
     chosen = _configured(ports, chosen, strategy)
-    ports.ground.gcs_sysid = int(ports.parameters.read_first(chosen.native_candidates("gcs_sysid"), default=255.0))
+    if "gcs_sysid" in chosen.params:  # PX4 has no such parameter: any ground station may command it
+        ports.ground.gcs_sysid = int(ports.parameters.read_first(chosen.native_candidates("gcs_sysid"), default=255.0))
     result = Setup(chosen, strategy, rates)
     if "override_timeout" in chosen.params:
         result.override_timeout_s = ports.parameters.read_first(chosen.native_candidates("override_timeout"),

@@ -34,6 +34,12 @@ class ModeControl:
         self._listeners: list[Callable[[str], None]] = []
         self._request_listeners: list[Callable[[str], None]] = []
         self._accepted_listeners: list[Callable[[str], None]] = []
+        self._before: list[Callable[[str], None]] = []
+
+    def before_change(self, listener: Callable[[str], None]) -> None:
+        """Call ``listener(neutral)`` before every mode change the companion asks for (an autopilot
+        that accepts a mode only while set-points already stream, PX4's OFFBOARD, starts them there)."""
+        self._before.append(listener)
 
     @property
     def commanded(self) -> str | None:
@@ -62,6 +68,7 @@ class ModeControl:
         before a HEARTBEAT verifies it: for what a new mode needs at once (ArduRover's GUIDED loiters
         until it gets a target)."""
         self._accepted_listeners.append(listener)
+
     def on_request(self, listener: Callable[[str], None]) -> Callable[[], None]:
         """Call ``listener(neutral)`` before the companion asks for a mode (a crash trail records
         it, whoever asked); returns the unsubscribe call."""
@@ -78,6 +85,8 @@ class ModeControl:
         profile = self._profile()
         target = profile.mode_number(neutral)
         params = profile.mode_command_params(target)
+        for listener in self._before:
+            listener(neutral)
         timeouts = self.clock.timeouts
         tries = max(int(math.ceil(timeouts.mode_s / timeouts.command_s)), 1)
         since_text = self.announcements.statustext_count

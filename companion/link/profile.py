@@ -77,6 +77,9 @@ class AutopilotProfile:
     aliases: dict[str, tuple[str, ...]] = field(default_factory=dict)  # neutral -> other native names to try
     native_scales: dict[str, NativeScale] = field(default_factory=dict)  # neutral -> unit conversion
     marker_param: str = ""  # a parameter only this autopilot has (profile detection)
+    # HEARTBEAT.type (MAV_TYPE) values this profile flies, where one autopilot's profiles share a
+    # marker (PX4's rover and UUV builds have the same parameters); empty: any
+    mav_types: tuple[int, ...] = ()
     heading_schedule: str = "heading"  # the gain schedule of its heading loop (procedures.registry)
     strategy: str = "sim"  # module of companion.link.autopilots that commands this autopilot
     water_speed_sensor: bool = True  # False: VFR_HUD.airspeed is not a water speed; ground speed stands in

@@ -25,10 +25,13 @@ def get_profile(name: str) -> AutopilotProfile:
         raise ProfileError(f"unknown autopilot profile {name!r} (known: {sorted(PROFILES)})") from None
 
 
-def detect_profile(param_names: set[str] | frozenset[str]) -> AutopilotProfile:
+def detect_profile(param_names: set[str] | frozenset[str], mav_type: int | None = None) -> AutopilotProfile:
     """The profile whose marker parameter the vehicle has: HDG_P → sim, ATC_ANG_YAW_P → ardusub,
-    ATC_STR_ANG_P → ardurover. Raises ProfileError when none (or more than one) matches."""
-    matches = [p for p in PROFILES.values() if p.marker_param in param_names]
+    ATC_STR_ANG_P → ardurover, SYS_AUTOSTART → PX4, told apart by the HEARTBEAT's ``mav_type``
+    (px4-rover a rover or boat, px4-uuv a submarine). Raises ProfileError when none (or more than
+    one) matches."""
+    matches = [p for p in PROFILES.values() if p.marker_param in param_names
+               and (not p.mav_types or mav_type is None or mav_type in p.mav_types)]
     if len(matches) != 1:
         found = [p.name for p in matches]
         raise ProfileError(
@@ -39,4 +42,4 @@ def detect_profile(param_names: set[str] | frozenset[str]) -> AutopilotProfile:
 
 def marker_params() -> tuple[str, ...]:
     """The parameter names :func:`detect_profile` looks for (to probe a vehicle with)."""
-    return tuple(p.marker_param for p in PROFILES.values())
+    return tuple(dict.fromkeys(p.marker_param for p in PROFILES.values()))

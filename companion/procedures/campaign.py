@@ -44,7 +44,7 @@ from companion.procedures.campaign_config import (AXES, CHECKS, DEFAULT_THRUSTS,
                                                   QUICK_R2_THRESHOLD, CampaignConfig, GainCheck)
 from companion.procedures.campaign_verification import CampaignVerification
 from companion.procedures.results import ProcedureResult
-from companion.procedures.verified_design import LIMIT_PARAMETERS, HeadingLimits
+from companion.procedures.verified_design import CONTROLLERS, LIMIT_PARAMETERS, HeadingLimits
 
 log = logging.getLogger(__name__)
 
@@ -113,7 +113,12 @@ class IdentificationCampaign(Behaviour):
         self._total = 0
         parameters = {name for kind in self.kinds for name in kind.parameters}
         self.heading_kind = next((k for k in self.kinds if k.axis == "yaw"), None)
-        if config.checked != "none" and self.heading_kind is not None:
+        #: the checks flown: the configuration's, except that a heading controller the predictions do
+        #: not model (CONTROLLERS: PX4's) has every check flown ("compare") rather than predicted
+        self.checks = config.checked
+        if self.checks == "verify" and self.heading_kind is not None and self.heading_kind.name not in CONTROLLERS:
+            self.checks = "compare"
+        if self.checks != "none" and self.heading_kind is not None:
             parameters |= set(self.heading_kind.parameters)
         self.verification: str | None = None
         self.surge = SurgeRecorder()  # the settles' speed and throttle, for the speed loop
@@ -121,7 +126,7 @@ class IdentificationCampaign(Behaviour):
         if config.speed.enabled:
             parameters |= set(SPEED_GAINS + SPEED_CONTEXT)
         self.verifier: CampaignVerification | None = None  # the short campaign's ("verify")
-        if config.checked == "verify" and self.heading_kind is not None:
+        if self.checks == "verify" and self.heading_kind is not None:
             parameters |= set(LIMIT_PARAMETERS)  # read for the predictions (restored unchanged)
         self.footprint = Footprint.of(parameters, ("mode", "thrust", "heading", "depth", "rudder", "elevator"))
 
@@ -167,7 +172,7 @@ class IdentificationCampaign(Behaviour):
                          lambda: self._verifier().original_step(self._original_heading(), "highest", self.heading_design),
                          lambda: self._verifier().original_step(self._original_heading(), "lowest", self.heading_design)):
                 items.append(Deferred(slot, self._heading_gains))
-        elif cfg.checked == "compare":
+        elif self.checks == "compare":
             for thrust in cfg.thrusts:
                 for label in cfg.step_labels:
                     items.append(Deferred(self._step_test_factory(thrust, label), self._heading_gains))
@@ -176,14 +181,14 @@ class IdentificationCampaign(Behaviour):
                                   Footprint.of(SPEED_GAINS, ("mode", "thrust", "heading"))))
         items.append(Deferred(self._final_gains_step, self.footprint))
         # progress counts the manoeuvres and the checks (the design and the final write are instants)
-        checks = {"verify": 2, "compare": len(cfg.thrusts) * len(cfg.step_labels)}.get(cfg.checked, 0)
+        checks = {"verify": 2, "compare": len(cfg.thrusts) * len(cfg.step_labels)}.get(self.checks, 0)
         self._total = len(cfg.thrusts) * len(cfg.axes) + checks
         return SequenceBehavior(items, on_complete=self._on_complete, name="campaign")
 
     # ------------------------------------------------------------------ verification ("verify")
     @property
     def verifier_wanted(self) -> bool:
-        return self.config.checked == "verify" and self.heading_kind is not None
+        return self.checks == "verify" and self.heading_kind is not None
 
     @property
     def _heading_gains(self) -> Footprint:
@@ -278,7 +283,7 @@ class IdentificationCampaign(Behaviour):
         if not self.config.write_gains or not self.designs:
             return None
         if self.heading_kind is not None and self.heading_kind.name in self.designs:
-            if self.config.checked == "none":
+            if self.checks == "none":
                 self.verification = "not verified: the heading-step checks were skipped, so no gain is written"
                 return Instant(StatusText("gains not written: not verified (no heading-step checks)", 4), name="write gains")
             if self.verifier_wanted:
@@ -425,7 +430,7 @@ class IdentificationCampaign(Behaviour):
             "design_errors": self.design_errors,
             "verification": self.verification or ("passed" if self.final_gains else None),
             "steps": [{k: v for k, v in r.items() if k != "series"} for r in self.step_results],
-            "checks": self.config.checked,
+            "checks": self.checks,
             "verified": self.verifier.summary() if self.verifier is not None else None,
             "vehicle_time_by_phase": self.phases_in_order(),
             "final_gains": self.final_gains,

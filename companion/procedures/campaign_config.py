@@ -11,7 +11,7 @@ from typing import Sequence
 from behaviors.gain_scheduling import ScheduleKind
 from behaviors.heading_steps import StepTestConfig
 from behaviors.identification import ManoeuvreConfig, thesis_estimator
-from behaviors.schedules import schedule_kind
+from behaviors.schedules import CASCADE_RULED, schedule_kind
 from behaviors.steadiness import SteadinessRule
 from behaviors.verification import VerificationConfig
 from companion.checks import check_thrust_levels, require_non_negative, require_positive
@@ -155,7 +155,7 @@ class CampaignConfig:
 
     def kinds(self) -> list[ScheduleKind]:
         """The requested gain schedules (heading with this config's bounds, cascade with its rules)."""
-        options = {"heading": self.bounds, "cascade": self.cascade}
+        options = {"heading": self.bounds, **{name: self.cascade for name in CASCADE_RULED}}
         return [schedule_kind(name, options.get(name), self.speed_law) for name in self.schedules]
 
     def with_profile_defaults(self, profile) -> "CampaignConfig":

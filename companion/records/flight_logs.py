@@ -18,9 +18,11 @@ Formats (chosen by content, not by the name alone: a DataFlash log starts with i
   the profile's steering output when the log has no PARM), speed from GPS.Spd or XKF1.VN/VE;
   ``TimeUS``. A log whose functions name no steering is refused with what to set.
 * **PX4 ULog .ulg** (pyulog): vehicle_attitude.q (yaw from the quaternion), the steering from
-  actuator_controls_0.control[2] (normalised yaw), actuator_servos.control[0] or
-  actuator_outputs.output[0] (PWM, or normalised on newer firmware: told apart by range), speed from
-  vehicle_local_position.vx/vy; ``timestamp`` in µs.
+  actuator_controls_0.control[2] (normalised yaw), actuator_servos.control[0] (a rover's steering),
+  vehicle_torque_setpoint.xyz[2] (a UUV's yaw torque demand: its thrusters make it an equivalent
+  rudder, ``companion.link.autopilots.px4_uuv``) or actuator_outputs.output[0] (PWM, or normalised
+  on newer firmware: told apart by range), speed from vehicle_local_position.vx/vy; ``timestamp``
+  in µs.
 * **CSV** with a header: ``t`` (s), ``yaw`` (rad), ``rudder`` (rad) and a speed column (``speed``,
   ``u`` or ``speed_water``), optionally ``thrust``.
 
@@ -447,7 +449,8 @@ def _read_ulog(path: str, profile: AutopilotProfile, full_scale: float) -> Steer
         from pyulog import ULog
     except ImportError:  # pragma: no cover - a declared dependency
         raise LogError("reading .ulg logs needs pyulog (pip install pyulog)") from None
-    wanted = ["vehicle_attitude", "actuator_controls_0", "actuator_servos", "actuator_outputs", "vehicle_local_position"]
+    wanted = ["vehicle_attitude", "actuator_controls_0", "actuator_servos", "vehicle_torque_setpoint", "actuator_outputs",
+              "vehicle_local_position"]
     try:
         ulog = ULog(path, message_name_filter_list=wanted)
     except Exception as exc:  # noqa: BLE001
@@ -466,7 +469,7 @@ def _read_ulog(path: str, profile: AutopilotProfile, full_scale: float) -> Steer
     heading = np.arctan2(2.0 * (q0 * q3 + q1 * q2), 1.0 - 2.0 * (q2 ** 2 + q3 ** 2))
     rudder = None
     for topic, column in (("actuator_controls_0", "control[2]"), ("actuator_servos", "control[0]"),
-                          ("actuator_outputs", "output[0]")):
+                          ("vehicle_torque_setpoint", "xyz[2]"), ("actuator_outputs", "output[0]")):
         data = topics.get(topic)
         if data is None or column not in data:
             continue
@@ -483,7 +486,8 @@ def _read_ulog(path: str, profile: AutopilotProfile, full_scale: float) -> Steer
         rudder_source = f"{topic}.{column} × {full_scale:.4f} rad"
         break
     if rudder is None:
-        raise LogError(f"{path}: no actuator_controls_0, actuator_servos or actuator_outputs: no steering output")
+        raise LogError(f"{path}: no actuator_controls_0, actuator_servos, vehicle_torque_setpoint or actuator_outputs: "
+                       "no steering output")
     position = topics.get("vehicle_local_position")
     if position is None:
         raise LogError(f"{path}: no vehicle_local_position topic: no speed")

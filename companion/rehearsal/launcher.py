@@ -77,9 +77,11 @@ class SimulatorProcess:
     transport: str = "tcp"  # or "udp"
     log_path: Path | None = None  # the simulator's stderr (None: discarded)
     lockstep: bool = True  # results independent of the speed-up (docs/PROTOCOL.md, "Lockstep")
-    # "builtin" (our autopilot) or "ardurover"/"ardusub": the real ArduPilot SITL flying our physics
+    # "builtin" (our autopilot) or "ardurover"/"ardusub": the real ArduPilot SITL flying our physics;
+    # "px4-rover"/"px4-uuv": PX4 SITL (its MAVLink is UDP: use transport "udp")
     autopilot: str = "builtin"
     ardupilot_bin: str | None = None
+    px4_bin: str | None = None
     process: subprocess.Popen | None = None
     port: int = 0
     #: what the simulator reported at exit (``STATS`` line, lockstep only; None before or without)
@@ -106,7 +108,8 @@ class SimulatorProcess:
             return [sys.executable, "-m", "sim", "run", "--autopilot", self.autopilot, "--preset", self.preset,
                     "--speedup", str(self.speedup), "--seed", str(self.seed),
                     "--current", f"{self.current[0]},{self.current[1]}",
-                    *(["--ardupilot-bin", self.ardupilot_bin] if self.ardupilot_bin else []), *self.extra_args]
+                    *(["--ardupilot-bin", self.ardupilot_bin] if self.ardupilot_bin else []),
+                    *(["--px4-bin", self.px4_bin] if self.px4_bin else []), *self.extra_args]
         return [sys.executable, "-m", "sim", "run", "--preset", self.preset, "--speedup", str(self.speedup),
                 "--listen", self.listen, "--seed", str(self.seed),
                 "--current", f"{self.current[0]},{self.current[1]}",

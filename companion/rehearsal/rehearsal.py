@@ -107,7 +107,8 @@ class RehearsalConfig:
     steady_state: bool = False
     progress: bool = True
     autopilot: str = "builtin"  # or "ardurover"/"ardusub": real ArduPilot SITL (needs ardupilot_bin)
-    ardupilot_bin: str | None = None
+    ardupilot_bin: str | None = None  # "px4-rover"/"px4-uuv": real PX4 SITL (needs px4_bin)
+    px4_bin: str | None = None
     #: a vehicle variant: (perturbation, factor) pairs on the preset (companion.records.variants)
     perturb: tuple[tuple[str, float], ...] = ()
     noise: float = 1.0  # factor on every sensor σ of the preset
@@ -179,6 +180,29 @@ def preset_vehicle(preset: str) -> dict:
     except (OSError, KeyError, ValueError) as exc:
         log.warning("no servo rate for preset %r: %s", preset, exc)
         return {}
+
+
+def neutral_buoyancy(preset: str) -> tuple[tuple[str, float], ...]:
+    """The perturbation that trims a preset's AUV neutrally buoyant (buoyancy = weight), as PX4's
+    HippoCampus airframe flies it: its four forward thrusters pitch our STARFISH at most −1.9° at
+    0.86 m/s (one thrust differential is all its pitch authority), while the thesis' 1.9 N of
+    buoyancy needs about −3.5°: it rose 5 m in 100 s with the depth hold at its limit (measured).
+    Yaw is not affected. () when the preset has no dive plane."""
+    from companion.records.vehicle_files import preset_path
+
+    try:
+        plane = json.loads(preset_path(preset).read_text(encoding="utf-8"))["dive_plane"]
+        return (("dive_plane.buoyancy", float(plane["weight"]) / float(plane["buoyancy"])),)
+    except (OSError, KeyError, ValueError, ZeroDivisionError) as exc:
+        log.warning("no dive plane in preset %r: %s", preset, exc)
+        return ()
+
+
+def arm_px4_when_ready(link, patience_s: float) -> None:
+    """Arm PX4 in the mode it is in (Hold after boot, where no stick gates arming), retrying while it
+    still initialises ("no heading reference" for the first seconds)."""
+    start = link.next_telemetry(timeout_s=30.0).time_s
+    _retrier(link, start, patience_s)(lambda: link.arm(True))
 
 
 def _retrier(link, start: float, patience_s: float):
@@ -267,6 +291,9 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
     from companion.link.vehicle import VehicleLink  # the link pulls in pymavlink; keep CLI start-up light
 
     abort = abort or AbortFlag()
+    px4 = config.autopilot.startswith("px4-")
+    if config.autopilot == "px4-uuv" and not config.perturb:  # see neutral_buoyancy
+        config = replace(config, perturb=neutral_buoyancy(config.preset))
     started = time.monotonic()  # wall time of the whole rehearsal: a reported figure, not logic
     out = Path(config.out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -281,6 +308,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
     simulator = SimulatorProcess(sim_preset, config.speedup, config.seed, config.current,
                                  log_path=out / "simulator.log", autopilot=config.autopilot,
                                  ardupilot_bin=config.ardupilot_bin, lockstep=config.autopilot == "builtin",
+                                 px4_bin=config.px4_bin, transport="udp" if px4 else "tcp",
                                  ready_timeout_s=120.0,
                                  extra_args=([*ARDUSUB_SIM_ARGS] if config.autopilot == "ardusub" else [])
                                  + (["--truth-log", str(out / "truth.csv")] if config.autopilot != "builtin" else []))
@@ -288,10 +316,12 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
     with Store(store_path) as store, simulator as sim:
         link = VehicleLink.connect(sim.endpoint, lockstep=sim.lockstep,
                                    heartbeat_timeout_s=60.0 if sim.real_autopilot else 10.0,
-                                   vehicle=(preset_vehicle(sim_preset) if config.autopilot != "ardusub" else
-                                            ARDUSUB_VEHICLE) if sim.real_autopilot else None)
+                                   vehicle=(ARDUSUB_VEHICLE if config.autopilot == "ardusub" else {} if px4 else
+                                            preset_vehicle(sim_preset)) if sim.real_autopilot else None)
         try:
-            if config.autopilot == "ardusub":
+            if px4:  # PX4 slews its outputs itself: the read-back is the rudder (no servo model)
+                arm_px4_when_ready(link, patience_s=120.0)
+            elif config.autopilot == "ardusub":
                 arm_ardusub_when_ready(link, patience_s=120.0)
             else:
                 arm_when_ready(link, patience_s=120.0 if sim.real_autopilot else 0.0)
@@ -335,7 +365,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                                     for s in campaign.step_results]
         summary["speed_loop"] = speed_loop_summary(campaign.speed)
         summary["verification"] = campaign.verification or ("passed" if campaign.final_gains else None)
-        summary["checks"] = campaign.config.checked
+        summary["checks"] = campaign.checks
         summary["verified"] = campaign.verifier.summary() if campaign.verifier is not None else None
         summary["final_gains"] = campaign.final_gains
         summary["store"] = str(store_path)

@@ -16,6 +16,9 @@ from __future__ import annotations
 ARDUPILOT_TIMING = ("ArduPilot runs its own scheduler: the vehicle time at which each of the companion's "
                     "commands lands in its loops, and which samples its streams carry, depend on how the "
                     "two processes are scheduled")
+PX4_TIMING = ("PX4 runs its own scheduler on the simulator's clock, which is paced on the wall clock: the vehicle "
+              "time at which each of the companion's commands lands, and how far the companion lags the stream, "
+              "depend on how the processes are scheduled")
 
 
 def reproducibility_record(autopilot: str, lockstep: bool, simulator_stats: dict | None,
@@ -23,7 +26,8 @@ def reproducibility_record(autopilot: str, lockstep: bool, simulator_stats: dict
     """The summary's ``reproducibility``: ``exact`` (bool), ``varied`` (reasons, empty when exact)
     and the simulator's lockstep record (``engaged_at_s``, ``interruptions``, ``free_ticks``)."""
     if autopilot != "builtin":
-        return {"exact": False, "varied": [ARDUPILOT_TIMING], "lockstep": None}
+        return {"exact": False, "varied": [PX4_TIMING if autopilot.startswith("px4-") else ARDUPILOT_TIMING],
+                "lockstep": None}
     varied: list[str] = []
     record = (simulator_stats or {}).get("lockstep") if lockstep else None
     if not lockstep:

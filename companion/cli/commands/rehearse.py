@@ -35,11 +35,15 @@ def add_parser(subparsers) -> None:
                         help="run the steady-state squares and turns (default: on for hugin)")
     parser.add_argument("--current", default=None, metavar="VN,VE",
                         help="water current north,east in m/s (default: still water; hugin: 0.007,-0.012)")
-    parser.add_argument("--autopilot", choices=("builtin", "ardurover", "ardusub"), default="builtin",
+    parser.add_argument("--autopilot", choices=("builtin", "ardurover", "ardusub", "px4-rover", "px4-uuv"),
+                        default="builtin",
                         help="builtin: our own autopilot (default); ardurover/ardusub: the real ArduPilot firmware "
-                             "(SITL, JSON backend) flying our physics (boat preset for ardurover)")
+                             "(SITL, JSON backend) flying our physics (boat preset for ardurover); px4-rover/px4-uuv: "
+                             "the real PX4 firmware (SITL, MAVLink HIL) flying our boat / our AUV trimmed neutral")
     parser.add_argument("--ardupilot-bin", metavar="DIR", default=None,
                         help="ArduPilot SITL binaries (build/sitl/bin); default $ARDUPILOT_SITL_BIN")
+    parser.add_argument("--px4-bin", metavar="DIR", default=None,
+                        help="PX4 SITL build folder (with bin/px4 and etc/); default $PX4_SITL_BIN")
     parser.add_argument("--perturb", type=perturbation_list, action="append", default=[], metavar="NAME=FACTOR",
                         help="fly a variant of the preset: multiply a parameter group by a factor, e.g. mass=1.1,b2=0.8 "
                              "(mass, b2, a22, trim, elevator, drag, thrust or SECTION.FIELD; repeatable)")
@@ -93,10 +97,15 @@ def run(args: argparse.Namespace) -> int:
         return 2
     import os
 
-    if args.autopilot == "ardurover" and args.preset == "starfish":
-        args.preset = "boat"  # ArduRover flies the boat preset unless told otherwise
+    if args.autopilot in ("ardurover", "px4-rover") and args.preset == "starfish":
+        args.preset = "boat"  # the rover firmwares fly the boat preset unless told otherwise
     ardupilot_bin = args.ardupilot_bin or os.environ.get("ARDUPILOT_SITL_BIN")
-    if args.autopilot != "builtin" and not ardupilot_bin:
+    px4_bin = args.px4_bin or os.environ.get("PX4_SITL_BIN")
+    if args.autopilot.startswith("px4-") and not px4_bin:
+        print(f"--autopilot {args.autopilot} needs --px4-bin DIR (or PX4_SITL_BIN): a PX4 SITL build folder built "
+              "from PX4's sources", file=sys.stderr)
+        return 2
+    if args.autopilot in ("ardurover", "ardusub") and not ardupilot_bin:
         print(f"--autopilot {args.autopilot} needs --ardupilot-bin DIR (or ARDUPILOT_SITL_BIN): the folder of "
               "ArduPilot SITL binaries built from ArduPilot's sources", file=sys.stderr)
         return 2
@@ -120,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
         campaign = campaign.with_thesis_estimator()
     if args.behaviors is None:
         # ArduSub: no rolling mass, and the minimum-speed seeker drives a depth loop ALT_HOLD keeps
-        behaviors = () if args.autopilot == "ardusub" else defaults["behaviors"]
+        behaviors = () if args.autopilot != "builtin" else defaults["behaviors"]
     elif args.behaviors == "none":
         behaviors = ()
     else:
@@ -134,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
     config = RehearsalConfig(preset=args.preset, speedup=args.speedup, seed=args.seed, out_dir=args.out,
                              campaign=campaign, behaviors=behaviors, current=current, steady_state=steady,
                              progress=not args.json, autopilot=args.autopilot, ardupilot_bin=ardupilot_bin,
+                             px4_bin=px4_bin,
                              perturb=tuple(sorted(perturb.items())), noise=args.noise, report=not args.no_report)
     abort = AbortFlag()
     undo = install_signal_handlers(abort)

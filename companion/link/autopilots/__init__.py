@@ -2,14 +2,15 @@
 
 Adding an autopilot is one module here (a ``PROFILE`` and a ``Strategy`` class) and one name in
 :data:`MODULES`. ``sim`` is our simulator (docs/PROTOCOL.md), ``ardurover`` ArduRover boats and
-``ardusub`` ArduSub; ``ardupilot`` holds what the ArduPilot family shares.
+``ardusub`` ArduSub, ``px4_rover`` and ``px4_uuv`` PX4 boats and UUVs; ``ardupilot`` and ``px4``
+hold what each family shares.
 """
 from __future__ import annotations
 
 import importlib
 
 #: the registered autopilots (modules of this package); their profiles are detected in this order
-MODULES = ("sim", "ardusub", "ardurover")
+MODULES = ("sim", "ardusub", "ardurover", "px4_rover", "px4_uuv")
 #: the MAVLink dialect connections are opened with: one that covers every registered autopilot
 #: (ArduPilot's is a superset of ``common``)
 CONNECT_DIALECT = "ardupilotmega"

@@ -115,6 +115,10 @@ class AutopilotStrategy:
         """Give ``actuator`` (None: all) back to the autopilot."""
         self.ports.overrides.release(actuator)
 
+    def before_mode_change(self, neutral: str) -> None:
+        """Called before the link asks for a mode (what must already stream for the autopilot to
+        accept it starts here)."""
+
     def mode_changed(self, neutral: str) -> None:
         """Called after the link switched mode (targets a new mode needs are sent here)."""
 
