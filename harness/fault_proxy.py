@@ -243,6 +243,25 @@ class FaultProxy:
         with self._lock:
             return self.delivered.held_overrides()
 
+    def pending(self) -> int:
+        """Frames still held, paced or waiting to be written."""
+        with self._lock:
+            return sum(len(p.held) + (p.swap is not None) + len(p.paced) + bool(p.out)
+                       for s in self._sessions for p in (s.up, s.down))
+
+    def drain(self, timeout_s: float = 1.0) -> bool:
+        """Wait (at most ``timeout_s``) until nothing is held or in flight; True when so."""
+        deadline = time.monotonic() + timeout_s
+        while self.pending() and time.monotonic() < deadline and self._thread.is_alive():
+            time.sleep(TICK_S)
+        return not self.pending()
+
+    def stats(self) -> dict[str, dict]:
+        """Per direction: frames delivered and dropped by the rate cap's full queue."""
+        with self._lock:
+            return {d: {"delivered": self.delivered.frames[d], "rate_dropped": self.rate_dropped[d]}
+                    for d in (TO_VEHICLE, TO_COMPANION)}
+
     # ------------------------------------------------------------------ the loop
     def _loop(self) -> None:
         while not self._stop.is_set():

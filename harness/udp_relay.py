@@ -216,6 +216,19 @@ class UdpRelay:
         with self._lock:
             return self.delivered.held_overrides()
 
+    def pending(self) -> int:
+        """Datagrams and frames still held or in flight."""
+        with self._lock:
+            return len(self._due) + sum(len(d.held) + len(d.link_swap) + (d.swap is not None)
+                                        for d in self._directions.values())
+
+    def drain(self, timeout_s: float = 1.0) -> bool:
+        """Wait (at most ``timeout_s``) until nothing is held or in flight; True when so."""
+        deadline = time.monotonic() + timeout_s
+        while self.pending() and time.monotonic() < deadline and self._thread.is_alive():
+            time.sleep(TICK_S)
+        return not self.pending()
+
     def stats(self) -> dict[str, dict]:
         """Per direction: datagrams received, delivered, lost, dropped by the rate cap, duplicated,
         reordered on purpose, delivered out of arrival order, ATTITUDE frames lost; bytes delivered
