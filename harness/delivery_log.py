@@ -5,7 +5,8 @@ Kept by the TCP fault proxy and the UDP relay at the moment a frame leaves them 
 delay and rate cap), so a case can check the vehicle's commands by what it *received* rather than by
 what the companion sent: the last RC override value per channel (:meth:`DeliveryLog.held_overrides`),
 the last parameters of every COMMAND_LONG (:attr:`DeliveryLog.commands`) and the order they came in
-(:attr:`DeliveryLog.command_history`), and for the vehicle's ATTITUDE samples how many reached the
+(:attr:`DeliveryLog.command_history`), the COMMAND_ACKs that reached the companion
+(:attr:`DeliveryLog.acks`), and for the vehicle's ATTITUDE samples how many reached the
 companion out of vehicle-time order (a companion that drops an older sample loses it).
 """
 from __future__ import annotations
@@ -39,6 +40,7 @@ class DeliveryLog:
         self.commands: dict[int, tuple[float, ...]] = {}  # COMMAND_LONG id -> params last delivered
         self.command_history: collections.deque[CommandDelivery] = collections.deque(maxlen=HISTORY_MAX)
         self.frames = {TO_VEHICLE: 0, TO_COMPANION: 0}
+        self.acks: collections.deque[tuple[float, int, int]] = collections.deque(maxlen=HISTORY_MAX)  # (wall, command, result)
         self.attitude_delivered = 0
         self.attitude_out_of_order = 0  # ATTITUDE delivered with a time_boot_ms not after the latest one
         self.latest_attitude_ms: int | None = None
@@ -56,6 +58,10 @@ class DeliveryLog:
                 self.commands[command] = params
                 self.command_history.append(CommandDelivery(time.monotonic() if wall_s is None else wall_s, command,
                                                             params, frame.payload()[32]))
+        elif name == "COMMAND_ACK":
+            payload = frame.payload() + bytes(3)
+            self.acks.append((time.monotonic() if wall_s is None else wall_s, int.from_bytes(payload[:2], "little"),
+                              payload[2]))
         elif name == "ATTITUDE":
             self.attitude_delivered += 1
             stamp = frame.time_boot_ms()

@@ -42,7 +42,8 @@ from harness.udp_relay import UdpRelay
 log = logging.getLogger(__name__)
 
 __all__ = ["CASE_PROCEDURES", "FRAME_KINDS", "PHASES", "TRANSPORTS", "Case", "CaseResult", "Phase", "closed_cut_case",
-           "fault_link", "mixed_case", "restore_case", "run_case", "single_case", "silent_cut_case"]
+           "fault_link", "mixed_case", "native_names", "restore_case", "run_case", "single_case", "silent_cut_case",
+           "state_differences", "vehicle_state"]
 
 MAV_CMD_CONDITION_YAW = 115
 MAV_CMD_DO_CHANGE_SPEED = 178
@@ -289,14 +290,14 @@ def min_speed_config():
     return MinSpeedProcedureConfig(settle_s=4.0, duration_s=16.0)
 
 
-def _native_names() -> list[str]:
+def native_names() -> list[str]:
     """Every parameter of the simulator profile (what any procedure could change)."""
     from companion.link.autopilots.sim import PROFILE
 
     return sorted(set(PROFILE.params.values()))
 
 
-def _snapshot(link, names: list[str], *, settle_s: float = 0.0, window_s: float = 1.0) -> dict:
+def vehicle_state(link, names: list[str], *, settle_s: float = 0.0, window_s: float = 1.0) -> dict:
     """Parameters (native), mode, armed, thrust of the vehicle as ``link`` sees it now, and the
     heading it holds: the circular mean yaw over ``window_s`` of vehicle time after ``settle_s``."""
     params = {name: link.get_param(name) for name in names}
@@ -377,7 +378,7 @@ def run_case(sim, case: Case, store_path: Path, *, transport: str | None = None,
         raise ValueError(f"a {transport!r} case needs a simulator listening on {transport} (it listens on "
                          f"{sim.transport}); transports: {', '.join(TRANSPORTS)}")
     result = CaseResult(case, transport=transport)
-    names = _native_names()
+    names = native_names()
     started = time.monotonic()
     with fault_link(sim, case.seed, conditions) as proxy:
         link = VehicleLink.connect(proxy.endpoint, lockstep=sim.lockstep, heartbeat_timeout_s=connect_timeout_s,
@@ -386,7 +387,7 @@ def run_case(sim, case: Case, store_path: Path, *, transport: str | None = None,
             _resume_udp_lockstep(sim, link)
             link.set_mode("hold")
             link.arm(True)
-            before = _snapshot(link, names)
+            before = vehicle_state(link, names)
             abort = _AbortAfter(proxy, *case.abort_after) if case.abort_after else AbortFlag()
             proxy.arm(case.faults)
             with Store(store_path) as store:
@@ -453,14 +454,24 @@ def _check_vehicle(sim, before: dict, names: list[str], status, reason, kept: di
                    seen_ms: int | None = None) -> tuple[dict, list[str]]:
     """Reconnect directly and compare the vehicle's state with what was found: (the state after, what
     differs)."""
-    from companion.link.autopilots.sim import PROFILE
     from companion.link.vehicle import VehicleLink
 
     problems = _check_outcome(status, reason)
     with VehicleLink.connect(sim.endpoint, lockstep=sim.lockstep, heartbeat_timeout_s=timeout_s) as check:
         _resume_udp_lockstep(sim, check, seen_ms)
-        after = _snapshot(check, names, settle_s=HEADING_SETTLE_S, window_s=HEADING_WINDOW_S)
+        after = vehicle_state(check, names, settle_s=HEADING_SETTLE_S, window_s=HEADING_WINDOW_S)
         _note_udp_lockstep(sim, check)
+    return after, problems + state_differences(before, after, names, reason, kept)
+
+
+def state_differences(before: dict, after: dict, names: list[str], reason: str | None, kept: dict) -> list[str]:
+    """What the vehicle holds ``after`` (:func:`vehicle_state`) that differs from ``before``: every
+    parameter (or the value ``kept`` on purpose, by profile name), the mode and armed state (unless
+    ``reason`` says the pilot took the vehicle), the thrust, and the heading it steers to (with
+    steerage, in the mode it was found in)."""
+    from companion.link.autopilots.sim import PROFILE
+
+    problems = []
     kept_native = {PROFILE.native_param(name): PROFILE.to_native_value(name, value) for name, value in kept.items()}
     for name in names:
         found, now = before["params"][name], after["params"][name]
@@ -481,7 +492,7 @@ def _check_vehicle(sim, before: dict, names: list[str], status, reason, kept: di
         if not abs(off) <= HEADING_HELD_DEG:
             problems.append(f"heading held {math.degrees(after['heading']) % 360:.1f} deg, found "
                             f"{math.degrees(before['heading']) % 360:.1f} deg")
-    return after, problems
+    return problems
 
 
 def _same(a: float, b: float) -> bool:

@@ -22,7 +22,8 @@ Each datagram, in order:
    twice.
 
 What was delivered is recorded (``harness.delivery_log``: the RC overrides and COMMAND_LONGs the
-vehicle last received, ATTITUDE samples out of vehicle-time order) and counted per direction
+vehicle last received, ATTITUDE samples out of vehicle-time order; what was sent, before any fault,
+likewise in :attr:`UdpRelay.received`) and counted per direction
 (:meth:`UdpRelay.stats`: datagrams received, delivered, lost, dropped by the rate cap, duplicated,
 delivered out of arrival order, ATTITUDE samples lost).
 
@@ -121,6 +122,7 @@ class UdpRelay:
         self._companion_side = self._socket(host)
         self._vehicle_side = self._socket(host)
         self.port = self._companion_side.getsockname()[1]
+        self._vehicle_port = self._vehicle_side.getsockname()[1]
         self.companion_address: tuple[str, int] | None = None  # the last address the companion sent from
         self._selector = selectors.DefaultSelector()
         self._selector.register(self._companion_side, selectors.EVENT_READ, TO_VEHICLE)
@@ -131,9 +133,12 @@ class UdpRelay:
         self._faults = FaultSchedule(max_faults)  # no on_closing_cut: a UDP cut is silent
         self._due: list[_Due] = []
         self._order = itertools.count()
-        self.delivered = DeliveryLog()
+        self.delivered = DeliveryLog()  # what left the relay
+        self.received = DeliveryLog()  # what came in, before any fault or condition (what was sent)
         self.vehicle_time_ms: int | None = None
         self.connections = 0  # companion addresses seen (a new source port is a new "connection")
+        self.kernel_drops: dict[str, int] = {}  # socket_drops() when the relay closed
+        self._closed = False
 
     @staticmethod
     def _socket(host: str) -> socket.socket:
@@ -158,10 +163,15 @@ class UdpRelay:
         return self
 
     def close(self) -> None:
-        """Stop the thread and close both sockets (what was still in flight is lost)."""
+        """Stop the thread and close both sockets (what was still in flight is lost); the kernel's
+        drop counts of the sockets on the way are kept (:attr:`kernel_drops`)."""
+        if self._closed:
+            return
+        self._closed = True
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=5.0)
+        self.kernel_drops = self.socket_drops()
         self._selector.close()
         self._companion_side.close()
         self._vehicle_side.close()
@@ -216,6 +226,17 @@ class UdpRelay:
         with self._lock:
             return self.delivered.held_overrides()
 
+    def history(self, command: int, *, sent: bool = False) -> list:
+        """The COMMAND_LONGs ``command`` delivered to the vehicle, in the order it received them
+        (``sent``: in the order the companion sent them, before any fault or condition)."""
+        with self._lock:
+            return (self.received if sent else self.delivered).history(command)
+
+    def acks(self) -> list[tuple[float, int, int]]:
+        """The COMMAND_ACKs delivered to the companion: (wall, command, result)."""
+        with self._lock:
+            return list(self.delivered.acks)
+
     def pending(self) -> int:
         """Datagrams and frames still held or in flight."""
         with self._lock:
@@ -228,6 +249,16 @@ class UdpRelay:
         while self.pending() and time.monotonic() < deadline and self._thread.is_alive():
             time.sleep(TICK_S)
         return not self.pending()
+
+    def socket_drops(self) -> dict[str, int]:
+        """Datagrams the kernel dropped at each loopback socket on the way because its receive buffer
+        was full (Linux: /proc/net/udp; {} elsewhere): the relay's two, the companion's, the vehicle's.
+        Such losses happen before the relay sees a datagram, so they are not in :meth:`stats`."""
+        ports = {"relay companion side": self.port, "relay vehicle side": self._vehicle_port,
+                 "vehicle": self.vehicle_address[1]}
+        if self.companion_address is not None:
+            ports["companion"] = self.companion_address[1]
+        return _udp_drops(ports)
 
     def stats(self) -> dict[str, dict]:
         """Per direction: datagrams received, delivered, lost, dropped by the rate cap, duplicated,
@@ -242,7 +273,9 @@ class UdpRelay:
                 out[name] = counts
             out[TO_COMPANION]["attitude_delivered"] = self.delivered.attitude_delivered
             out[TO_COMPANION]["attitude_out_of_order"] = self.delivered.attitude_out_of_order
-            return out
+        out["kernel_drops"] = self.kernel_drops if self._stop.is_set() else self.socket_drops()
+        out["companion_addresses"] = self.connections
+        return out
 
     # ------------------------------------------------------------------ the loop
     def _loop(self) -> None:
@@ -289,6 +322,7 @@ class UdpRelay:
             self._link(d, bytes(out), index, now)
 
     def _frame(self, d: _Direction, frame: Frame, index: int, out: bytearray, now: float) -> None:
+        self.received.note(frame, d.name, now)
         self._faults.see(frame, d.name, now)
         if d.name == TO_COMPANION:
             stamp = frame.time_boot_ms()
@@ -406,6 +440,23 @@ class UdpRelay:
         for item in split_datagram(data):
             if isinstance(item, Frame):
                 self.delivered.note(item, d.name, now)
+
+
+def _udp_drops(ports: dict[str, int]) -> dict[str, int]:
+    """The ``drops`` column of /proc/net/udp for the sockets bound to ``ports`` (by name) on loopback
+    or on any address (an unbound ``udpout:`` socket is bound to 0.0.0.0 by its first send)."""
+    wanted = {f"{host}:{port:04X}": name for name, port in ports.items() for host in ("0100007F", "00000000")}
+    found: dict[str, int] = {}
+    try:
+        with open("/proc/net/udp", encoding="ascii") as table:
+            next(table, None)
+            for line in table:
+                fields = line.split()
+                if len(fields) > 12 and fields[1] in wanted:
+                    found[wanted[fields[1]]] = found.get(wanted[fields[1]], 0) + int(fields[-1])
+    except (OSError, ValueError):
+        return {}
+    return found
 
 
 def _attitudes(data: bytes, direction: str) -> int:
