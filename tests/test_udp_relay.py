@@ -16,6 +16,7 @@ import pytest
 from harness.fault_proxy import FaultProxy
 from harness.fault_schedule import TO_COMPANION, TO_VEHICLE, Fault, Trigger, timed_delay
 from harness.link_conditions import FateDraws, LinkConditions, TokenBucket
+from harness.relay_process import RelayProcess
 from harness.udp_relay import UdpRelay
 
 DO_CHANGE_SPEED = 178
@@ -293,6 +294,21 @@ def test_a_silent_cut_drops_everything_for_its_time(ends):
         _stream(ends, 10, 0.0)
         assert len(ends.receive(ends.companion, 10)) == 10
         assert relay.summary()[0]["affected"] == 10
+
+
+def test_the_relay_runs_in_a_process_of_its_own_with_the_same_methods(ends):
+    with RelayProcess(ends.vehicle_port, seed=3, conditions={TO_COMPANION: LinkConditions(loss=0.2)}) as relay:
+        ends.hello(relay)
+        relay.arm([Fault("drop", Trigger("PARAM_SET", 1), direction=TO_VEHICLE, messages=("PARAM_SET",), frames=1)])
+        ends.to_vehicle(relay, _param_set("HDG_P", 1.0) + _speed(70.0))
+        _stream(ends, 100, 0.0)
+        received = _numbers(ends.receive(ends.companion, 100))
+        at_vehicle = ends.receive(ends.vehicle, 1)
+        assert relay.count("PARAM_SET") == 1 and relay.summary()[0]["affected"] == 1
+        assert [d.params[2] for d in relay.history(DO_CHANGE_SPEED)] == [70.0]
+    stats = relay.stats()  # kept from the closed relay
+    assert b"HDG_P" not in at_vehicle[0][0]
+    assert stats[TO_COMPANION]["lost"] + len(received) == 100 and stats[TO_COMPANION]["lost"] > 0
 
 
 # ---------------------------------------------------------------------------- the TCP proxy's rate cap
