@@ -37,8 +37,15 @@ beside what the companion reported:
 Both are expected to fail until the companion confirms restores by state and respects other
 clients' changes: they measure the defects.
 
+Delays are wall-clock figures of the relay, while the vehicle runs ``--speedup`` times faster: at 5×,
+50 ± 20 ms of the relay are 250 ± 100 ms of the vehicle's time (at 20×, 1 ± 0.4 s: a sample then
+arrives more than a second after a newer one, which the companion takes for a reboot). With
+``--vehicle-time`` the delays are divided by the speed-up, so that the vehicle meets the link of a
+1× vehicle (loss is the same either way).
+
     python bench/bench_link_conditions.py [--conditions clean,loss2,jitter,both,loss10] [--seeds 3]
-        [--speedups 5,20] [--axes yaw] [--thrusts 0.6,0.8,1.0] [--no-steps] [--jobs 1] [--json FILE]
+        [--speedups 5,20] [--vehicle-time] [--axes yaw] [--thrusts 0.6,0.8,1.0] [--no-steps] [--jobs 1]
+        [--json FILE]
     python bench/bench_link_conditions.py --reproduce [--speedups 5] [--seeds 1]
 """
 from __future__ import annotations
@@ -88,14 +95,25 @@ def campaign_config(axes: str | None, thrusts: str | None, no_steps: bool):
     return CampaignConfig(**fields).for_procedure("quick")
 
 
+def in_vehicle_time(conditions: LinkConditions, speedup: float) -> LinkConditions:
+    """``conditions`` as a vehicle running ``speedup`` times faster than the wall clock meets them:
+    delays divided by the speed-up, a rate cap multiplied by it."""
+    from dataclasses import replace
+
+    rate = conditions.rate_bytes_s * speedup if conditions.rate_bytes_s is not None else None
+    return replace(conditions, delay_s=conditions.delay_s / speedup, jitter_s=conditions.jitter_s / speedup,
+                   reorder_max_s=conditions.reorder_max_s / speedup, rate_bytes_s=rate)
+
+
 def one_run(condition: str, seed: int, speedup: float, axes: str | None, thrusts: str | None,
-            no_steps: bool) -> dict:
+            no_steps: bool, vehicle_time: bool = False) -> dict:
     """A campaign under ``condition`` on a fresh simulator (a process of its own when ``--jobs`` > 1)."""
     config = campaign_config(axes, thrusts, no_steps)
+    conditions = in_vehicle_time(CONDITIONS[condition], speedup) if vehicle_time else CONDITIONS[condition]
     with tempfile.TemporaryDirectory(prefix="bench-link-") as workdir:
         sim = start_sim(transport="udp", speedup=speedup, seed=seed, lockstep=False)
         try:
-            run = run_campaign_through_relay(sim, condition, CONDITIONS[condition], seed, config, Path(workdir))
+            run = run_campaign_through_relay(sim, condition, conditions, seed, config, Path(workdir))
         except Exception as exc:  # noqa: BLE001 - the harness failed: reported, the bench goes on
             run = CampaignRun(condition, seed, speedup, crash=f"harness: {type(exc).__name__}: {exc}",
                               state_problems=["not checked"])
@@ -169,7 +187,8 @@ def matrix(args) -> int:
     started = time.monotonic()
     results: list[dict] = []
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        futures = [pool.submit(one_run, c, seed, s, args.axes, args.thrusts, args.no_steps) for c, seed, s in jobs]
+        futures = [pool.submit(one_run, c, seed, s, args.axes, args.thrusts, args.no_steps, args.vehicle_time)
+                   for c, seed, s in jobs]
         for (condition, seed, speedup), future in zip(jobs, futures):
             result = future.result()
             results.append(result)
@@ -177,7 +196,8 @@ def matrix(args) -> int:
             print(f"[{len(results)}/{len(jobs)}] {condition} x{speedup:g} seed {seed}: {result['status']} "
                   f"({result['reason'] or result['crash'] or ''}) a22 % [{models}] {result['wall_s']:.0f} s",
                   file=sys.stderr, flush=True)
-    print(f"identification campaign over UDP through the relay, STARFISH, seeds 1-{args.seeds}; "
+    print(f"identification campaign over UDP through the relay, STARFISH, seeds 1-{args.seeds}; delays in "
+          f"{'vehicle time (divided by the speed-up)' if args.vehicle_time else 'wall time'}; "
           f"{time.monotonic() - started:.0f} s wall")
     for speedup in speedups:
         for condition in conditions:
@@ -288,6 +308,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--conditions", default=",".join(CONDITIONS))
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--speedups", default="5,20")
+    parser.add_argument("--vehicle-time", action="store_true",
+                        help="delays are the vehicle's: divided by the speed-up (module docstring)")
     parser.add_argument("--axes", help="e.g. yaw (default: the quick procedure's yaw,pitch)")
     parser.add_argument("--thrusts", help="e.g. 0.6,0.8,1.0 (default: the quick procedure's five)")
     parser.add_argument("--no-steps", action="store_true", help="no heading-step checks (then no gain is written)")

@@ -42,6 +42,8 @@ __all__ = ["CampaignRun", "companion_link_quality", "run_campaign_through_relay"
 
 PRESET = "starfish"
 DO_CHANGE_SPEED = 178  # MAV_CMD_DO_CHANGE_SPEED: the thrust set-point (throttle % in param 3)
+#: read one telemetry snapshot between connecting and the campaign, as ``rehearse`` does (``identify`` does not)
+READ_TELEMETRY_FIRST = True
 #: settle and window of the heading-held check after the run (vehicle seconds)
 AFTER_SETTLE_S, AFTER_WINDOW_S = 8.0, 2.0
 #: attribute names under which the companion may count what it lost or dropped (read if present)
@@ -115,8 +117,6 @@ def run_campaign_through_relay(sim, condition: str, conditions: LinkConditions |
     relay with ``conditions`` and ``faults`` (module docstring); the relay runs in a process of its
     own unless ``relay_process`` is False (``harness.relay_process``)."""
     from companion.link.vehicle import VehicleLink
-    from companion.procedures.app import AbortFlag, run_campaign
-    from companion.records.store import Store
 
     run = CampaignRun(condition, seed, sim.speedup)
     started = time.monotonic()
@@ -128,37 +128,12 @@ def run_campaign_through_relay(sim, condition: str, conditions: LinkConditions |
         before = vehicle_state(direct, names, settle_s=2.0, window_s=1.0)
     relay = (RelayProcess(sim.port, seed=seed, conditions=conditions) if relay_process
              else UdpRelay(sim.port, seed=seed, conditions=conditions).start())
-    campaign = outcome = None
-    helper: threading.Thread | None = None
-    stop = threading.Event()
     try:
-        link = VehicleLink.connect(relay.endpoint, heartbeat_timeout_s=connect_timeout_s)
-        try:
-            link.next_telemetry(timeout_s=connect_timeout_s)  # the vehicle clock runs before the campaign (as rehearse)
-            relay.arm(list(faults))
-            if during is not None:
-                helper = threading.Thread(target=during, args=(relay, sim, run.during, stop), daemon=True,
-                                          name="campaign-during")
-                helper.start()
-            with Store(workdir / f"store-{condition.replace(' ', '_')}-{seed}-{sim.speedup:g}.sqlite") as store:
-                try:
-                    campaign, outcome, campaign_id = run_campaign(link, store, config, abort=AbortFlag(),
-                                                                  vehicle_id=store.add_vehicle("link-bench", "sim"))
-                    run.attempts = [{"axis": r["axis"], "thrust": r.get("thrust"), "accepted": bool(r["accepted"]),
-                                     "r2": r.get("r2")} for r in store.runs(campaign_id)]
-                except Exception as exc:  # noqa: BLE001 - an escaping exception is a finding
-                    run.crash = f"{type(exc).__name__}: {exc}"
-            run.companion = companion_link_quality(link, outcome, campaign)
-            run.kernel_drops = relay.socket_drops()  # before the companion's socket closes
-        finally:
-            stop.set()
-            link.close()
+        campaign, outcome = _fly(run, relay, sim, config, faults, during, workdir, connect_timeout_s)
         relay.drain(1.0)
         run.thrust_sent = [(d.wall_s, d.params[2]) for d in relay.history(DO_CHANGE_SPEED, sent=True)]
         run.thrust_delivered = [(d.wall_s, d.params[2]) for d in relay.history(DO_CHANGE_SPEED)]
     finally:
-        if helper is not None:
-            helper.join(timeout=10.0)
         relay.close()
     run.relay = relay.stats()
     if outcome is not None:
@@ -176,6 +151,49 @@ def run_campaign_through_relay(sim, condition: str, conditions: LinkConditions |
         run.models = score_models(campaign)
     run.wall_s = time.monotonic() - started
     return run
+
+
+def _fly(run: CampaignRun, relay, sim, config, faults: Iterable[Fault], during, workdir: Path,
+         connect_timeout_s: float) -> tuple[object, object]:
+    """The companion through the relay: connect, the campaign, what it reports; (campaign, outcome),
+    None for what never happened (an error before or during the campaign is ``run.crash``)."""
+    from companion.link.vehicle import VehicleLink
+    from companion.procedures.app import AbortFlag, run_campaign
+    from companion.records.store import Store
+
+    campaign = outcome = None
+    try:
+        link = VehicleLink.connect(relay.endpoint, heartbeat_timeout_s=connect_timeout_s)
+    except Exception as exc:  # noqa: BLE001 - the link never came up over these conditions: a finding
+        run.crash = f"connecting: {type(exc).__name__}: {exc}"
+        return None, None
+    helper: threading.Thread | None = None
+    stop = threading.Event()
+    phase = "before the campaign"
+    try:
+        if READ_TELEMETRY_FIRST:
+            link.next_telemetry(timeout_s=connect_timeout_s)  # the vehicle clock runs before the campaign (as rehearse)
+        relay.arm(list(faults))
+        if during is not None:
+            helper = threading.Thread(target=during, args=(relay, sim, run.during, stop), daemon=True,
+                                      name="campaign-during")
+            helper.start()
+        with Store(workdir / f"store-{run.condition.replace(' ', '_')}-{run.seed}-{sim.speedup:g}.sqlite") as store:
+            phase = "in the campaign"
+            campaign, outcome, campaign_id = run_campaign(link, store, config, abort=AbortFlag(),
+                                                          vehicle_id=store.add_vehicle("link-bench", "sim"))
+            run.attempts = [{"axis": r["axis"], "thrust": r.get("thrust"), "accepted": bool(r["accepted"]),
+                             "r2": r.get("r2")} for r in store.runs(campaign_id)]
+    except Exception as exc:  # noqa: BLE001 - an escaping exception is a finding
+        run.crash = f"{phase}: {type(exc).__name__}: {exc}"
+    finally:
+        stop.set()
+        run.companion = companion_link_quality(link, outcome, campaign)
+        run.kernel_drops = relay.socket_drops()  # before the companion's socket closes
+        link.close()
+        if helper is not None:
+            helper.join(timeout=10.0)
+    return campaign, outcome
 
 
 def score_models(campaign, preset: str = PRESET) -> list[dict]:

@@ -6,6 +6,9 @@ reads its socket late (at 20× its receive buffer overflows sooner). A relay in 
 what a router or a radio is: another machine's clock. :class:`RelayProcess` starts one and offers the
 relay's methods that a run needs (arm, count, stats, what was sent and delivered), each a round trip
 over a pipe (a few hundred microseconds: poll it, don't spin on it).
+
+The child is started with ``spawn``: as for any such process, the caller's main module must be safe
+to import (its work under ``if __name__ == "__main__":``), or the child runs it again.
 """
 from __future__ import annotations
 
