@@ -27,8 +27,9 @@ likewise in :attr:`UdpRelay.received`) and counted per direction
 (:meth:`UdpRelay.stats`: datagrams received, delivered, lost, dropped by the rate cap, duplicated,
 delivered out of arrival order, ATTITUDE samples lost).
 
-Deterministic: the fate of the k-th datagram of a direction (lost, duplicated, reordered, its
-delay) is a function of the seed, the direction and k (``FateDraws``); a triggered fault starts at
+Deterministic: the fate of the k-th datagram a direction hands to the link stage (lost,
+duplicated, reordered, its delay; a frame released by a triggered delay or reorder counts as one
+more) is a function of the seed, the direction and k (``FateDraws``); a triggered fault starts at
 the same frame of the companion's traffic; the rate cap's departure times follow from arrival times.
 **Not deterministic**: arrival times themselves (the simulator's pacing and the OS's scheduling of
 three processes), hence which frames share the k-th datagram of the companion's direction, whether a
