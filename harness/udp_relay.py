@@ -31,13 +31,17 @@ Deterministic: the fate of the k-th datagram a direction hands to the link stage
 duplicated, reordered, its delay; a frame released by a triggered delay or reorder counts as one
 more) is a function of the seed, the direction and k (``FateDraws``); a triggered fault starts at
 the same frame of the companion's traffic; the rate cap's departure times follow from arrival times.
+Each datagram is timed from its arrival in the kernel (``SO_TIMESTAMPNS``), not from when the relay
+happened to read it, so a relay descheduled for a while on a busy machine does not add its own delay
+or turn its backlog into reordering (the longest such lag is reported: ``max_read_lag_ms``).
 **Not deterministic**: arrival times themselves (the simulator's pacing and the OS's scheduling of
 three processes), hence which frames share the k-th datagram of the companion's direction, whether a
 jittered datagram overtakes its neighbour (it depends on their wall-clock spacing), which datagrams
 the rate cap drops, when a wall-time hold or window ends, and the wake-up latency of this thread
 (sub-millisecond on an idle machine; a few ms under load or when the process holding the relay is
-busy in Python: the GIL). Nothing on the loopback itself loses datagrams unless a receive buffer
-overflows (the relay asks for 4 MB buffers).
+busy in Python: the GIL; :mod:`harness.relay_process` runs the relay in a process of its own). Nothing
+on the loopback itself loses datagrams unless a receive buffer overflows (the relay asks for 4 MB
+buffers; :meth:`UdpRelay.socket_drops` counts what the kernel dropped at each socket on the way).
 """
 from __future__ import annotations
 
@@ -47,6 +51,7 @@ import logging
 import random
 import selectors
 import socket
+import struct
 import threading
 import time
 from dataclasses import dataclass, field
@@ -66,6 +71,9 @@ TICK_S = 0.002  # the loop's longest sleep (held frames, swaps, window ends), wa
 READS_PER_WAKE = 256  # datagrams read from one socket per wake-up (bounded)
 MAX_SCHEDULED = 20000  # datagrams waiting for their delivery time, both directions (bounded)
 SOCKET_BUFFER = 4 * 1024 * 1024
+#: the kernel's arrival time of each datagram (Linux; elsewhere the time it was read is used)
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35 if hasattr(socket, "SO_REUSEPORT") else None)
+MAX_READ_LAG_S = 2.0  # an arrival time further back than this is not believed (clock step)
 
 
 @dataclass(order=True)
@@ -96,7 +104,7 @@ class _Direction:
     highest_delivered: int = -1
     counts: dict = field(default_factory=lambda: dict.fromkeys(
         ("received", "delivered", "lost", "rate_dropped", "duplicated", "reordered", "out_of_order",
-         "attitude_lost", "bytes_delivered", "unroutable"), 0))
+         "attitude_lost", "bytes_delivered", "unroutable", "max_read_lag_ms"), 0))
     first_delivery: float | None = None
     last_delivery: float | None = None
 
@@ -149,6 +157,11 @@ class UdpRelay:
                 sock.setsockopt(socket.SOL_SOCKET, option, SOCKET_BUFFER)
             except OSError:
                 pass  # the kernel's limit applies
+        if SO_TIMESTAMPNS is not None:
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+            except OSError:
+                pass  # then the time a datagram is read stands for its arrival
         sock.bind((host, 0))
         sock.setblocking(False)
         return sock
@@ -294,19 +307,24 @@ class UdpRelay:
         return TICK_S
 
     def _read(self, sock: socket.socket, direction: str) -> None:
+        """Read what arrived; each datagram is timed by its arrival in the kernel, so that a relay
+        read late (a busy machine) still delays and jitters each datagram from when it arrived."""
         for _ in range(READS_PER_WAKE):
             try:
-                data, sender = sock.recvfrom(65535)
+                data, ancillary, _flags, sender = sock.recvmsg(65535, 64)
             except (BlockingIOError, InterruptedError):
                 return
             except OSError as exc:  # e.g. ECONNREFUSED for an earlier datagram to a closed port
                 log.debug("udp relay: receive on the %s side failed: %s", direction, exc)
                 return
+            arrival, lag = _arrival(ancillary)
             with self._lock:
                 if direction == TO_VEHICLE and sender != self.companion_address:
                     self.companion_address = sender
                     self.connections += 1
-                self._datagram(self._directions[direction], data, time.monotonic())
+                d = self._directions[direction]
+                d.counts["max_read_lag_ms"] = max(d.counts["max_read_lag_ms"], round(lag * 1000.0, 1))
+                self._datagram(d, data, arrival)
 
     # ------------------------------------------------------------------ one datagram: faults on frames
     def _datagram(self, d: _Direction, data: bytes, now: float) -> None:
@@ -441,6 +459,19 @@ class UdpRelay:
         for item in split_datagram(data):
             if isinstance(item, Frame):
                 self.delivered.note(item, d.name, now)
+
+
+def _arrival(ancillary: list) -> tuple[float, float]:
+    """(arrival on the monotonic clock, how long before now) from a datagram's SO_TIMESTAMPNS; now
+    when there is none."""
+    now = time.monotonic()
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= 16:
+            seconds, nanoseconds = struct.unpack_from("qq", data)
+            lag = time.time() - (seconds + nanoseconds * 1e-9)
+            if 0.0 <= lag <= MAX_READ_LAG_S:
+                return now - lag, lag
+    return now, 0.0
 
 
 def _udp_drops(ports: dict[str, int]) -> dict[str, int]:

@@ -192,6 +192,23 @@ def test_a_fixed_delay_is_applied_and_keeps_the_order(ends):
     assert min(latencies) >= 0.049 and max(latencies) < 0.08
 
 
+def test_a_relay_that_reads_late_still_delays_each_datagram_from_its_arrival(ends):
+    """A busy machine may leave the relay unscheduled for a while: the delay counts from when the
+    kernel received each datagram, not from when the relay read it."""
+    relay = UdpRelay(ends.vehicle_port, conditions=LinkConditions(delay_s=0.2))
+    try:
+        listener = _Listener(ends.vehicle, 5)
+        sent = [ends.to_vehicle(relay, _attitude(n)) for n in range(5)]  # queued: the relay is not running yet
+        time.sleep(0.12)
+        relay.start()
+        received = listener.wait()
+    finally:
+        relay.close()
+    assert len(received) == 5
+    assert all(0.19 <= at - sent[0] < 0.26 for _, at, _ in received)  # not 0.12 + 0.2
+    assert relay.stats()[TO_VEHICLE]["max_read_lag_ms"] >= 100
+
+
 def test_jitter_spreads_the_delay_and_reorders_datagrams_closer_than_the_jitter(ends):
     with UdpRelay(ends.vehicle_port, seed=1, conditions=LinkConditions(delay_s=0.05, jitter_s=0.02)) as relay:
         ends.hello(relay)
