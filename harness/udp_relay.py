@@ -308,7 +308,9 @@ class UdpRelay:
 
     def _read(self, sock: socket.socket, direction: str) -> None:
         """Read what arrived; each datagram is timed by its arrival in the kernel, so that a relay
-        read late (a busy machine) still delays and jitters each datagram from when it arrived."""
+        read late (a busy machine) still delays and jitters each datagram from when it arrived. One
+        offset between the two clocks per batch keeps the kernel's order exactly."""
+        offset = time.time() - time.monotonic()
         for _ in range(READS_PER_WAKE):
             try:
                 data, ancillary, _flags, sender = sock.recvmsg(65535, 64)
@@ -317,7 +319,7 @@ class UdpRelay:
             except OSError as exc:  # e.g. ECONNREFUSED for an earlier datagram to a closed port
                 log.debug("udp relay: receive on the %s side failed: %s", direction, exc)
                 return
-            arrival, lag = _arrival(ancillary)
+            arrival, lag = _arrival(ancillary, offset)
             with self._lock:
                 if direction == TO_VEHICLE and sender != self.companion_address:
                     self.companion_address = sender
@@ -461,16 +463,17 @@ class UdpRelay:
                 self.delivered.note(item, d.name, now)
 
 
-def _arrival(ancillary: list) -> tuple[float, float]:
-    """(arrival on the monotonic clock, how long before now) from a datagram's SO_TIMESTAMPNS; now
-    when there is none."""
+def _arrival(ancillary: list, offset: float) -> tuple[float, float]:
+    """(arrival on the monotonic clock, how long before now) from a datagram's SO_TIMESTAMPNS
+    (``offset``: the wall clock minus the monotonic one); now when there is none."""
     now = time.monotonic()
     for level, kind, data in ancillary:
         if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= 16:
             seconds, nanoseconds = struct.unpack_from("qq", data)
-            lag = time.time() - (seconds + nanoseconds * 1e-9)
-            if 0.0 <= lag <= MAX_READ_LAG_S:
-                return now - lag, lag
+            arrival = seconds + nanoseconds * 1e-9 - offset
+            lag = now - arrival
+            if -0.001 <= lag <= MAX_READ_LAG_S:
+                return min(arrival, now), max(lag, 0.0)
     return now, 0.0
 
 

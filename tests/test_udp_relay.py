@@ -176,6 +176,7 @@ def test_loss_is_at_its_rate_and_the_same_datagrams_are_lost_for_the_same_seed(e
             received = _numbers(ends.receive(ends.companion, 400))
             stats = relay.stats()[TO_COMPANION]
         assert stats["received"] == 400 and stats["lost"] + len(received) == 400
+        assert received == sorted(received) and stats["out_of_order"] == 0  # loss alone never reorders
         assert 0.15 <= stats["lost"] / 400 <= 0.25  # 20 %: ±5 points is > 4 σ of a binomial
         lost_sets.append(set(range(400)) - set(received))
     assert lost_sets[0] == lost_sets[1] and lost_sets[0] != lost_sets[2]
