@@ -45,6 +45,7 @@ buffers; :meth:`UdpRelay.socket_drops` counts what the kernel dropped at each so
 """
 from __future__ import annotations
 
+import collections
 import heapq
 import itertools
 import logging
@@ -71,6 +72,7 @@ TICK_S = 0.002  # the loop's longest sleep (held frames, swaps, window ends), wa
 READS_PER_WAKE = 256  # datagrams read from one socket per wake-up (bounded)
 MAX_SCHEDULED = 20000  # datagrams waiting for their delivery time, both directions (bounded)
 SOCKET_BUFFER = 4 * 1024 * 1024
+TRACE_MAX = 20000  # planned deliveries kept with ``trace`` (bounded)
 #: the kernel's arrival time of each datagram (Linux; elsewhere the time it was read is used)
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35 if hasattr(socket, "SO_REUSEPORT") else None)
 MAX_READ_LAG_S = 2.0  # an arrival time further back than this is not believed (clock step)
@@ -122,7 +124,7 @@ class UdpRelay:
     transport = "udp"
 
     def __init__(self, vehicle_port: int, *, seed: int = 0, host: str = "127.0.0.1", max_faults: int = 64,
-                 conditions: LinkConditions | dict[str, LinkConditions] | None = None) -> None:
+                 conditions: LinkConditions | dict[str, LinkConditions] | None = None, trace: bool = False) -> None:
         self.vehicle_address = (host, vehicle_port)
         self.conditions = per_direction(conditions)
         self.rng = random.Random(seed)  # the byte a corruption flips
@@ -147,6 +149,9 @@ class UdpRelay:
         self.vehicle_time_ms: int | None = None
         self.connections = 0  # companion addresses seen (a new source port is a new "connection")
         self.kernel_drops: dict[str, int] = {}  # socket_drops() when the relay closed
+        #: with ``trace``: (direction, arrival number, arrival, planned delivery) of each datagram past
+        #: the loss and the rate cap, monotonic clock (what the link meant to do, whatever the scheduling)
+        self.planned: collections.deque | None = collections.deque(maxlen=TRACE_MAX) if trace else None
         self._closed = False
 
     @staticmethod
@@ -395,6 +400,8 @@ class UdpRelay:
             d.counts["attitude_lost"] += _attitudes(data, d.name)
             return
         at = departure + fate.delay_s
+        if self.planned is not None:
+            self.planned.append((d.name, index, now, at))
         if fate.reorder:
             d.counts["reordered"] += 1
             d.link_swap.append([at + d.conditions.reorder_max_s, index, data])

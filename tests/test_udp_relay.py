@@ -3,10 +3,16 @@ at its rate and the same datagrams lost for the same seed, delay and jitter appl
 jitter exceeds the interval between datagrams, the byte-rate cap holding its rate (and the TCP
 proxy's), one frame delayed on purpose so that a later set-point overtakes it, triggered faults on
 single frames of multi-frame datagrams. Seeded; every wait is bounded; a few seconds in all.
+
+Timing: what the relay *planned* (its ``trace``) is checked exactly; what the operating system then
+did is checked from the kernel's arrival times, by what scheduling cannot change (a datagram is never
+early, the cap is never exceeded, the order) and by medians, not by a worst case: on a loaded
+machine a thread may wake up a few hundred milliseconds late.
 """
 from __future__ import annotations
 
 import socket
+import statistics
 import struct
 import threading
 import time
@@ -17,7 +23,7 @@ from harness.fault_proxy import FaultProxy
 from harness.fault_schedule import TO_COMPANION, TO_VEHICLE, Fault, Trigger, timed_delay
 from harness.link_conditions import FateDraws, LinkConditions, TokenBucket
 from harness.relay_process import RelayProcess
-from harness.udp_relay import UdpRelay
+from harness.udp_relay import SO_TIMESTAMPNS, UdpRelay, _arrival
 
 DO_CHANGE_SPEED = 178
 WAIT_S = 3.0  # the longest any test waits for datagrams that do not come
@@ -53,6 +59,8 @@ class _Ends:
     def _socket() -> socket.socket:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+        if SO_TIMESTAMPNS is not None:  # arrival times from the kernel: this test's thread may be read late
+            sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         sock.bind(("127.0.0.1", 0))
         return sock
 
@@ -74,7 +82,7 @@ class _Ends:
         return time.monotonic()
 
     @staticmethod
-    def receive(sock: socket.socket, count: int, quiet_s: float = 0.3,
+    def receive(sock: socket.socket, count: int, quiet_s: float = 1.0,
                 limit_s: float = WAIT_S) -> list[tuple[bytes, float, tuple]]:
         """Up to ``count`` datagrams with their arrival times and senders; stops ``quiet_s`` after
         the last one or after ``limit_s`` in all."""
@@ -83,12 +91,12 @@ class _Ends:
         while len(got) < count and time.monotonic() < deadline:
             sock.settimeout(min(quiet_s, max(0.01, deadline - time.monotonic())))
             try:
-                data, sender = sock.recvfrom(65535)
+                data, ancillary, _flags, sender = sock.recvmsg(65535, 64)
             except socket.timeout:
                 if got:
                     break
                 continue
-            got.append((data, time.monotonic(), sender))
+            got.append((data, _arrival(ancillary, time.time() - time.monotonic())[0], sender))
         return got
 
     def close(self) -> None:
@@ -173,7 +181,7 @@ def test_loss_is_at_its_rate_and_the_same_datagrams_are_lost_for_the_same_seed(e
         with UdpRelay(ends.vehicle_port, seed=seed, conditions={TO_COMPANION: LinkConditions(loss=0.2)}) as relay:
             ends.hello(relay)
             _stream(ends, 400, 0.0)
-            received = _numbers(ends.receive(ends.companion, 400))
+            received = _numbers(ends.receive(ends.companion, 400, quiet_s=0.5))
             stats = relay.stats()[TO_COMPANION]
         assert stats["received"] == 400 and stats["lost"] + len(received) == 400
         assert received == sorted(received) and stats["out_of_order"] == 0  # loss alone never reorders
@@ -182,21 +190,26 @@ def test_loss_is_at_its_rate_and_the_same_datagrams_are_lost_for_the_same_seed(e
     assert lost_sets[0] == lost_sets[1] and lost_sets[0] != lost_sets[2]
 
 
+def _planned_delays(relay: UdpRelay, direction: str = TO_COMPANION) -> list[float]:
+    return [at - arrival for name, _index, arrival, at in relay.planned if name == direction]
+
+
 def test_a_fixed_delay_is_applied_and_keeps_the_order(ends):
-    with UdpRelay(ends.vehicle_port, conditions=LinkConditions(delay_s=0.05)) as relay:
+    with UdpRelay(ends.vehicle_port, conditions=LinkConditions(delay_s=0.05), trace=True) as relay:
         ends.hello(relay)
         listener = _Listener(ends.companion, 40)
         sent = _stream(ends, 40, 0.002)
         received = listener.wait()
     latencies = [at - sent[number] for number, (_, at, _) in zip(_numbers(received), received)]
     assert _numbers(received) == list(range(40))
-    assert min(latencies) >= 0.049 and max(latencies) < 0.08
+    assert _planned_delays(relay) == pytest.approx([0.05] * 40, abs=1e-9)
+    assert min(latencies) >= 0.049 and statistics.median(latencies) < 0.07  # never early
 
 
 def test_a_relay_that_reads_late_still_delays_each_datagram_from_its_arrival(ends):
     """A busy machine may leave the relay unscheduled for a while: the delay counts from when the
     kernel received each datagram, not from when the relay read it."""
-    relay = UdpRelay(ends.vehicle_port, conditions=LinkConditions(delay_s=0.2))
+    relay = UdpRelay(ends.vehicle_port, conditions=LinkConditions(delay_s=0.2), trace=True)
     try:
         listener = _Listener(ends.vehicle, 5)
         sent = [ends.to_vehicle(relay, _attitude(n)) for n in range(5)]  # queued: the relay is not running yet
@@ -205,13 +218,15 @@ def test_a_relay_that_reads_late_still_delays_each_datagram_from_its_arrival(end
         received = listener.wait()
     finally:
         relay.close()
-    assert len(received) == 5
-    assert all(0.19 <= at - sent[0] < 0.26 for _, at, _ in received)  # not 0.12 + 0.2
+    assert len(received) == 5 and all(at - sent[0] >= 0.19 for _, at, _ in received)
+    planned = [at - sent[index] for _name, index, _arrival, at in relay.planned]
+    assert planned == pytest.approx([0.2] * 5, abs=0.005)  # from the send, not from the read 0.12 s later
     assert relay.stats()[TO_VEHICLE]["max_read_lag_ms"] >= 100
 
 
 def test_jitter_spreads_the_delay_and_reorders_datagrams_closer_than_the_jitter(ends):
-    with UdpRelay(ends.vehicle_port, seed=1, conditions=LinkConditions(delay_s=0.05, jitter_s=0.02)) as relay:
+    with UdpRelay(ends.vehicle_port, seed=1, conditions=LinkConditions(delay_s=0.05, jitter_s=0.02),
+                  trace=True) as relay:
         ends.hello(relay)
         listener = _Listener(ends.companion, 150)
         sent = _stream(ends, 150, 0.002)  # 2 ms apart: far closer than ±20 ms
@@ -220,8 +235,10 @@ def test_jitter_spreads_the_delay_and_reorders_datagrams_closer_than_the_jitter(
     numbers = _numbers(received)
     latencies = [at - sent[n] for n, (_, at, _) in zip(numbers, received)]
     assert sorted(numbers) == list(range(150))  # nothing lost, nothing doubled
-    assert min(latencies) >= 0.029 and max(latencies) < 0.095  # 50 ± 20 ms (+ scheduling)
-    assert max(latencies) - min(latencies) > 0.025
+    planned = _planned_delays(relay)
+    assert len(planned) == 150 and all(0.03 - 1e-9 <= p <= 0.07 + 1e-9 for p in planned)  # 50 ± 20 ms
+    assert max(planned) - min(planned) > 0.035 and abs(statistics.mean(planned) - 0.05) < 0.005
+    assert min(latencies) >= 0.029 and 0.04 < statistics.median(latencies) < 0.07
     inversions = sum(1 for a, b in zip(numbers, numbers[1:]) if b < a)
     assert inversions > 20 and stats["out_of_order"] > 20
     assert stats["attitude_out_of_order"] == stats["out_of_order"]  # one ATTITUDE per datagram here
@@ -232,11 +249,11 @@ def test_explicit_reordering_and_duplication(ends):
     with UdpRelay(ends.vehicle_port, seed=2, conditions={TO_COMPANION: conditions}) as relay:
         ends.hello(relay)
         _stream(ends, 100, 0.001)
-        numbers = _numbers(ends.receive(ends.companion, 200))
+        numbers = _numbers(ends.receive(ends.companion, 200, quiet_s=0.5))
         stats = relay.stats()[TO_COMPANION]
     assert sorted(set(numbers)) == list(range(100))
     assert len(numbers) == 100 + stats["duplicated"] and stats["duplicated"] > 0
-    assert stats["reordered"] > 0 and sum(1 for a, b in zip(numbers, numbers[1:]) if b < a) >= stats["reordered"] // 2
+    assert stats["reordered"] > 0 and any(b < a for a, b in zip(numbers, numbers[1:]))
 
 
 def test_the_byte_rate_cap_holds_its_rate_and_drops_beyond_its_queue(ends):
@@ -251,13 +268,14 @@ def test_the_byte_rate_cap_holds_its_rate_and_drops_beyond_its_queue(ends):
     assert len(received) == 120
     span = received[-1][1] - received[0][1]
     assert stats["bytes_delivered"] == 120 * payload
-    assert 0.6 <= span <= 0.9 and stats["rate_bytes_s"] == pytest.approx(40_000, rel=0.12)
+    assert span >= (120 * payload - 512) / 40_000 - 0.01  # never faster than the cap (after its burst)
+    assert span < 2.0 and stats["rate_bytes_s"] <= 40_000 * 1.05
     with UdpRelay(ends.vehicle_port, conditions={TO_COMPANION: LinkConditions(
             rate_bytes_s=40_000, burst_bytes=500, queue_bytes=2500)}) as relay:
         ends.hello(relay)
         for number in range(120):
             ends.to_companion(_attitude(number) + bytes(payload - 40))
-        received = ends.receive(ends.companion, 120)
+        received = ends.receive(ends.companion, 120, quiet_s=0.5)
         stats = relay.stats()[TO_COMPANION]
     assert stats["rate_dropped"] + len(received) == 120 and stats["rate_dropped"] > 80
 
@@ -279,7 +297,7 @@ def test_one_set_point_delayed_is_overtaken_by_the_next_and_the_vehicle_keeps_th
         summary = relay.summary()
     history = [d.params[2] for d in relay.delivered.history(DO_CHANGE_SPEED)]  # the relay stopped: all noted
     assert [struct.unpack_from("<f", data, 18)[0] for data, _, _ in received] == [70.0, 100.0]
-    assert 0.075 <= received[1][1] - late < 0.12
+    assert 0.079 <= received[1][1] - late < 0.5
     assert history == [60.0, 70.0, 100.0] and relay.delivered_commands[DO_CHANGE_SPEED][2] == 100.0
     assert summary[0]["triggered"] and summary[0]["affected"] == 1
     assert "delay by 80 ms" in summary[0]["fault"]
@@ -320,7 +338,7 @@ def test_the_relay_runs_in_a_process_of_its_own_with_the_same_methods(ends):
         relay.arm([Fault("drop", Trigger("PARAM_SET", 1), direction=TO_VEHICLE, messages=("PARAM_SET",), frames=1)])
         ends.to_vehicle(relay, _param_set("HDG_P", 1.0) + _speed(70.0))
         _stream(ends, 100, 0.0)
-        received = _numbers(ends.receive(ends.companion, 100))
+        received = _numbers(ends.receive(ends.companion, 100, quiet_s=0.5))
         at_vehicle = ends.receive(ends.vehicle, 1)
         assert relay.count("PARAM_SET") == 1 and relay.summary()[0]["affected"] == 1
         assert [d.params[2] for d in relay.history(DO_CHANGE_SPEED)] == [70.0]
@@ -349,7 +367,7 @@ def test_the_tcp_proxy_caps_the_byte_rate_and_refuses_datagram_conditions():
             span = time.monotonic() - started
             companion.close()
             vehicle.close()
-        assert bytes(got) == data and 0.4 <= span <= 0.7
+        assert bytes(got) == data and (len(data) - 512) / 50_000 - 0.01 <= span < 1.5  # never above the cap
         assert proxy.delivered.attitude_delivered == 600 and proxy.rate_dropped[TO_COMPANION] == 0
     finally:
         server.close()
