@@ -12,8 +12,9 @@ runs in its own thread, splits both byte streams into whole MAVLink frames
                passed (a delay in stream position, deterministic on a lockstep link), or at most
                ``max_hold_s`` of wall clock;
 ``duplicate``  the frame is forwarded twice;
-``reorder``    the frame swaps places with the next frame of the same direction (or goes after
-               ``max_hold_s`` if none follows);
+``reorder``    the frame swaps places with the next frame of the same direction (with a
+               ``partner``: goes right after the next frame the partner matches), or goes after
+               ``max_hold_s`` if none follows;
 ``corrupt``    one payload byte is flipped, so the receiver's CRC check discards the frame;
 ``cut``        the link goes down for ``cut_s`` wall seconds: with ``reconnect`` the connections are
                closed (the companion sees EOF, must reconnect, and is accepted again once the cut is
@@ -53,14 +54,14 @@ from typing import Iterable
 
 from harness.delivery_log import DeliveryLog
 from harness.fault_schedule import (BOTH, FAULT_KINDS, TO_COMPANION, TO_VEHICLE, Fault, FaultEvent, FaultSchedule,
-                                    Trigger, timed_delay)
+                                    Trigger, overtaken, timed_delay)
 from harness.link_conditions import LinkConditions, TokenBucket
 from harness.mavlink_frames import MESSAGE_IDS, Frame, split_frames
 
 log = logging.getLogger(__name__)
 
 __all__ = ["BOTH", "FAULT_KINDS", "MESSAGE_IDS", "TO_COMPANION", "TO_VEHICLE", "Fault", "FaultEvent", "FaultProxy",
-           "Frame", "LinkConditions", "Trigger", "per_direction", "split_frames", "timed_delay"]
+           "Frame", "LinkConditions", "Trigger", "overtaken", "per_direction", "split_frames", "timed_delay"]
 
 #: bytes queued for one side before the proxy stops reading the other (back-pressure: the vehicle's
 #: own flow control then holds it back, so a slow companion lags no more than on a direct link)
@@ -93,6 +94,7 @@ class _Pipe:
     held: list = field(default_factory=list)  # [release_at_count, release_at_wall, bytes] (delay)
     swap: Frame | None = None  # reorder: the frame that goes after the next one
     swap_until: float = 0.0  # ... or goes anyway at this wall time (nothing followed it)
+    swap_partner: Trigger | None = None  # ... the next one this matches (None: any)
     forwarded: int = 0  # frames forwarded in this direction
     paced: collections.deque = field(default_factory=collections.deque)  # (release wall, raw, frame | None)
     bucket: TokenBucket | None = None
@@ -373,13 +375,14 @@ class FaultProxy:
             if pipe.swap is not None:  # two in a row: the earlier one goes now, after this one
                 self._forward(pipe, frame.raw, frame)
                 return
-            pipe.swap, pipe.swap_until = frame, now + fault.fault.max_hold_s
+            pipe.swap, pipe.swap_until, pipe.swap_partner = frame, now + fault.fault.max_hold_s, fault.fault.partner
 
     def _forward(self, pipe: _Pipe, raw: bytes, frame: Frame | None) -> None:
         now = time.monotonic()
         self._egress(pipe, raw, frame, now)
         pipe.forwarded += 1
-        if pipe.swap is not None and frame is not pipe.swap:
+        if pipe.swap is not None and frame is not pipe.swap and (
+                pipe.swap_partner is None or (frame is not None and pipe.swap_partner.matches(frame))):
             swapped, pipe.swap = pipe.swap, None
             self._forward(pipe, swapped.raw, swapped)
         self._release_held(pipe, now)

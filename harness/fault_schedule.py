@@ -21,7 +21,7 @@ from harness.mavlink_frames import Frame
 log = logging.getLogger(__name__)
 
 __all__ = ["BOTH", "FAULT_KINDS", "TO_COMPANION", "TO_VEHICLE", "ActiveFault", "Fault", "FaultEvent",
-           "FaultSchedule", "Trigger"]
+           "FaultSchedule", "Trigger", "overtaken", "timed_delay"]
 
 FAULT_KINDS = ("drop", "delay", "duplicate", "reorder", "corrupt", "cut")
 TO_VEHICLE = "to_vehicle"
@@ -77,7 +77,9 @@ class Fault:
 
     ``delay`` holds a frame until ``hold_frames`` later frames of its direction have passed or
     ``max_hold_s`` wall seconds went by, whichever comes first (a large ``hold_frames`` makes it a
-    delay in time only: :func:`timed_delay`)."""
+    delay in time only: :func:`timed_delay`). ``reorder`` holds it until the next frame of its
+    direction has passed — the next one that ``partner`` matches, when given (:func:`overtaken`) —
+    or ``max_hold_s`` went by."""
 
     kind: str
     trigger: Trigger = Trigger(nth=0)
@@ -89,6 +91,7 @@ class Fault:
     max_hold_s: float = 0.5  # delay, reorder: wall-clock bound of a hold
     cut_s: float = 1.0  # cut: how long the link is down
     reconnect: bool = True  # cut: close the connections (True) or drop everything while open (False)
+    partner: Trigger | None = None  # reorder: the frame it goes after (None: the next of its direction)
 
     def __post_init__(self) -> None:
         if self.kind not in FAULT_KINDS:
@@ -107,6 +110,8 @@ class Fault:
             return f"cut {self.cut_s:g} s ({how}) at {self.trigger.describe()}"
         which = "/".join(self.messages) or "any frame"
         timed = f" by {self.max_hold_s * 1000:g} ms" if self.kind == "delay" and self.hold_frames >= TIMED_HOLD else ""
+        if self.kind == "reorder" and self.partner is not None:
+            timed = f" after the next {self.partner.describe().split(' ', 1)[1]}"
         return f"{self.kind}{timed} {self.frames} x {which} ({self.direction}) from {self.trigger.describe()}"
 
 
@@ -121,6 +126,15 @@ def timed_delay(trigger: Trigger, delay_s: float, *, messages: tuple[str, ...] =
     late, so that a later set-point can overtake it."""
     return Fault("delay", trigger, direction=direction, messages=messages, frames=frames,
                  window_s=max(2.0, 2 * delay_s), hold_frames=TIMED_HOLD, max_hold_s=delay_s)
+
+
+def overtaken(trigger: Trigger, partner: Trigger, *, messages: tuple[str, ...] = (), max_hold_s: float = 2.0,
+              direction: str = TO_VEHICLE) -> Fault:
+    """The frame at ``trigger`` is delivered right after the next frame ``partner`` matches (at most
+    ``max_hold_s`` late): e.g. the last thrust set-point of a procedure arriving after its restore's,
+    whatever the wall-clock gap between the two."""
+    return Fault("reorder", trigger, direction=direction, messages=messages, frames=1,
+                 window_s=max(2.0, max_hold_s), max_hold_s=max_hold_s, partner=partner)
 
 
 @dataclass

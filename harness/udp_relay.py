@@ -13,7 +13,8 @@ Each datagram, in order:
    frames): ``drop`` removes the frame, ``corrupt`` flips one of its bytes, ``duplicate`` repeats it,
    ``delay`` holds it until ``hold_frames`` later frames of its direction passed or ``max_hold_s``
    went by (:func:`harness.fault_schedule.timed_delay`: wall time only; the held frame then travels
-   as a datagram of its own), ``reorder`` swaps it with the next frame, a ``cut`` drops every frame
+   as a datagram of its own), ``reorder`` swaps it with the next frame (or goes right after the next frame its ``partner``
+   matches), a ``cut`` drops every frame
    for ``cut_s`` (over UDP there is no connection to close: a closing cut is silent too);
 2. **link conditions, on whole datagrams** (``harness.link_conditions``, per direction): loss, the
    rate cap's bounded queue (excess dropped), then delay + jitter; datagrams are delivered in the
@@ -60,7 +61,7 @@ from typing import Iterable
 
 from harness.delivery_log import DeliveryLog
 from harness.fault_proxy import per_direction
-from harness.fault_schedule import TO_COMPANION, TO_VEHICLE, Fault, FaultEvent, FaultSchedule
+from harness.fault_schedule import TO_COMPANION, TO_VEHICLE, Fault, FaultEvent, FaultSchedule, Trigger
 from harness.link_conditions import FateDraws, LinkConditions, TokenBucket
 from harness.mavlink_frames import Frame, split_datagram
 
@@ -100,6 +101,7 @@ class _Direction:
     held: list = field(default_factory=list)  # triggered delay: [release count, release wall, index, frame]
     swap: Frame | None = None  # triggered reorder: the frame that goes after the next one
     swap_until: float = 0.0
+    swap_partner: Trigger | None = None  # ... the next one this matches (None: any)
     link_swap: list = field(default_factory=list)  # link reorder: [until, index, data], after the next delivery
     forwarded: int = 0  # frames past the triggered faults
     arrived: int = 0  # datagrams received
@@ -359,33 +361,35 @@ class UdpRelay:
             return
         fault = self._faults.fault_for(frame, d.name, now)
         if fault is None:
-            self._emit(d, frame.raw, out, now)
+            self._emit(d, frame.raw, out, now, frame)
             return
         kind = fault.fault.kind
         if kind == "corrupt":
             self._emit(d, frame.corrupted(self.rng), out, now)
         elif kind == "duplicate":
-            self._emit(d, frame.raw, out, now)
-            self._emit(d, frame.raw, out, now)
+            self._emit(d, frame.raw, out, now, frame)
+            self._emit(d, frame.raw, out, now, frame)
         elif kind == "delay":
             d.held.append([d.forwarded + fault.fault.hold_frames, now + fault.fault.max_hold_s, index, frame])
         elif kind == "reorder":
             if d.swap is not None:  # two in a row: the earlier one goes now, after this one
-                self._emit(d, frame.raw, out, now)
+                self._emit(d, frame.raw, out, now, frame)
                 return
-            d.swap, d.swap_until = frame, now + fault.fault.max_hold_s
+            d.swap, d.swap_until, d.swap_partner = frame, now + fault.fault.max_hold_s, fault.fault.partner
         # drop: nothing goes
 
-    def _emit(self, d: _Direction, raw: bytes, out: bytearray, now: float) -> None:
-        """A frame past the faults joins the datagram being built; a swapped frame follows it, and
-        frames held for a count of frames join it when their count is reached."""
+    def _emit(self, d: _Direction, raw: bytes, out: bytearray, now: float, frame: Frame | None = None) -> None:
+        """A frame past the faults joins the datagram being built; a swapped frame follows it (the
+        partner it waits for, if it has one), and frames held for a count of frames join it when
+        their count is reached."""
         out += raw
         d.forwarded += 1
-        if d.swap is not None:
+        if d.swap is not None and (d.swap_partner is None or (frame is not None and d.swap_partner.matches(frame))):
             swapped, d.swap = d.swap, None
-            self._emit(d, swapped.raw, out, now)
+            self._emit(d, swapped.raw, out, now, swapped)
         while d.held and d.forwarded >= d.held[0][0]:
-            self._emit(d, d.held.pop(0)[3].raw, out, now)
+            held = d.held.pop(0)[3]
+            self._emit(d, held.raw, out, now, held)
 
     # ------------------------------------------------------------------ one datagram: the link
     def _link(self, d: _Direction, data: bytes, index: int, now: float) -> None:
@@ -424,12 +428,12 @@ class UdpRelay:
             if d.swap is not None and now >= d.swap_until:  # nothing came after it in time
                 out = bytearray()
                 swapped, d.swap = d.swap, None
-                self._emit(d, swapped.raw, out, now)
+                self._emit(d, swapped.raw, out, now, swapped)
                 self._link(d, bytes(out), d.arrived - 1, now)
             while d.held and now >= d.held[0][1]:  # held in wall time: goes as a datagram of its own
                 _count, _wall, index, frame = d.held.pop(0)
                 out = bytearray()
-                self._emit(d, frame.raw, out, now)
+                self._emit(d, frame.raw, out, now, frame)
                 self._link(d, bytes(out), index, now)
             for entry in [e for e in d.link_swap if now >= e[0]]:  # nothing followed it in time
                 d.link_swap.remove(entry)

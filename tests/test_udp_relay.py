@@ -20,7 +20,7 @@ import time
 import pytest
 
 from harness.fault_proxy import FaultProxy
-from harness.fault_schedule import TO_COMPANION, TO_VEHICLE, Fault, Trigger, timed_delay
+from harness.fault_schedule import TO_COMPANION, TO_VEHICLE, Fault, Trigger, overtaken, timed_delay
 from harness.link_conditions import FateDraws, LinkConditions, TokenBucket
 from harness.relay_process import RelayProcess
 from harness.udp_relay import SO_TIMESTAMPNS, UdpRelay, _arrival
@@ -257,21 +257,22 @@ def test_explicit_reordering_and_duplication(ends):
 
 
 def test_the_byte_rate_cap_holds_its_rate_and_drops_beyond_its_queue(ends):
-    payload = 250
-    with UdpRelay(ends.vehicle_port, conditions={TO_COMPANION: LinkConditions(
-            rate_bytes_s=40_000, queue_bytes=1 << 20)}) as relay:
+    payload, burst = 250, 512
+    with UdpRelay(ends.vehicle_port, trace=True, conditions={TO_COMPANION: LinkConditions(
+            rate_bytes_s=40_000, burst_bytes=burst, queue_bytes=1 << 20)}) as relay:
         ends.hello(relay)
-        for number in range(120):  # 120 × 250 B = 30 kB at once: 0.75 s at 40 kB/s
+        first = ends.to_companion(_attitude(0) + bytes(payload - 40))
+        for number in range(1, 120):  # 120 × 250 B = 30 kB at once: 0.74 s at 40 kB/s after the burst
             ends.to_companion(_attitude(number) + bytes(payload - 40))
         received = ends.receive(ends.companion, 120)
         stats = relay.stats()[TO_COMPANION]
-    assert len(received) == 120
-    span = received[-1][1] - received[0][1]
-    assert stats["bytes_delivered"] == 120 * payload
-    assert span >= (120 * payload - 512) / 40_000 - 0.01  # never faster than the cap (after its burst)
-    assert span < 2.0 and stats["rate_bytes_s"] <= 40_000 * 1.05
+    assert len(received) == 120 and stats["bytes_delivered"] == 120 * payload
+    planned = [at for name, _i, _arrival, at in relay.planned if name == TO_COMPANION]
+    assert planned[-1] - planned[0] == pytest.approx((120 * payload - burst) / 40_000, abs=0.005)
+    assert received[-1][1] - first >= (120 * payload - burst) / 40_000 - 0.005  # never faster than the cap
+    assert received[-1][1] - first < 2.0
     with UdpRelay(ends.vehicle_port, conditions={TO_COMPANION: LinkConditions(
-            rate_bytes_s=40_000, burst_bytes=500, queue_bytes=2500)}) as relay:
+            rate_bytes_s=40_000, burst_bytes=burst, queue_bytes=2500)}) as relay:
         ends.hello(relay)
         for number in range(120):
             ends.to_companion(_attitude(number) + bytes(payload - 40))
@@ -301,6 +302,24 @@ def test_one_set_point_delayed_is_overtaken_by_the_next_and_the_vehicle_keeps_th
     assert history == [60.0, 70.0, 100.0] and relay.delivered_commands[DO_CHANGE_SPEED][2] == 100.0
     assert summary[0]["triggered"] and summary[0]["affected"] == 1
     assert "delay by 80 ms" in summary[0]["fault"]
+
+
+def test_a_set_point_held_until_the_next_one_passed_arrives_after_it_whatever_the_gap(ends):
+    trigger, partner = Trigger("COMMAND_LONG", 1, command=DO_CHANGE_SPEED), Trigger("COMMAND_LONG", command=DO_CHANGE_SPEED)
+    yaw = _frame(76, struct.pack("<7fHBBB", 90.0, 0, 0, 0, 0, 0, 0, 115, 1, 1, 0))
+    with UdpRelay(ends.vehicle_port) as relay:
+        ends.hello(relay)
+        relay.arm([overtaken(trigger, partner, messages=("COMMAND_LONG",))])
+        listener = _Listener(ends.vehicle, 2)  # the held frame travels in its partner's datagram
+        ends.to_vehicle(relay, _speed(100.0))
+        time.sleep(0.2)  # far longer than any jitter: still overtaken
+        ends.to_vehicle(relay, yaw)
+        ends.to_vehicle(relay, _speed(70.0))
+        received = listener.wait()
+        summary = relay.summary()
+    assert [struct.unpack_from("<H", data, 38)[0] for data, _, _ in received] == [115, 178]  # the yaw passes
+    assert relay.delivered.commands[DO_CHANGE_SPEED][2] == 100.0  # the vehicle's last thrust: the late one
+    assert received[1][0].count(b"\xfd") >= 2 and "after the next COMMAND_LONG 178" in summary[0]["fault"]
 
 
 def test_triggered_faults_take_single_frames_of_a_multi_frame_datagram(ends):
