@@ -26,11 +26,13 @@ the fault cases: yaw at 0.7 and 1.0 with one step check), and prints what the ve
 beside what the companion reported:
 
 - *a late set-point overtaking the restore's*: a clean run first counts the DO_CHANGE_SPEED frames
-  the companion sends before its restore's (and the wall-clock gap between the last two); then the
-  last of them (the last heading step's 100 %) is made late through the relay: by 80 ms (it is
-  overtaken only when the restore's 70 % follows within 80 ms, which depends on the machine's load),
-  and held until the restore's has passed (overtaken whatever the gap). Passes when the vehicle runs
-  at the thrust it was found with, or the companion says it could not confirm it.
+  the companion sends before its restore's; then the last of them (the last heading step's 100 %) is
+  made late through the relay. Deterministically on a lockstep simulator (the fault cases' run, where
+  the companion's traffic is a function of the seed): held until the restore's 70 % has passed. The
+  way it was first found, on the paced simulator: 80 ms late (overtaken only when the restore's follows within
+  80 ms, and only if the count of the clean run holds: both depend on the machine's load). Passes
+  when the vehicle runs at the thrust it was found with, or the companion says it could not confirm
+  it.
 - *a ground station's change*: a second client (system 255, straight to the simulator's UDP port;
   the simulator serves several UDP clients) sets HDG_P 0.9 at the campaign's first RC override
   (its first doublet). Passes when the vehicle still holds 0.9 afterwards, or the companion reports
@@ -77,6 +79,7 @@ CONDITIONS = {
     "loss10": LinkConditions(loss=0.10),
 }
 LATE_SETPOINT_S = 0.08  # the reproduction's delay of the last thrust set-point before the restore
+LOCKSTEP_SPEEDUP = 50.0  # the deterministic reproduction's lockstep simulator
 GCS_HDG_P = 0.9  # what the ground station writes mid-campaign
 GCS_SYSTEM = 255
 WAIT_GCS_S = 900.0  # wall seconds the ground station waits for the first doublet (bounded)
@@ -218,11 +221,33 @@ def _last_thrust_before_restore(run: CampaignRun) -> int:
 
 
 def reproduce_late_setpoint(speedup: float, seed: int, workdir: Path) -> list[str]:
-    """A counting run, then the last thrust set-point before the restore's made late two ways: by
-    80 ms (overtaken only if the restore's follows within 80 ms: the gap is printed) and held until
-    the restore's has passed (overtaken whatever the gap)."""
-    from harness.fault_cases import campaign_config as short_campaign
+    """The last thrust set-point before the restore's made late: held until the restore's has passed,
+    on a lockstep simulator (the companion's traffic is then a function of the seed, so the set-point
+    to hold is found by a clean run first), and 80 ms late on a paced one (as first found: overtaken
+    only if the restore's follows within 80 ms, which depends on the machine's load)."""
+    from harness.fault_cases import Case, campaign_config as short_campaign, run_case
 
+    lines = [f"late set-point, seed {seed}:"]
+    sim = start_sim(transport="udp", speedup=LOCKSTEP_SPEEDUP, seed=seed, lockstep=True)
+    try:
+        count = run_case(sim, Case("campaign/count", "campaign", (), (), seed=seed), workdir / f"count-{seed}.sqlite")
+        nth = max(1, len(count.thrust_sent) - 1)
+        trigger = Trigger("COMMAND_LONG", nth, command=DO_CHANGE_SPEED)
+        fault = overtaken(trigger, Trigger("COMMAND_LONG", command=DO_CHANGE_SPEED), messages=("COMMAND_LONG",))
+        late = run_case(sim, Case("campaign/late-setpoint", "campaign", (fault,), (), seed=seed),
+                        workdir / f"late-{seed}.sqlite")
+    finally:
+        sim.stop()
+    found, held = late.before.get("thrust"), late.after.get("thrust")
+    thrust_problems = [p for p in late.state_problems if p.startswith("thrust")]
+    said_so = any("thrust" in p for p in late.restore_problems)
+    lines += [f"  lockstep x{LOCKSTEP_SPEEDUP:g}, DO_CHANGE_SPEED number {nth} held until the restore's has passed: "
+              f"{'PASS' if not thrust_problems or said_so else 'FAIL'}",
+              f"    the companion sent thrust {late.thrust_sent[-3:]} %, the vehicle received {late.thrust_delivered[-3:]} %"
+              f" (the clean run: {count.status}, {len(count.thrust_sent)} sent)",
+              f"    the vehicle holds thrust {held:.2f} (found {found:.2f}); the companion: {late.status} "
+              f"({late.reason or ''}), restore_problems {late.restore_problems}; by state: "
+              f"{'; '.join(late.state_problems) or 'as found'}"]
     clean = LinkConditions()
     sim = start_sim(transport="udp", speedup=speedup, seed=seed, lockstep=False)
     try:
@@ -231,27 +256,23 @@ def reproduce_late_setpoint(speedup: float, seed: int, workdir: Path) -> list[st
         sim.stop()
     nth = _last_thrust_before_restore(first)
     gap = (first.thrust_sent[-1][0] - first.thrust_sent[-2][0]) * 1000 if len(first.thrust_sent) > 1 else float("nan")
-    lines = [f"late set-point, x{speedup:g} seed {seed}: the counting run {first.status} ({first.reason or ''}); "
-             f"DO_CHANGE_SPEED number {nth} is the last before the restore's, sent {gap:.1f} ms before it"]
-    trigger = Trigger("COMMAND_LONG", nth, command=DO_CHANGE_SPEED)
-    for how, fault in ((f"{LATE_SETPOINT_S * 1000:g} ms late", timed_delay(trigger, LATE_SETPOINT_S,
-                                                                            messages=("COMMAND_LONG",))),
-                       ("held until the restore's has passed",
-                        overtaken(trigger, Trigger("COMMAND_LONG", command=DO_CHANGE_SPEED), messages=("COMMAND_LONG",)))):
-        sim = start_sim(transport="udp", speedup=speedup, seed=seed, lockstep=False)
-        try:
-            run = run_campaign_through_relay(sim, "late set-point", clean, seed, short_campaign(), workdir,
-                                             faults=[fault])
-        finally:
-            sim.stop()
-        found, held = run.before.get("thrust"), run.after.get("thrust")
-        said_so = any("thrust" in p for p in run.restore_problems)
-        ok = (held is not None and found is not None and abs(held - found) <= 0.011) or said_so
-        lines += [f"  {how}: {'PASS' if ok else 'FAIL'}: the companion sent thrust "
-                  f"{[p for _, p in run.thrust_sent[-3:]]} %, the vehicle received {[p for _, p in run.thrust_delivered[-3:]]} %",
-                  f"    the vehicle holds thrust {held:.2f} (found {found:.2f}); the companion: {run.status} "
-                  f"({run.reason or ''}), restore_problems {run.restore_problems}; by state: "
-                  f"{'; '.join(run.state_problems) or 'as found'}"]
+    fault = timed_delay(Trigger("COMMAND_LONG", nth, command=DO_CHANGE_SPEED), LATE_SETPOINT_S,
+                        messages=("COMMAND_LONG",))
+    sim = start_sim(transport="udp", speedup=speedup, seed=seed, lockstep=False)
+    try:
+        run = run_campaign_through_relay(sim, "late set-point", clean, seed, short_campaign(), workdir, faults=[fault])
+    finally:
+        sim.stop()
+    found, held = run.before.get("thrust"), run.after.get("thrust")
+    said_so = any("thrust" in p for p in run.restore_problems)
+    ok = (held is not None and found is not None and abs(held - found) <= 0.011) or said_so
+    lines += [f"  paced x{speedup:g}, DO_CHANGE_SPEED number {nth} (in a clean run the last before the restore's, "
+              f"{gap:.1f} ms before it) {LATE_SETPOINT_S * 1000:g} ms late: {'PASS' if ok else 'FAIL'}",
+              f"    the companion sent thrust {[p for _, p in run.thrust_sent[-3:]]} %, the vehicle received "
+              f"{[p for _, p in run.thrust_delivered[-3:]]} %",
+              f"    the vehicle holds thrust {held:.2f} (found {found:.2f}); the companion: {run.status} "
+              f"({run.reason or ''}), restore_problems {run.restore_problems}; by state: "
+              f"{'; '.join(run.state_problems) or 'as found'}"]
     return lines
 
 

@@ -209,7 +209,9 @@ class CaseResult:
     transport: str = "tcp"
     before: dict = field(default_factory=dict)  # the vehicle as found (no parameters)
     after: dict = field(default_factory=dict)  # the vehicle afterwards, by state (no parameters)
-    link: dict = field(default_factory=dict)  # the relay's counts per direction (UDP)
+    link: dict = field(default_factory=dict)  # the proxy's or relay's counts per direction
+    thrust_sent: list[float] = field(default_factory=list)  # DO_CHANGE_SPEED throttle (%) as the companion sent them
+    thrust_delivered: list[float] = field(default_factory=list)  # ... as the vehicle received them
 
     @property
     def survived(self) -> bool:
@@ -403,6 +405,8 @@ def run_case(sim, case: Case, store_path: Path, *, transport: str | None = None,
             result.status, result.reason, result.restore_problems = status, reason, list(restore_problems)
             result.faults = proxy.summary()
             result.link = proxy.stats()
+            result.thrust_sent = [d.params[2] for d in proxy.history(MAV_CMD_DO_CHANGE_SPEED, sent=True)]
+            result.thrust_delivered = [d.params[2] for d in proxy.history(MAV_CMD_DO_CHANGE_SPEED)]
             if link.overrides.active:
                 result.problems.append(f"the companion still holds RC overrides {link.overrides.active}")
             held = proxy.held_overrides()

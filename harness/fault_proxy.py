@@ -161,7 +161,8 @@ class FaultProxy:
         self._listening = True  # the listener is registered (not during a closing cut)
         self.connections = 0
         self.vehicle_time_ms: int | None = None
-        self.delivered = DeliveryLog()
+        self.delivered = DeliveryLog()  # what left the proxy
+        self.received = DeliveryLog()  # what came in, before any fault (what was sent)
         self.rate_dropped = {TO_VEHICLE: 0, TO_COMPANION: 0}  # frames the rate cap's full queue dropped
 
     # ------------------------------------------------------------------ lifecycle
@@ -244,6 +245,12 @@ class FaultProxy:
         """Channels whose last RC override delivered to the vehicle holds a value (not a release)."""
         with self._lock:
             return self.delivered.held_overrides()
+
+    def history(self, command: int, *, sent: bool = False) -> list:
+        """The COMMAND_LONGs ``command`` delivered to the vehicle, in the order it received them
+        (``sent``: in the order the companion sent them)."""
+        with self._lock:
+            return (self.received if sent else self.delivered).history(command)
 
     def pending(self) -> int:
         """Frames still held, paced or waiting to be written."""
@@ -349,6 +356,7 @@ class FaultProxy:
     # ------------------------------------------------------------------ one frame
     def _frame(self, pipe: _Pipe, frame: Frame, now: float) -> None:
         direction = pipe.direction
+        self.received.note(frame, direction, now)
         self._faults.see(frame, direction, now)
         if direction == TO_COMPANION:
             stamp = frame.time_boot_ms()
