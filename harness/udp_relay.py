@@ -76,7 +76,7 @@ SOCKET_BUFFER = 4 * 1024 * 1024
 TRACE_MAX = 20000  # planned deliveries kept with ``trace`` (bounded)
 #: the kernel's arrival time of each datagram (Linux; elsewhere the time it was read is used)
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35 if hasattr(socket, "SO_REUSEPORT") else None)
-MAX_READ_LAG_S = 2.0  # an arrival time further back than this is not believed (clock step)
+MAX_READ_LAG_S = 30.0  # an arrival time further back than this is not believed (a step of the wall clock)
 
 
 @dataclass(order=True)
