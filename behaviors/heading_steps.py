@@ -11,13 +11,12 @@ from dataclasses import asdict, dataclass
 from typing import Sequence
 
 import numpy as np
-from scipy.integrate import trapezoid
-from scipy.signal import savgol_filter
 
 from behaviors.base import Behaviour, Footprint, Status
 from companion.checks import require_positive, require_range
 from companion.interface import Command, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.angles import wrap_pi
+from companion.numerics.step_response import OSCILLATION_BAND, SETTLE_BAND, smooth_heading, step_metrics  # noqa: F401
 
 
 def reengage_hold(thrust: float, heading: float) -> list[Command]:
@@ -40,64 +39,6 @@ class StepTestConfig:
     def __post_init__(self) -> None:
         require_range(self, "step", math.radians(1.0), math.radians(180.0))
         require_positive(self, "settle_s", "hold_s")
-
-
-def smooth_heading(times: np.ndarray, heading: np.ndarray, window_s: float = 1.0) -> np.ndarray:
-    """Savitzky–Golay smoothing (quadratic, ``window_s`` long) of a measured heading.
-
-    The maximum of a noisy signal is biased upwards by a few noise σ (σ 0.3° of compass noise reads
-    as 3–5 % of extra overshoot on a 20° step); a quadratic local fit over 1 s removes the noise
-    and keeps the response peak, which is several seconds wide."""
-    if len(times) < 7:
-        return heading
-    dt = float(np.median(np.diff(times)))
-    window = int(round(window_s / dt)) | 1  # odd
-    window = min(window, len(heading) - (1 - len(heading) % 2))
-    return savgol_filter(heading, window, 2) if window >= 5 else heading
-
-
-#: a reversal of the error counts only beyond this fraction of the step (noise stays inside)
-OSCILLATION_BAND = 0.03
-#: settled: the error stays within this fraction of the step to the end of the record
-SETTLE_BAND = 0.05
-
-
-def step_metrics(times: Sequence[float], heading: Sequence[float], start: float, target: float) -> dict:
-    """One heading step (headings unwrapped, smoothed by :func:`smooth_heading` first): overshoot
-    (% of the step), 90 % rise time, settling time (within 5 % to the end, NaN if never), the
-    integrated absolute error normalised by the step (``iae_s``, seconds: one figure of merit to
-    compare gain sets) and the number of reversals of the error beyond ±3 % of the step after the
-    target was first crossed (``oscillations``; a well-damped step has at most one)."""
-    t = np.asarray(times, dtype=float)
-    psi = smooth_heading(t, np.asarray(heading, dtype=float))
-    size = target - start
-    if len(t) < 2 or abs(size) < 1e-9:
-        return {"overshoot_pct": math.nan, "rise_time_s": math.nan, "settling_time_s": math.nan,
-                "iae_s": math.nan, "oscillations": 0}
-    progress = (psi - start) / size  # 0 at the start, 1 on target
-    overshoot = max(0.0, float(np.max(progress)) - 1.0) * 100.0
-    reached = np.nonzero(progress >= 0.9)[0]
-    rise = float(t[reached[0]] - t[0]) if len(reached) else math.nan
-    error = progress - 1.0
-    outside = np.nonzero(np.abs(error) > SETTLE_BAND)[0]
-    if len(outside) == 0:
-        settling = 0.0
-    elif outside[-1] == len(t) - 1:
-        settling = math.nan
-    else:
-        settling = float(t[outside[-1] + 1] - t[0])
-    iae = float(trapezoid(np.abs(error), t))
-    crossed = np.nonzero(error >= 0.0)[0]
-    reversals, sign = 0, 0
-    for value in (error[crossed[0]:] if len(crossed) else []):
-        if abs(value) <= OSCILLATION_BAND:
-            continue
-        current = 1 if value > 0 else -1
-        if sign and current != sign:
-            reversals += 1
-        sign = current
-    return {"overshoot_pct": overshoot, "rise_time_s": rise, "settling_time_s": settling, "iae_s": iae,
-            "oscillations": reversals}
 
 
 class HeadingStepTest(Behaviour):

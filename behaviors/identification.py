@@ -38,6 +38,7 @@ from companion.interface import (
     Telemetry,
 )
 from companion.numerics.identification import ConvergenceRule, PitchIdentifier, PitchModel, YawIdentifier, YawModel
+from companion.numerics.sampling import SamplingRule, sampling_quality
 from companion.numerics.validation import validate_pitch, validate_yaw
 from behaviors.steadiness import SteadinessDetector, SteadinessRule
 
@@ -82,6 +83,8 @@ class ManoeuvreConfig:
     # excitation it may first stop (the response still carries information for ~1/|a22| after it)
     convergence_noise_band: float | None = None
     convergence_delay_s: float = 0.0
+    # how much of a record the link may lose before it is not used (companion.numerics.sampling)
+    sampling: SamplingRule = SamplingRule()
 
     def __post_init__(self) -> None:
         require_choice(self, "axis", ("yaw", "pitch"))
@@ -151,6 +154,10 @@ class IdentificationAttempt:
     samples: int
     training: dict = field(default_factory=dict, repr=False)
     validation: dict = field(default_factory=dict, repr=False)
+    # how the training and validation records were sampled (SamplingQuality.as_json), and why the
+    # attempt was not used although its fit may have passed (a record the link lost too much of)
+    sampling: dict = field(default_factory=dict)
+    rejected_for: str | None = None
 
     def summary(self) -> dict:
         """The figures without the series and the covariance (JSON summaries, progress lines)."""
@@ -158,7 +165,8 @@ class IdentificationAttempt:
         return {"attempt": self.attempt, "axis": self.axis, "thrust": self.thrust, "speed": self.speed,
                 "model": model, "r2": self.r2, "accepted": self.accepted, "converged": self.converged,
                 "converged_s": self.converged_s, "criterion_met_from_s": self.criterion_met_from_s,
-                "training_s": self.training_s, "samples": self.samples}
+                "training_s": self.training_s, "samples": self.samples, "sampling": self.sampling,
+                "rejected_for": self.rejected_for}
 
 
 @dataclass
@@ -357,7 +365,11 @@ class IdentificationManoeuvre(Behaviour):
     def _finish_attempt(self, now: float) -> list[Command]:
         model = self._identifier.model()
         r2 = self._score(model)
-        accepted = math.isfinite(r2) and r2 >= self.config.r2_threshold
+        quality = {name: sampling_quality(record.time) for name, record in
+                   (("training", self._training), ("validation", self._validation))}
+        rejected_for = next((f"{name} record: {verdict}" for name, q in quality.items()
+                             if (verdict := q.verdict(self.config.sampling)) is not None), None)
+        accepted = math.isfinite(r2) and r2 >= self.config.r2_threshold and rejected_for is None
         speed = sum(self._speeds) / len(self._speeds) if self._speeds else math.nan
         self.attempts.append(IdentificationAttempt(
             attempt=self.attempt, axis=self.config.axis, thrust=self.thrust, speed=speed, model=model, r2=r2,
@@ -365,10 +377,14 @@ class IdentificationManoeuvre(Behaviour):
             criterion_met_from_s=getattr(self._identifier, "criterion_met_from_s", None),
             training_s=self._training_time_s, samples=len(self._training.time),
             training=self._series(self._training, history=True),
-            validation=self._series(self._validation, model=model)))
+            validation=self._series(self._validation, model=model),
+            sampling={name: q.as_json() for name, q in quality.items()}, rejected_for=rejected_for))
         self._validation = _Record()
         verdict = "accepted" if accepted else "rejected"
         commands: list[Command] = [self._status(f"validation R2 {r2:.3f}: {verdict}")]
+        if rejected_for is not None:
+            log.warning("%s attempt %d not used: %s", self.config.axis, self.attempt, rejected_for)
+            commands.append(self._status("record rejected: the link lost samples", 4))
         if accepted:
             self.outcome = "accepted"
             self._enter(DONE, now)

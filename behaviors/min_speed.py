@@ -1,7 +1,8 @@
 """Minimum-speed seeking (SPEC C7; thesis 002, §5.3, Fig. 5.16–5.17, 5.22–5.26).
 
 Runs in the heading-and-depth holding mode: the autopilot holds heading and depth (depth PI →
-desired pitch θd → pitch PI → elevator) and this behaviour moves only the thrust set-point. It starts
+desired pitch θd → pitch PI → elevator) and this behaviour moves the thrust set-point (the levelled
+start below also offsets the depth set-point for a while, and always puts it back). It starts
 from the nominal thrust (SetThrust 0.70) and every Ts seconds of vehicle time applies the fuzzy
 decision (:mod:`companion.numerics.fuzzy_seeker`) T_R(k) = T_R(k−1) + {−ΔT, 0, +ΔT} (eq. 5.62),
 clamped to [thrust floor, 1]. It never stops seeking by itself (it keeps following disturbances)
@@ -83,6 +84,37 @@ the first decision (the low-speed depth loop needs 25-40 s for that), and a fine
 δs > δmax − 0.017), which the recovery transient drove below the feasible T_R (0.4375) into slow limit
 cycles.
 
+Levelled start (``start_feedforward``, with ``start_thrust`` and ``start_pitch_curve``;
+``MinSpeedProcedureConfig.levelled()``): the set-point falls at ``start_feedforward_rate`` (0.02/s, 13 s
+from 0.70 to T_R* + 0.008) and the curve's level-flight pitch change is fed forward through a depth
+set-point offset Δ = (F − D)/Kpz (:mod:`companion.numerics.trim_feedforward`), so the autopilot's depth
+P term gives the new trim pitch at once instead of its integrator after ∫e dt = 10.7 m·s; the offset
+(≤ 0.46 m deeper) fades with Kpz/Kiz = 15 s as the integrator takes the pitch over and is then sent
+back exactly (any end of the behaviour sends it back too). The companion can command only
+set-points; the shadow depth loop integrates the offset as the autopilot does. Measured
+(bench/bench_min_speed.py --predicted, seeds 1-6): the depth within 0.11-0.13 m (the governed move:
+0.27-0.29 m), final T_R 0.440 on every seed, ≤ 1 reversal, re-converges after the kick (62-119 s, 0.44
+at 300 s on every seed); but settled after 52-123 s, not ≤ 60 s (only seed 3). Once the depth
+integrator no longer bounds the move, the autopilot's *pitch* integrator does: the pitch PI holds the
+trim elevator δ with the error θ − θd = (δ − I_θ)/|Kpθ| (the seeker's θe), and I_θ follows δ only with
+Kpθ/Kiθ = 200 s, so at T_R 0.44 (δ ≈ 0.246 of 0.26, saturated for the seeker) θe < θe_TS = 0.01 needs
+I_θ ≥ 0.046 rad, ≥ 37 s of δ at its trim after the speed has fallen, and 15 s of keeps with the filtered
+θe's noise (≈ 0.001 rad) later still. Holding T_R* + 0.008 after the levelled move without seeking moves,
+the seeker's own decisions on the recorded inputs would keep for 15 s only from 58-145 s on
+(bench/bench_min_speed.py --cause): no move that ends at T_R* + 2 % can hand over a vehicle the seeker
+keeps within 60 s. Diagnostics that confirm it (not product options): the simulated autopilot's PIT_I
+5× settles the levelled move in 26-48 s on five seeds (100 s on one; the governed move stays at 66-79 s,
+bound by the depth integrator); the seeker's θe crossover at 0.02 (SPEC C7's value at sea) settles it in
+28-46 s on every seed, but after the kick the seeker then stays at 0.45 (+4.1 %) on three seeds of six.
+Tried and not taken (settle on seeds 1-6, max depth error): the speed's lag 0 s (62-132 s, 0.11-0.14 m)
+and 5 s (46-123 s, 0.20-0.21 m); 0.01/s (95-123 s) and 0.04/s (20-95 s, 0.12-0.18 m); a 0.02 m quantum
+(halves the set-point messages: 67-103 s, 0.12-0.14 m); the pitch loop's own error (δ − I_θ)/Kpθ fed
+forward too, from the model's trim elevator and a shadow pitch integrator (73-99 s, 0.10-0.16 m); the
+trim at the measured water speed instead of the lagged set-point (78-136 s); waiting 6-30 s after the
+move before the first decision (72-135 s). In each the seeker met T_R 0.44 before the pitch integrator
+let it keep, or the elevator saturated (at 0.44 it has 0.014 rad left: a fed-forward pitch 0.001 rad
+too far saturates it and stops the pitch integrator).
+
 Settling rule: the seeker has settled when its thrust set-point has not changed for
 ``settle_window_s`` (15 s, i.e. 15 decisions at Ts = 1 s); ``settle_time_s`` is the time from the
 start to the last change before the first such quiet window. ``max_depth_error_m`` is the largest
@@ -100,10 +132,11 @@ import numpy as np
 
 from companion.checks import require_finite, require_non_negative, require_positive, require_range
 
-from companion.interface import Command, NamedValue, SetThrust, StatusText, Telemetry
+from companion.interface import Command, NamedValue, SetDepth, SetThrust, StatusText, Telemetry
 from behaviors.base import Behaviour, Footprint, Status
 from companion.numerics.fuzzy_seeker import LowPass, SeekerConfig, decide, hold_decision, next_thrust
 from companion.numerics.minspeed import THRUST_DEAD_ZONE
+from companion.numerics.trim_feedforward import DepthSetpointFeedForward, FeedForwardConfig
 
 log = logging.getLogger(__name__)
 
@@ -141,6 +174,17 @@ class MinSpeedConfig:
     # a governed move that has not lowered the set-point for this long (e.g. the vehicle is not in
     # the level flight the curve describes, such as at the surface) continues as the ramp above
     start_stall_s: float = 10.0
+    # the levelled move (needs ``start_thrust`` and ``start_pitch_curve``; instead of the governed move):
+    # the set-point falls at ``start_feedforward_rate`` while the curve's level-flight pitch change is
+    # fed forward through a depth set-point offset that fades as the autopilot's integrator takes it
+    # over (companion.numerics.trim_feedforward, :meth:`MinSpeedSeeking._feed_forward`)
+    start_feedforward: bool = False
+    start_feedforward_rate: float = 0.02  # 1/s of thrust ratio: 13 s from 0.70 to 0.44
+    # s, the speed's lag behind the thrust set-point (surge time constant m_x/(ρA_b|C_D0|V): 1.3-2.7 s
+    # from 1.4 to 0.69 m/s, plus the deceleration itself); the pitch is fed forward through this lag
+    start_feedforward_lag_s: float = 2.5
+    feedforward_quantum_m: float = 0.01  # the offset is sent again when it moved this much
+    feedforward_max_offset_m: float = 1.5
 
     def __post_init__(self) -> None:
         require_range(self, "nominal_thrust", 0.0, 1.0)
@@ -149,7 +193,9 @@ class MinSpeedConfig:
         if self.thrust_floor > self.thrust_ceiling:
             raise ValueError(f"MinSpeedConfig: thrust_floor {self.thrust_floor} above thrust_ceiling {self.thrust_ceiling}")
         require_finite(self, "depth_p", "depth_i")
-        require_positive(self, "pitch_max", "init_average_s", "settle_window_s", "start_ramp_rate", "start_stall_s")
+        require_positive(self, "pitch_max", "init_average_s", "settle_window_s", "start_ramp_rate", "start_stall_s",
+                         "start_feedforward_rate", "feedforward_quantum_m", "feedforward_max_offset_m")
+        require_non_negative(self, "start_feedforward_lag_s")
         require_non_negative(self, "transient_s")
         require_range(self, "duration_s", 1e-3, 1e6, optional=True)
         require_range(self, "start_thrust", 0.0, 1.0, optional=True)
@@ -165,6 +211,10 @@ class MinSpeedSeeking(Behaviour):
     def __init__(self, config: MinSpeedConfig = MinSpeedConfig()) -> None:
         super().__init__("minimum-speed seeking")
         self.config = config
+        self._levelled = (config.start_feedforward and config.start_thrust is not None
+                          and bool(config.start_pitch_curve))
+        if self._levelled:  # the levelled move offsets the depth set-point for a while
+            self.footprint = Footprint.of(setpoints=("thrust", "depth"))
         self._theta_filter = LowPass(config.seeker)
         self._delta_filter = LowPass(config.seeker)
         self._start: float | None = None
@@ -181,6 +231,12 @@ class MinSpeedSeeking(Behaviour):
         self._governed_since = math.nan  # vehicle time the governed move last lowered the set-point
         self.governed_stalled = False  # the governed move stalled and continued as the ramp
         self.ramp_done_s: float | None = None  # when the set-point reached the predicted start
+        self._feedforward: DepthSetpointFeedForward | None = None  # the levelled move's, while it lasts
+        self._offset_sent = 0.0  # m, the depth set-point offset in effect (0: the depth to hold)
+        self._lagged_thrust = math.nan  # the thrust set-point through the speed's lag
+        self._feedforward_clock = math.nan
+        self.feedforward_faded_s: float | None = None  # when the depth set-point was back, exactly
+        self.max_depth_offset_m = 0.0
         self.thrust_ratio = config.nominal_thrust
         self.series: dict[str, list[float]] = {
             name: []
@@ -195,11 +251,18 @@ class MinSpeedSeeking(Behaviour):
         return self.status is Status.ABORTED
 
     def terminate(self, status: Status) -> Sequence[Command]:
-        """An abort gives the vehicle back its nominal thrust."""
+        """An abort gives the vehicle back its nominal thrust; any end its depth set-point (the levelled
+        move's offset is never left behind)."""
+        commands: list[Command] = []
+        if self._offset_sent != 0.0:
+            self._offset_sent = 0.0
+            self._feedforward = None
+            commands.append(SetDepth(self._depth_setpoint))
         if status is not Status.ABORTED:
-            return []
+            return commands
         log.info("minimum-speed seeking aborted: %s", self.reason)
-        return [SetThrust(self.config.nominal_thrust), StatusText(f"minspeed aborted: {self.reason}"[:50], 4)]
+        return commands + [SetThrust(self.config.nominal_thrust),
+                           StatusText(f"minspeed aborted: {self.reason}"[:50], 4)]
 
     def update(self, telemetry: Telemetry) -> Sequence[Command]:
         if not telemetry.finite("pitch", "depth"):
@@ -219,8 +282,11 @@ class MinSpeedSeeking(Behaviour):
         theta_d = self._shadow_depth_loop(now, elapsed, telemetry)
         if self._ramp_to is not None:  # moving to the predicted start: no seeking decision yet
             target = self._ramp_to
-            governed = cfg.start_depth_budget_m is not None and bool(cfg.start_pitch_curve) and not self.governed_stalled
-            if governed:
+            governed = (not self._levelled and cfg.start_depth_budget_m is not None and bool(cfg.start_pitch_curve)
+                        and not self.governed_stalled)
+            if self._levelled:  # at its own rate, from the first sample the shadow loop knows
+                moved = self._ramp(target, cfg.start_feedforward_rate, now) if self._initialised else self.thrust_ratio
+            elif governed:
                 moved = self._governed(target)
                 if moved != self.thrust_ratio or not math.isfinite(self._governed_since):
                     self._governed_since = now
@@ -231,11 +297,8 @@ class MinSpeedSeeking(Behaviour):
                     log.warning("governed move stalled for %.0f s at TR %.3f: continuing as the %.3f/s ramp",
                                 cfg.start_stall_s, self.thrust_ratio, cfg.start_ramp_rate)
             else:
-                step = cfg.start_ramp_rate * max(0.0, now - self._ramp_clock) if math.isfinite(self._ramp_clock) else 0.0
-                self._ramp_clock = now
-                moved = target if abs(target - self.thrust_ratio) <= step else \
-                    self.thrust_ratio + math.copysign(step, target - self.thrust_ratio)
-            if moved != self.thrust_ratio or not governed:
+                moved = self._ramp(target, cfg.start_ramp_rate, now)
+            if moved != self.thrust_ratio or not (governed or self._levelled):
                 self.thrust_ratio = moved
                 commands.append(SetThrust(round(self.thrust_ratio, 6)))
             if self.thrust_ratio == target:
@@ -243,6 +306,8 @@ class MinSpeedSeeking(Behaviour):
                 self.ramp_done_s = elapsed
                 self._last_change = now
                 self._next_decision = now + cfg.seeker.period_s
+        if self._levelled and self._initialised and self.feedforward_faded_s is None:
+            commands += self._feed_forward(now, elapsed)
         theta_e = telemetry.pitch - theta_d if math.isfinite(theta_d) else math.nan
         theta_e_f = self._theta_filter.update(now, theta_e)
         delta_f = self._delta_filter.update(now, telemetry.elevator)
@@ -268,6 +333,54 @@ class MinSpeedSeeking(Behaviour):
         return commands
 
     # ------------------------------------------------------------------ internals
+    def _ramp(self, target: float, rate: float, now: float) -> float:
+        """The set-point ``rate`` (1/s) closer to ``target`` than at the last call (vehicle time)."""
+        step = rate * max(0.0, now - self._ramp_clock) if math.isfinite(self._ramp_clock) else 0.0
+        self._ramp_clock = now
+        if abs(target - self.thrust_ratio) <= step:
+            return target
+        return self.thrust_ratio + math.copysign(step, target - self.thrust_ratio)
+
+    def _feed_forward(self, now: float, elapsed: float) -> list[Command]:
+        """The levelled move's depth set-point (companion.numerics.trim_feedforward).
+
+        The fed-forward pitch is the model's level-flight pitch (``start_pitch_curve``, eq. 5.25–5.29)
+        at the thrust set-point seen through the speed's first-order lag (``start_feedforward_lag_s``),
+        relative to the curve at the nominal thrust: only the model's slope counts, not its offset.
+        It follows the set-point (the seeker's steps too) until, after the move, the offset has
+        faded below one quantum; the depth set-point is then sent back exactly and the feed-forward
+        ends. The shadow depth loop integrates the offset in effect, as the autopilot does.
+        """
+        cfg = self.config
+        ratios = [point[0] for point in cfg.start_pitch_curve]
+        pitches = [point[1] for point in cfg.start_pitch_curve]
+        if self._feedforward is None:
+            self._lagged_thrust = cfg.nominal_thrust
+            self._feedforward_clock = now
+            self._feedforward = DepthSetpointFeedForward(
+                FeedForwardConfig(depth_p=cfg.depth_p, depth_i=cfg.depth_i, quantum_m=cfg.feedforward_quantum_m,
+                                  max_offset_m=cfg.feedforward_max_offset_m),
+                float(np.interp(cfg.nominal_thrust, ratios, pitches)))
+        dt = now - self._feedforward_clock
+        self._feedforward_clock = now
+        lag = cfg.start_feedforward_lag_s
+        follow = 1.0 - math.exp(-dt / lag) if lag > 0.0 else 1.0
+        self._lagged_thrust += follow * (self.thrust_ratio - self._lagged_thrust)
+        wanted = self._feedforward.offset(float(np.interp(self._lagged_thrust, ratios, pitches)))
+        wanted = max(wanted, -self._depth_setpoint)  # never a set-point above the surface
+        if self._ramp_to is None and abs(wanted) < cfg.feedforward_quantum_m:
+            wanted = 0.0  # faded: the autopilot's integrator carries the whole pitch change now
+            self._feedforward = None
+            self.feedforward_faded_s = elapsed
+            log.info("levelled move: the depth set-point offset faded after %.1f s", elapsed)
+        elif not self._feedforward.to_send(wanted, self._offset_sent):
+            return []
+        if wanted == self._offset_sent:
+            return []
+        self._offset_sent = wanted
+        self.max_depth_offset_m = max(self.max_depth_offset_m, abs(wanted))
+        return [SetDepth(self._depth_setpoint + wanted)]
+
     def _governed(self, target: float) -> float:
         """The set-point of the governed move to ``target``, never rising.
 
@@ -304,8 +417,10 @@ class MinSpeedSeeking(Behaviour):
             self._integrator = pitch0 - cfg.depth_p * (self._depth_setpoint - depth0)
             self._initialised = True
             self._last_time = now
-        error = self._depth_setpoint - t.depth
+        error = self._depth_setpoint + self._offset_sent - t.depth  # the set-point the autopilot holds
         dt = now - self._last_time
+        if self._feedforward is not None:
+            self._feedforward.advance(dt, self._offset_sent)
         self._last_time = now
         raw = cfg.depth_p * error + self._integrator
         # conditional integration, the usual anti-windup (and the simulator's): hold the integrator
@@ -389,6 +504,8 @@ class MinSpeedSeeking(Behaviour):
             "decisions": len(self.decisions),
             "start_reached_s": self.ramp_done_s,
             "governed_stalled": self.governed_stalled,
+            "depth_offset_max_m": self.max_depth_offset_m,
+            "depth_offset_faded_s": self.feedforward_faded_s,
             "duration_s": end,
             "series": {name: clean(values) for name, values in self.series.items()},
         }

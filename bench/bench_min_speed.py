@@ -12,14 +12,25 @@ settle time, max |depth error| after 5 s, reversals in the last 30 s; and in a s
 whose thrust set-point is kicked to 0.60 at 150 s, the re-convergence time (from the kick to the
 last change before 15 s without one) and the TR at 300 s. No asserts.
 
-``--predicted``: in one run, per seed 1-6 and as a summary beside the goal, today's
-procedure from TR 0.70, today's predicted start (a 0.005/s ramp to the analytic TR* + 0.04) and the
-new governed move to TR* + 0.008 (MinSpeedProcedureConfig.governed()): settle time, final TR and its %
-over TR*, max |depth error|, reversals in the last 30 s, re-convergence after a kick to 0.60 (~20 s).
+``--predicted``: in one run, per seed 1-6 and as a summary beside the goal, the procedure from
+TR 0.70 (the thesis' start), the 0.005/s ramp to the analytic TR* + 0.04, the governed move to
+TR* + 0.008 (MinSpeedProcedureConfig.governed(), the default) and the levelled move there
+(MinSpeedProcedureConfig.levelled(): the level-flight pitch fed forward through the depth set-point):
+settle time, final TR and its % over TR*, max |depth error|, reversals in the last 30 s,
+re-convergence after a kick to 0.60, and the levelled move's largest depth set-point offset.
+
+``--cause``: what bounds the settle time once the depth integrator no longer does (the levelled
+move), per seed 1-6: (1) the thrust held at TR* + 0.008 after the levelled move with no seeking
+move (a hold longer than the run), and the first time from which the seeker's own decisions on the
+recorded inputs would have kept for 15 s; (2) diagnostics that change what the product may not: the
+simulated autopilot's pitch integral PIT_I 5x (the levelled and the governed move) and the seeker's
+θe crossover at 0.02 (SPEC C7's value at sea; the levelled move and the start from 0.70), each
+also kicked to 0.60 at 150 s (re-convergence and the TR at 300 s).
 
     python bench/bench_min_speed.py
     python bench/bench_min_speed.py --hold
     python bench/bench_min_speed.py --predicted
+    python bench/bench_min_speed.py --cause
 """
 from __future__ import annotations
 
@@ -31,7 +42,7 @@ from unittest import mock
 from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking
 from companion.procedures import min_speed as procedure
 from companion.interface import SetThrust
-from companion.numerics.fuzzy_seeker import SeekerConfig
+from companion.numerics.fuzzy_seeker import KEEP, SeekerConfig, decide
 from companion.numerics.minspeed import DivePlaneVehicle, minimum_speed
 from harness.inprocess import ClosedLoop, InProcessLink
 
@@ -148,49 +159,58 @@ def hold_table() -> None:
                       f"rev {reversals} || reconv {reconverged} | TR {after_kick}")
 
 
-TODAY_FROM_070 = ("today, from TR 0.70", procedure.MinSpeedProcedureConfig())
-TODAY_PREDICTED = ("today, TR*+0.04 ramp", procedure.MinSpeedProcedureConfig(start_margin=0.04))
-NEW_GOVERNED = ("new, governed TR*+0.008", procedure.MinSpeedProcedureConfig.governed())
+FROM_070 = ("from TR 0.70 (thesis)", procedure.MinSpeedProcedureConfig())
+RAMP = ("ramp to TR*+0.04", procedure.MinSpeedProcedureConfig(start_margin=0.04))
+GOVERNED = ("governed TR*+0.008", procedure.MinSpeedProcedureConfig.governed())
+LEVELLED = ("levelled TR*+0.008", procedure.MinSpeedProcedureConfig.levelled())
 
 
-def predicted_run(seed: int, config: procedure.MinSpeedProcedureConfig, seconds: float, kick: bool) -> KickedSeeker:
-    """The product procedure (100 s at 0.70 first, then ``seconds`` of seeking) with ``config``."""
+def predicted_run(seed: int, config: procedure.MinSpeedProcedureConfig, seconds: float, kick: bool, *,
+                  params: dict[str, float] | None = None, seeker: dict | None = None) -> KickedSeeker:
+    """The product procedure (100 s at 0.70 first, then ``seconds`` of seeking) with ``config``;
+    ``params`` (native names) are set on the simulated autopilot first and ``seeker`` replaces fields
+    of the seeker's configuration (diagnostics only, ``--cause``)."""
     made: list[KickedSeeker] = []
 
     def product(seeker_config: MinSpeedConfig) -> KickedSeeker:
+        if seeker:
+            seeker_config = replace(seeker_config, seeker=replace(seeker_config.seeker, **seeker))
         behaviour = KickedSeeker(seeker_config)
         behaviour.kick_at_s = KICK_AT_S if kick else None
         made.append(behaviour)
         return behaviour
 
+    link = InProcessLink(seed=seed)
+    for name, value in (params or {}).items():
+        link.set_param(name, value)
     with mock.patch.object(procedure, "MinSpeedSeeking", product):
         result = procedure.min_speed_procedure(
-            InProcessLink(seed=seed), lambda: None, replace(config, duration_s=seconds),
+            link, lambda: None, replace(config, duration_s=seconds),
             analytic=procedure.analytic_minimum_speed("starfish")).to_json()
     assert result["status"] == "completed", result.get("abort_reason")
     return made[0]
 
 
 def predicted_table() -> None:
-    """Today's procedure (from TR 0.70, and from the predicted TR* + 0.04 after a 0.005/s
-    ramp) beside the new one (the governed move to TR* + 0.008), per seed and as a summary."""
+    """The starts side by side (module docstring), per seed and as a summary."""
     tr_star = procedure.analytic_minimum_speed("starfish")["thrust_ratio_star"]
     goal = "≤ 60 s | ≤ +2.0 % | ≤ 0.30 m | ≤ 1 | re-converges"
     print(f"analytic TR* {tr_star:.4f} (+2 % = {1.02 * tr_star:.4f}); product procedure over InProcessLink, 100 s at "
           f"0.70 first; 200 s runs, and 300 s runs kicked to {KICK_TO} at {KICK_AT_S:.0f} s")
     print("columns: settle s (last set-point change before 15 s without one, from the start of seeking, the move "
           "included) | final TR (% over TR*) | max |depth error| m after 5 s | reversals in the last 30 s | "
-          "re-convergence s after the kick")
+          "re-convergence s after the kick and the TR at the end of that run")
     summaries = []
-    for label, config in (TODAY_FROM_070, TODAY_PREDICTED, NEW_GOVERNED):
+    for label, config in (FROM_070, RAMP, GOVERNED, LEVELLED):
         results = [predicted_run(s, config, 200.0, False).result() for s in HOLD_SEEDS]
         kicked = [predicted_run(s, config, KICK_RUN_S, True) for s in HOLD_SEEDS]
         reconverged = [reconvergence(b, KICK_RUN_S) for b in kicked]
-        for seed, r, reconv in zip(HOLD_SEEDS, results, reconverged):
+        for seed, r, reconv, k in zip(HOLD_SEEDS, results, reconverged, kicked):
             over = 100 * (r["thrust_ratio_final"] / tr_star - 1)
+            offset = f" | depth offset ≤ {r['depth_offset_max_m']:.2f} m" if r["depth_offset_max_m"] else ""
             print(f"{label:<24} seed {seed}: settle {_seconds(r['settle_time_s']):>4} | TR {r['thrust_ratio_final']:.4f} "
                   f"({over:+.1f} %) | dz {r['max_depth_error_m']:.3f} | rev {r['reversals_last_30s']} | "
-                  f"reconv {_seconds(reconv)}")
+                  f"reconv {_seconds(reconv)}, TR {k.thrust_ratio:.2f} at {KICK_RUN_S:.0f} s{offset}")
         summaries.append((label, results, reconverged))
     print(f"{'summary':<24} {'settle s':<14} {'final TR (% TR*)':<26} {'max dz m':<12} {'reversals':<10} "
           f"{'reconv s':<12} | goal: {goal}")
@@ -205,6 +225,55 @@ def predicted_table() -> None:
               f"{min(finals):.3f}-{max(finals):.3f} ({100 * (min(finals) / tr_star - 1):+.1f}..{100 * (max(finals) / tr_star - 1):+.1f} %)"
               f"{'':<3} {min(depths):.2f}-{max(depths):.2f}{'':<3} {max(r['reversals_last_30s'] for r in results):<10} "
               f"{_range(reconverged):<12} | all goals on {met}/{len(results)} seeds")
+
+
+def first_quiet_keeps(behaviour: MinSpeedSeeking, window_s: float = 15.0) -> float | None:
+    """The first time (s from the start) from which the seeker's decisions on its recorded, filtered
+    inputs, taken every Ts without the hold, keep for ``window_s``: when the vehicle as it flew would
+    have let the seeker settle."""
+    series = behaviour.series
+    config = behaviour.config.seeker
+    decisions: list[tuple[float, int]] = []
+    due = config.period_s
+    for time_s, theta_e, delta in zip(series["time"], series["pitch_error_filtered"], series["elevator_filtered"]):
+        if time_s >= due and theta_e == theta_e and delta == delta:
+            due += config.period_s
+            decisions.append((time_s, decide(theta_e, delta, config)))
+    end = decisions[-1][0] if decisions else 0.0
+    for start, _ in decisions:
+        if start + window_s > end:
+            return None
+        if all(d == KEEP for t, d in decisions if start <= t < start + window_s):
+            return start
+    return None
+
+
+def cause_table() -> None:
+    """What bounds the levelled move's settle time (module docstring), per seed and as a range."""
+    held = {"hold_after_change_s": 1e6}  # after the move, every seeking move is held: the thrust stays
+    print("per seed 1-6, product procedure over InProcessLink, 100 s at 0.70 first, 200 s of seeking")
+    runs = [predicted_run(s, LEVELLED[1], 200.0, False, seeker=held) for s in HOLD_SEEDS]
+    quiet = [first_quiet_keeps(b) for b in runs]
+    print(f"levelled move, then TR held at TR*+0.008: the seeker's decisions would keep for 15 s from "
+          f"{_join(quiet, _seconds)} s (range {_range(quiet)}); max dz "
+          f"{_join([b.max_depth_error() for b in runs], '{:.2f}'.format)} m")
+    diagnostics = (("PIT_I x5, levelled", LEVELLED[1], {"PIT_I": 5 * -0.1}, None),
+                   ("PIT_I x5, governed", GOVERNED[1], {"PIT_I": 5 * -0.1}, None),
+                   ("θe_TS 0.02, levelled", LEVELLED[1], None, {"theta_e_threshold": 0.02}),
+                   ("θe_TS 0.02, from 0.70", FROM_070[1], None, {"theta_e_threshold": 0.02}))
+    for label, config, params, seeker in diagnostics:
+        results = [predicted_run(s, config, 200.0, False, params=params, seeker=seeker).result() for s in HOLD_SEEDS]
+        kicked = [predicted_run(s, config, KICK_RUN_S, True, params=params, seeker=seeker) for s in HOLD_SEEDS]
+        print(f"{label:<22}: settle {_join([r['settle_time_s'] for r in results], _seconds)} s | final TR "
+              f"{_join([r['thrust_ratio_final'] for r in results], '{:.2f}'.format)} | dz "
+              f"{_join([r['max_depth_error_m'] for r in results], '{:.2f}'.format)} m | rev "
+              f"{_join([r['reversals_last_30s'] for r in results], str)} || kicked: reconv "
+              f"{_join([reconvergence(k, KICK_RUN_S) for k in kicked], _seconds)} s, TR at {KICK_RUN_S:.0f} s "
+              f"{_join([k.thrust_ratio for k in kicked], '{:.2f}'.format)}")
+
+
+def _join(values: list, form) -> str:
+    return " ".join(form(v) for v in values)
 
 
 def _range(values: list[float | None]) -> str:
@@ -222,9 +291,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hold", action="store_true", help="the thesis law against the hold after every change")
     parser.add_argument("--predicted", action="store_true",
-                        help="today's procedure (from TR 0.70; from TR* + 0.04 after a ramp) beside the "
-                             "governed move to TR* + 0.008, per seed and summary")
+                        help="the starts side by side: from TR 0.70, the ramp to TR* + 0.04, the governed and "
+                             "the levelled move to TR* + 0.008, per seed and summary")
+    parser.add_argument("--cause", action="store_true",
+                        help="what bounds the levelled move's settle time: the thrust held after it, and "
+                             "diagnostics with a faster pitch integral or the seeker's θe crossover at 0.02")
     args = parser.parse_args()
+    if args.cause:
+        start = time.time()
+        cause_table()
+        print(f"wall time {time.time() - start:.1f} s")
+        return
     if args.predicted:
         start = time.time()
         predicted_table()

@@ -51,6 +51,7 @@ class Telemetry:
     elevator: float = NAN  # rad, actual deflection
     thrust_ratio: float = NAN  # 0..1, actual
     mass_angle: float = NAN  # rad, rolling-mass angle
+    heading_target: float = NAN  # rad, the heading set-point the autopilot reports it holds (NAV_CONTROLLER_OUTPUT)
     mode: str = ""
     armed: bool = False
 

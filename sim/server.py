@@ -61,6 +61,7 @@ MAX_TICKS_PER_POLL = 10  # physics steps between two polls of the socket
 TCP_LISTEN_BACKLOG = 8  # connections the kernel queues before the simulator accepts them
 MAX_BACKLOG_S = 0.25  # wall seconds behind schedule before the pacing drops the backlog
 REPORT_EVERY_S = 10.0  # wall seconds between achieved-ratio log lines
+REBOOT_S = 2.0  # vehicle seconds a rebooting autopilot is silent
 
 ATT_STREAMS = (mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, mavlink.MAVLINK_MSG_ID_ATTITUDE)
 POS_STREAMS = (
@@ -68,6 +69,7 @@ POS_STREAMS = (
     mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
     mavlink.MAVLINK_MSG_ID_VFR_HUD,
     mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE,
+    mavlink.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT,
 )
 ONE_HZ_STREAMS = (
     mavlink.MAVLINK_MSG_ID_HEARTBEAT,
@@ -137,6 +139,8 @@ class SimServer:
         )
         self.autopilot = Autopilot(self.vehicle, self.params)
         self.tick = 0
+        self._boot_tick = 0  # the tick of the last boot: time_boot_ms counts from it
+        self._reboot_at_tick: int | None = None  # while rebooting: the tick the new boot starts
         self.dt = config.dt
         self._tick_ms = config.dt * 1000.0
         self._stop = False
@@ -169,7 +173,39 @@ class SimServer:
 
     @property
     def time_boot_ms(self) -> int:
-        return int(round(self.tick * self._tick_ms))
+        return int(round((self.tick - self._boot_tick) * self._tick_ms))
+
+    # ------------------------------------------------------------------ reboot
+    def _schedule_reboot(self) -> int:
+        """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (param1 = 1): the autopilot reboots as ArduPilot does —
+        silent for ``REBOOT_S`` of vehicle time (the physics go on), then a fresh boot: its clock from
+        0, disarmed in MANUAL with its default set-points, no override, the streams at their SR_*
+        rates; its parameters are kept (flash). Refused in lockstep (the vehicle clock there is the
+        companion's acknowledgements of this boot's time)."""
+        if self.lockstep.enabled:
+            self.status_text("Reboot not simulated in lockstep")
+            return Result.DENIED
+        self._reboot_at_tick = self.tick + max(1, int(round(REBOOT_S / self.dt)))
+        return Result.ACCEPTED
+
+    @property
+    def rebooting(self) -> bool:
+        return self._reboot_at_tick is not None
+
+    def _boot(self) -> None:
+        self._reboot_at_tick = None
+        self._boot_tick = self.tick
+        self.autopilot = Autopilot(self.vehicle, self.params)
+        for stream in self._ordered_streams:
+            stream.custom = False
+            stream.next_tick = self.tick
+        for name in ("SR_ATT_HZ", "SR_POS_HZ"):
+            self._apply_stream_param(name)
+        for msg_id in ONE_HZ_STREAMS:
+            self._streams[msg_id].period = self._period_ticks(1.0)
+        self._refresh_next_emit()
+        self.stats["reboots"] = self.stats.get("reboots", 0) + 1
+        log.info("rebooted at vehicle time %.2f s", self.tick * self.dt)
 
     def open(self) -> None:
         self.conn = mavutil.mavlink_connection(
@@ -368,6 +404,10 @@ class SimServer:
     def _step_once(self) -> None:
         self.autopilot.step(self.dt)
         self.tick += 1
+        if self._reboot_at_tick is not None:
+            if self.tick < self._reboot_at_tick:
+                return  # booting: the physics go on, the autopilot says nothing
+            self._boot()
         if self.tick >= self._next_emit:
             self._emit_due()
 
@@ -529,6 +569,14 @@ class SimServer:
             m = self._measurements()
             press = SEA_LEVEL_HPA + PRESSURE_RHO * GRAVITY * m.depth / 100.0
             return mavlink.MAVLink_scaled_pressure_message(ms, press, 0.0, 1500)
+        if msg_id == mavlink.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT:
+            # the holding mode's targets, as an autopilot reports them: the heading set-point (whole
+            # degrees, as the message carries it) and the depth error
+            m = self._measurements()
+            ap = self.autopilot
+            bearing = int(round(math.degrees(ap.heading_setpoint))) % 360
+            return mavlink.MAVLink_nav_controller_output_message(
+                0.0, 0.0, bearing, bearing, 0, float(m.depth - ap.depth_setpoint), 0.0, 0.0)
         if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
             return self._heartbeat()
         if msg_id == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
@@ -617,6 +665,8 @@ class SimServer:
     def _dispatch(self, item: tuple[object, object]) -> None:
         msg, origin = item
         self.stats["received"] += 1
+        if self._reboot_at_tick is not None:
+            return  # a booting autopilot reads nothing
         self._origin = origin
         try:
             self.handle(msg)
@@ -781,6 +831,8 @@ class SimServer:
             return Result.DENIED
         if command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
             return ap.arm(p[0] >= 0.5)
+        if command == mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN and int(p[0]) == 1:
+            return self._schedule_reboot()
         if command == mavlink.MAV_CMD_DO_SET_MODE:
             if not int(p[0]) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
                 return Result.FAILED

@@ -25,6 +25,7 @@ FLOORS: tuple[tuple[str, ...], ...] = (
     ("companion.records",),
     ("companion.procedures",),
     ("companion.rehearsal",),
+    ("companion.service",),
     ("companion.sweep",),
     ("companion.cli", "companion.__main__", "companion"),
 )

@@ -114,7 +114,7 @@ def test_a_pilot_mode_change_aborts_and_the_companion_does_not_fight_back(rover,
     def pilot():  # the pilot selects ACRO (another MAVLink client would; here the same link, by number)
         if not state["done"] and link.vehicle_time_s - start > 12.0:
             state["done"] = True
-            link._command_long(176, (1, 1))  # MAV_CMD_DO_SET_MODE custom 1 = ACRO, not via set_mode
+            link.commands.send(176, (1, 1))  # MAV_CMD_DO_SET_MODE custom 1 = ACRO, not via set_mode
         return None
 
     _, outcome, _ = _campaign_with(link, pilot, tmp_path)

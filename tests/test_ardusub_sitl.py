@@ -131,7 +131,7 @@ def test_ardusub_pilot_mode_change_aborts_and_the_pilots_mode_stands(sub, tmp_pa
     def pilot():  # the pilot selects STABILIZE (custom mode 0), not through the companion's set_mode
         if not state["done"] and link.vehicle_time_s - start > 12.0:
             state["done"] = True
-            link._command_long(176, (1, 0))
+            link.commands.send(176, (1, 0))
         return None
 
     _, outcome, _ = _short_campaign(link, pilot, tmp_path)

@@ -229,5 +229,5 @@ def test_ardusub_campaign_keeps_the_motors_out_of_saturation_and_arduSub_gain_ra
 
 
 def test_streams_pair_attitude_and_outputs_at_50_hz():
-    assert ardusub.STREAMS[30] == ardusub.STREAMS[36] == 50.0 and PROFILE.servo_follows_attitude
+    assert ardusub.STREAMS[30] == ardusub.STREAMS[36] == 50.0
     assert 242 in ardusub.STREAMS and 33 in ardusub.STREAMS  # home and position: the depth

@@ -249,7 +249,7 @@ def test_an_unanswered_set_point_is_sent_again_before_it_fails():
     """Found by the suite: a single lost set-point command or COMMAND_ACK aborted the procedure."""
     from companion.link.errors import CommandFailed
 
-    link, sent = _bare_link()
+    link, sent = _bare_link(min_try_wall_s=0.0)  # a companion reading the stream as it comes
     link.clock.vehicle_time_s = 10.0
     link.commands.send_setpoint(178, (0.0, -1.0, 70.0))
     link.clock.vehicle_time_s = 11.05
@@ -259,6 +259,19 @@ def test_an_unanswered_set_point_is_sent_again_before_it_fails():
     link.clock.vehicle_time_s = 13.2
     with pytest.raises(CommandFailed):
         link.commands.check_answers()
+
+
+def test_a_companion_reading_its_backlog_does_not_count_it_as_time_to_answer():
+    """Found on a loaded machine at 20x: the companion read its telemetry three vehicle seconds behind
+    the simulator, so a set-point it had just sent looked unanswered for three command periods
+    (the answer can only come after the vehicle's clock as it is now) and the campaign aborted."""
+    link, sent = _bare_link(min_try_wall_s=0.5)
+    link.clock.vehicle_time_s = 10.0
+    link.commands.send_setpoint(115, (10.0, 0.0, 0.0, 0.0))
+    link.clock.vehicle_time_s = 13.5  # the backlog read within a few ms of wall clock
+    link.commands.check_answers()  # neither resent nor failed
+    assert [args for name, *args in sent if name == "command_long_send"] == [[1, 1, 115, 0, 10.0, 0.0, 0.0, 0.0,
+                                                                              0.0, 0.0, 0.0]]
 
 
 def test_the_store_of_a_case_reads_back_intact(tmp_path):
@@ -306,9 +319,13 @@ def test_outputs_are_paired_with_their_attitude_after_the_microsecond_clock_wrap
     from companion.link.snapshot import TelemetryAssembler
 
     assembler = TelemetryAssembler(PROFILE)
-    time_ms = 4_400_000
-    assembler.on_message(mavlink.MAVLink_attitude_message(time_ms, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0))
     servos = [1500] * 16
+    for earlier_ms in (4_399_920, 4_399_960):  # the streams run: each loop's outputs follow its attitude
+        assembler.on_message(mavlink.MAVLink_attitude_message(earlier_ms, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0))
+        assembler.on_message(mavlink.MAVLink_servo_output_raw_message((earlier_ms * 1000 + 700) & 0xFFFFFFFF, 0,
+                                                                      *servos))
+    time_ms = 4_400_000
+    assert assembler.on_message(mavlink.MAVLink_attitude_message(time_ms, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0)) is None
     servos[PROFILE.servo_outputs["rudder"] - 1] = 1700
     snapshot = assembler.on_message(mavlink.MAVLink_servo_output_raw_message((time_ms * 1000) & 0xFFFFFFFF, 0,
                                                                              *servos))
@@ -320,7 +337,7 @@ def test_a_restore_reconnects_a_closed_link_and_says_what_it_could_not_do_when_i
     unrestored (the restore gave up at the first EOF). Now the item is tried again after a reconnect;
     a link that does not come back ends the restore with one clear reason per item."""
     from companion.link.errors import LinkLost
-    from companion.procedures.runner import _Reconnector, _try_restore_item
+    from companion.procedures.restore_items import Reconnector as _Reconnector, try_restore_item as _try_restore_item
 
     class Link:
         def __init__(self, back: bool) -> None:

@@ -176,7 +176,7 @@ def test_results_opens_read_only_and_never_writes(tmp_path, capsys):
     assert code == 0, err
     assert [c["status"] for c in strict_json(out)["campaigns"]] == ["completed"]
     assert digest(path) == before
-    with Store(path, read_only=True) as store, pytest.raises(sqlite3.OperationalError, match="readonly"):
+    with Store(path, read_only=True) as store, pytest.raises(StoreError, match="readonly"):
         store.add_vehicle("intruder")
     assert digest(path) == before
 

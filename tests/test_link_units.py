@@ -19,13 +19,8 @@ from companion.link.errors import (LinkLost, ParamRefused, ParamTimeout, Profile
 from companion.link.overrides import OverrideTable, single_shot  # noqa: E402
 from companion.link.profiles import ARDUROVER, ARDUSUB, PROFILES, SIM, detect_profile  # noqa: E402
 from companion.link.snapshot import DepthSensor, TelemetryAssembler  # noqa: E402
-from companion.link.vehicle import LinkTimeouts, VehicleLink, validate_named_value_name  # noqa: E402
-
-
-def wire(msg, src: int = 1, comp: int = 1):
-    """``msg`` as the link would receive it: packed by a sender with that identity and decoded."""
-    sender = mavlink.MAVLink(None, srcSystem=src, srcComponent=comp)
-    return mavlink.MAVLink(None).decode(bytearray(msg.pack(sender)))
+from companion.link.vehicle import validate_named_value_name  # noqa: E402
+from tests.fake_autopilot import FakeAutopilot, fake_link, wire  # noqa: E402,F401 - fake_link is a fixture
 
 
 # ============================================================================ profiles
@@ -151,7 +146,7 @@ def test_snapshot_assembly_from_fabricated_messages():
 def test_snapshot_turns_garbage_into_nan_without_raising(caplog):
     assembler = TelemetryAssembler(SIM)
     assembler.on_message(wire(mavlink.MAVLink_vfr_hud_message(float("nan"), float("inf"), 0, 0, 0.0, 0.0)))
-    assembler.on_message(wire(mavlink.MAVLink_servo_output_raw_message(0, 0, 0, 65535, 1500, 0, 0, 0, 0, 0)))
+    assembler.on_message(wire(mavlink.MAVLink_servo_output_raw_message(200000, 0, 0, 65535, 1500, 0, 0, 0, 0, 0)))
     snapshot = assembler.on_message(wire(mavlink.MAVLink_attitude_message(
         200, float("nan"), 0.0, float("nan"), 0.0, float("-inf"), 0.0)))
     assert snapshot is not None
@@ -173,96 +168,6 @@ def test_snapshot_turns_garbage_into_nan_without_raising(caplog):
 
 
 # ============================================================================ VehicleLink vs a fake autopilot
-class FakeAutopilot:
-    """Stands in for pymavlink's mavfile: decodes what the link sends (real MAVLink 2 bytes),
-    answers like a tiny ArduPilot-style autopilot, and streams one ATTITUDE every 50 ms of
-    vehicle time whenever the link asks for a message and none is queued."""
-
-    def __init__(self) -> None:
-        self.mav = mavlink.MAVLink(self, srcSystem=1, srcComponent=191)  # the link's sender
-        self._parser = mavlink.MAVLink(None)
-        self._parser.robust_parsing = True
-        self.queue: collections.deque = collections.deque()
-        self.sent: list = []
-        self.time_ms = 10_000
-        self.params = {"HDG_P": (0.6, pc.REAL32), "SYSID_MYGCS": (255.0, pc.INT16), "RC_OVR_TIME": (3.0, pc.REAL32)}
-        self.echo_instead: dict[str, float] = {}  # name -> value echoed instead of the written one
-        self.silent_params: set[str] = set()
-        self.encoding = "cast"
-        self.custom_mode = 19
-        self.silent = False
-        self.reply_lag_ticks = 0
-
-    # -- mavfile surface used by VehicleLink
-    def write(self, buf) -> None:
-        for msg in self._parser.parse_buffer(bytes(buf)) or []:
-            self.sent.append(msg)
-            self._answer(msg)
-
-    def recv_match(self, blocking=True, timeout=None, **_):
-        if self.silent:
-            return None
-        if not self.queue:
-            self.tick()
-        return self.queue.popleft()
-
-    def tick(self) -> None:
-        self.time_ms += 50
-        self.emit(mavlink.MAVLink_attitude_message(self.time_ms, 0.0, 0.0, 0.1, 0.0, 0.0, 0.01))
-
-    def close(self) -> None:
-        pass
-
-    # -- autopilot behaviour
-    def emit(self, msg, src: int = 1, comp: int = 1) -> None:
-        self.queue.append(wire(msg, src, comp))
-
-    def _param_value(self, name: str) -> None:
-        for _ in range(self.reply_lag_ticks):  # telemetry keeps flowing before the answer
-            self.tick()
-        value, param_type = self.params[name]
-        on_wire = pc.encode_value(value, param_type, self.encoding)
-        self.emit(mavlink.MAVLink_param_value_message(name.encode(), on_wire, param_type, len(self.params), 0))
-
-    def _answer(self, msg) -> None:
-        kind = msg.get_type()
-        if kind == "PARAM_REQUEST_READ":
-            name = pc.param_id_str(msg.param_id)
-            if name in self.params:
-                self._param_value(name)
-        elif kind == "PARAM_SET":
-            name = pc.param_id_str(msg.param_id)
-            if name in self.silent_params:
-                return
-            if name not in self.params:
-                self.emit(mavlink.MAVLink_statustext_message(4, f"Unknown parameter {name}".encode()))
-                return
-            param_type = self.params[name][1]
-            value = pc.decode_value(msg.param_value, param_type, self.encoding)
-            self.params[name] = (self.echo_instead.get(name, value), param_type)
-            self._param_value(name)
-        elif kind == "COMMAND_LONG":
-            if msg.command == 176:
-                self.custom_mode = int(msg.param2)
-                self.emit(mavlink.MAVLink_heartbeat_message(12, 3, 1, self.custom_mode, 4, 3))
-            self.emit(mavlink.MAVLink_command_ack_message(msg.command, 0, 0, 0, msg.get_srcSystem(),
-                                                          msg.get_srcComponent()))
-
-    def sent_of(self, kind: str) -> list:
-        return [m for m in self.sent if m.get_type() == kind]
-
-
-@pytest.fixture
-def fake_link():
-    fake = FakeAutopilot()
-    # the fake answers synchronously (no lag), so a try needs no minimum wall time
-    link = VehicleLink(fake, system_id=1, autopilot_component=1, component=191,
-                       timeouts=LinkTimeouts(min_try_wall_s=0.0))
-    link.setup(None, {}, DepthSensor())
-    link.skip_to_now()  # snapshots queued during set-up
-    return fake, link
-
-
 def test_setup_detects_profile_and_reads_gcs_sysid(fake_link):
     fake, link = fake_link
     assert link.profile is SIM and link.ground.gcs_sysid == 255 and link.override_timeout_s == 3.0
@@ -287,6 +192,38 @@ def test_set_param_trusts_only_a_matching_echo(fake_link):
     with pytest.raises(ParamTimeout):
         link.set_param("HDG_P", 1.0, retries=3)
     assert len(fake.sent_of("PARAM_SET")) == sets_before + 3  # resent on every try
+
+
+def test_a_late_echo_of_an_earlier_write_of_ours_is_not_someone_elses_change(fake_link):
+    fake, link = fake_link
+    link.parameters.watch(["HDG_P"])
+    link.set_param("HDG_P", 0.7)
+    link.set_param("HDG_P", 0.8)
+    fake.emit(mavlink.MAVLink_param_value_message(b"HDG_P", 0.7, pc.REAL32, 3, 0))  # the first echo, again, late
+    link.next_telemetry()
+    assert not link.parameters.foreign
+    fake.emit(mavlink.MAVLink_param_value_message(b"HDG_P", 0.95, pc.REAL32, 3, 0))  # a ground station's
+    link.next_telemetry()
+    assert link.parameters.foreign["HDG_P"].value == pytest.approx(0.95)
+
+
+@pytest.mark.parametrize("now_on_vehicle, kept", [(0.95, True), (0.8, False)])
+def test_a_foreign_change_is_kept_only_while_the_vehicle_still_holds_it(fake_link, now_on_vehicle, kept):
+    """The restore reads the parameter again: someone else's value still there is kept; one since
+    replaced (here by a late write of ours) is not theirs any more, and the found value goes back."""
+    from companion.procedures.restore import RestorePoint
+
+    fake, link = fake_link
+    point = RestorePoint(mode=None, native={"HDG_P": 0.6})
+    link.parameters.watch(["HDG_P"])
+    link.set_param("HDG_P", 0.8)
+    fake.emit(mavlink.MAVLink_param_value_message(b"HDG_P", 0.95, pc.REAL32, 3, 0))
+    link.next_telemetry()
+    fake.params["HDG_P"] = (now_on_vehicle, pc.REAL32)
+    assert point.restore(link, mode=False) == []
+    expected = 0.95 if kept else 0.6
+    assert fake.params["HDG_P"][0] == pytest.approx(expected)
+    assert any("kept 0.95" in note for note in point.notes) == kept
 
 
 @pytest.mark.parametrize("encoding", ["cast", "bytewise"])
@@ -379,6 +316,45 @@ def test_every_snapshot_is_queued_in_order_during_blocking_calls(fake_link):
     assert link.skip_to_now() >= 1 and link.next_telemetry().time_s > newest
 
 
+def test_a_single_stray_stamp_is_not_a_reboot(fake_link):
+    """One frame stamped far in the past (corrupted, or delivered very late) is dropped and counted;
+    the clock and the stream carry on."""
+    fake, link = fake_link
+    before = link.next_telemetry().time_s
+    fake.emit(mavlink.MAVLink_attitude_message(300, 0.0, 0.0, 0.1, 0.0, 0.0, 0.01))
+    times = [link.next_telemetry().time_s for _ in range(3)]
+    assert times[0] > before and all(b > a for a, b in zip(times, times[1:]))
+    assert link.telemetry.quality()["stray"] == 1 and link.clock.reboots == 0
+
+
+def _swap_next_two(fake):
+    """The next two attitude samples arrive in the wrong order (a link that reorders)."""
+    first, second = fake.time_ms + 50, fake.time_ms + 100
+    for stamp in (second, first):
+        fake.emit(mavlink.MAVLink_attitude_message(stamp, 0.0, 0.0, 0.1, 0.0, 0.0, 0.01))
+    fake.time_ms = second
+
+
+def test_a_late_sample_is_placed_in_order_once_the_link_has_reordered_and_the_hold_ends_when_it_calms(fake_link):
+    from companion.link.telemetry import REORDER_CALM_SAMPLES
+
+    fake, link = fake_link
+    link.next_telemetry()
+    _swap_next_two(fake)  # the first reorder: the late sample comes after its successor was returned
+    times = [round(link.next_telemetry().time_s * 1000) for _ in range(3)]
+    assert times == sorted(times) and link.telemetry.quality()["late_dropped"] == 1
+    hold = link.telemetry.quality()["hold_ms"]
+    assert 0.0 < hold <= 2 * 50.0  # two nominal sample periods
+    _swap_next_two(fake)  # now snapshots are held: the late one takes its place
+    times = [round(link.next_telemetry().time_s * 1000) for _ in range(4)]
+    assert times == sorted(times) and all(b - a == 50 for a, b in zip(times, times[1:]))
+    quality = link.telemetry.quality()
+    assert quality["late"] == 2 and quality["late_dropped"] == 1
+    for _ in range(REORDER_CALM_SAMPLES + 2):
+        link.next_telemetry()
+    assert link.telemetry.quality()["hold_ms"] == 0.0  # in order for long enough: no longer held
+
+
 def test_reboot_and_silence_are_reported(fake_link):
     fake, link = fake_link
     link.next_telemetry()
@@ -389,3 +365,53 @@ def test_reboot_and_silence_are_reported(fake_link):
     fake.silent = True
     with pytest.raises(LinkLost):
         link.next_telemetry(timeout_s=0.2)
+
+
+# ============================================================================ pairing by time stamp
+def _stream(assembler, messages):
+    out = []
+    for msg in messages:
+        out += assembler.take(wire(msg))
+    return out
+
+
+def _attitude(ms):
+    return mavlink.MAVLink_attitude_message(ms, 0.0, 0.0, 0.1, 0.0, 0.0, 0.0)
+
+
+def _outputs(ms, rudder_pwm):
+    return mavlink.MAVLink_servo_output_raw_message(ms * 1000, 0, rudder_pwm, 1500, 1700, 1500, 0, 0, 0, 0, 1500)
+
+
+def test_outputs_are_paired_with_their_own_sample_whatever_the_arrival_order():
+    """Over a link that reorders, the outputs of the next sample can arrive before an attitude and
+    those of its own sample after it: each snapshot gets the rudder stamped with its own time, and
+    the snapshots come out in time order."""
+    assembler = TelemetryAssembler(SIM)
+    pwm = {ms: 1500 + ms // 10 for ms in range(1000, 1400, 50)}  # a different rudder every sample
+    in_order = [m for ms in (1000, 1050) for m in (_outputs(ms, pwm[ms]), _attitude(ms))]
+    shuffled = [_attitude(1100), _outputs(1150, pwm[1150]), _outputs(1100, pwm[1100]), _attitude(1150),
+                _attitude(1200), _attitude(1250), _outputs(1250, pwm[1250]), _outputs(1200, pwm[1200]),
+                _outputs(1300, pwm[1300]), _attitude(1300)]
+    snapshots = _stream(assembler, in_order + shuffled)
+    assert [round(s.time_s * 1000) for s in snapshots] == list(range(1000, 1350, 50))
+    for snapshot in snapshots:
+        ms = round(snapshot.time_s * 1000)
+        assert snapshot.rudder == pytest.approx(SIM.pwm_to_angle(pwm[ms])), ms
+
+
+def test_a_lost_output_message_releases_its_snapshot_with_the_outputs_held_then():
+    assembler = TelemetryAssembler(SIM)
+    messages = [m for ms in (1000, 1050, 1100) for m in (_outputs(ms, 1600), _attitude(ms))]
+    messages += [_attitude(1150)]  # its outputs are lost
+    messages += [m for ms in (1200, 1250) for m in (_outputs(ms, 1700), _attitude(ms))]
+    snapshots = _stream(assembler, messages)
+    assert [round(s.time_s * 1000) for s in snapshots] == [1000, 1050, 1100, 1150, 1200, 1250]
+    assert snapshots[3].rudder == pytest.approx(SIM.pwm_to_angle(1600))  # held, not the later 1700
+    assert assembler.released_without_outputs == 1
+
+
+def test_without_an_output_stream_no_snapshot_waits():
+    assembler = TelemetryAssembler(SIM)
+    snapshots = _stream(assembler, [_attitude(ms) for ms in (1000, 1050, 1100)])
+    assert [round(s.time_s * 1000) for s in snapshots] == [1000, 1050, 1100]

@@ -65,6 +65,7 @@ def test_command_line_stores_a_log_campaign(survey_tlog, tmp_path, capsys):
     assert main(["identify", "--log", survey_tlog, "--store", store_path, "--json"]) == 0
     out = _strict(capsys.readouterr().out)
     assert out["status"] == "completed" and out["gains_written"] is None
+    assert out["export"].endswith(f"--campaign {out['campaign_id']} --export gains.parm")  # how to hand them on
     assert {"checks", "rudder_source", "speed_source"} <= set(out["log"])
     used = [s for s in out["segments"] if s["number"] is not None]
     assert all(s["validated_on"] not in (None, s["number"]) for s in used)

@@ -385,6 +385,78 @@ def test_run_behavior_start_options_choose_the_move_and_refuse_what_cannot_work(
     assert min_speed_start("ramp", None, analytic=True).start_margin == 0.04
     assert min_speed_start("governed", 0.02, analytic=True, nominal_thrust=0.8).start_margin == 0.02
     assert min_speed_start("nominal", None, analytic=True, nominal_thrust=0.8).nominal_thrust == 0.8
-    for start, margin, analytic in (("governed", None, False), ("nominal", 0.02, True), (None, float("nan"), True)):
+    levelled = min_speed_start("levelled", None, analytic=True)
+    assert levelled == procedure.MinSpeedProcedureConfig.levelled() and levelled.start_feedforward
+    for start, margin, analytic in (("governed", None, False), ("levelled", None, False), ("nominal", 0.02, True),
+                                    (None, float("nan"), True)):
         with pytest.raises(ValueError):
             min_speed_start(start, margin, analytic=analytic)
+
+
+# ------------------------------------------------------------------ the levelled move: pitch fed forward through the depth set-point
+def test_depth_setpoint_feedforward_gives_the_pitch_change_at_once_and_fades_with_kpz_over_kiz():
+    """Δ = (F − D)/Kpz: the P term carries the fed-forward pitch change F at once; the autopilot's
+    integrator absorbs it (D = ∫Kiz·Δ dt), so with F constant the offset fades as exp(−t·Kiz/Kpz)."""
+    from companion.numerics.trim_feedforward import DepthSetpointFeedForward, FeedForwardConfig
+
+    config = FeedForwardConfig(depth_p=-0.15, depth_i=-0.01)
+    assert config.fade_time_constant_s == pytest.approx(15.0)
+    feedforward = DepthSetpointFeedForward(config, reference=-0.02)
+    offset = feedforward.offset(-0.02 - 0.09)  # 0.09 rad more nose-down: a deeper set-point
+    assert offset == pytest.approx(0.6)
+    for _ in range(300):  # 15 s at 20 Hz, the offset in effect resent every sample
+        feedforward.advance(0.05, offset)
+        offset = feedforward.offset(-0.11)
+    assert offset == pytest.approx(0.6 * math.exp(-1.0), rel=0.01)
+    assert feedforward.absorbed == pytest.approx(-0.09 * (1.0 - math.exp(-1.0)), rel=0.01)
+    assert feedforward.to_send(0.30, 0.295) is False and feedforward.to_send(0.30, 0.29)
+    assert DepthSetpointFeedForward(FeedForwardConfig(max_offset_m=0.5), 0.0).offset(-0.3) == 0.5
+    with pytest.raises(ValueError):
+        FeedForwardConfig(depth_p=0.0)
+
+
+LEVEL_CURVE = ((0.40, -0.16), (0.45, -0.12), (0.50, -0.08), (0.70, -0.02))
+
+
+def test_levelled_move_offsets_the_depth_setpoint_and_always_puts_it_back():
+    """No physics: the set-point falls at 0.02/s, the depth set-point goes deeper by the curve's pitch
+    change over |Kpz| (through the speed's lag) and is sent back exactly on any end of the behaviour."""
+    from companion.interface import SetDepth
+
+    config = MinSpeedConfig(start_thrust=0.45, start_feedforward=True, start_pitch_curve=LEVEL_CURVE,
+                            depth_setpoint=2.0)
+    behaviour = MinSpeedSeeking(config)
+    assert "depth" in behaviour.footprint.setpoints and "depth" not in MinSpeedSeeking.footprint.setpoints
+    depths = []
+    for i in range(20 * 14):  # 14 s at 20 Hz on the set-point depth
+        for command in behaviour.step(Telemetry(time_s=0.05 * i, pitch=-0.02, depth=2.0, elevator=0.0)):
+            if isinstance(command, SetDepth):
+                depths.append(command.depth)
+    assert behaviour.ramp_done_s == pytest.approx(1.0 + 0.25 / 0.02, abs=0.1)  # 1 s of shadow-loop start first
+    assert depths == sorted(depths) and all(b - a >= 0.01 - 1e-9 for a, b in zip(depths, depths[1:]))
+    assert 2.3 < depths[-1] < 2.0 + 0.10 / 0.15  # lagging the full 0.10 rad change (0.67 m)
+    stopped = behaviour.abort("operator")
+    assert SetDepth(2.0) in stopped and SetThrust(0.70) in stopped
+
+
+def test_levelled_move_fades_back_to_the_depth_setpoint_and_hands_over_to_the_seeker():
+    """The product procedure, seed 2 (bench/bench_min_speed.py --predicted): at TR* + 0.008 after 14 s,
+    the depth within 0.2 m (the governed move: 0.29 m), the offset back at exactly 0 later."""
+    from companion.procedures import min_speed as procedure
+    from harness.inprocess import InProcessLink
+
+    analytic = procedure.analytic_minimum_speed("starfish")
+    tr_star = analytic["thrust_ratio_star"]
+    link = InProcessLink(seed=2)
+    result = procedure.min_speed_procedure(
+        link, lambda: None, procedure.MinSpeedProcedureConfig.levelled(duration_s=70.0, settle_s=30.0),
+        analytic=analytic).to_json()
+    assert result["status"] == "completed", result.get("abort_reason")
+    assert result["start_reached_s"] == pytest.approx(14.0, abs=0.5)
+    assert result["max_depth_error_m"] <= 0.2
+    assert 0.3 <= result["depth_offset_max_m"] <= 0.7
+    assert result["depth_offset_faded_s"] is not None and result["depth_offset_faded_s"] <= 70.0
+    # back at the depth the seeker took as the set-point: the hold mode's, within the depth noise
+    assert link.autopilot.depth_setpoint == result["depth_setpoint_m"] == pytest.approx(2.0, abs=0.005)
+    # the seeker took over there and is deciding near the optimum (it settles later: bench --predicted)
+    assert result["decisions"] >= 50 and tr_star <= result["thrust_ratio_final"] <= tr_star + 0.008 + 0.01 + 1e-9

@@ -14,7 +14,8 @@ import pytest
 
 from behaviors.base import Footprint
 from companion.procedures.app import AbortFlag, install_signal_handlers
-from companion.procedures.runner import RESTORE_TRIES, RestorePoint
+from companion.procedures.restore import RestorePoint
+from companion.procedures.restore_items import RESTORE_TRIES
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 

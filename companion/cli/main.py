@@ -13,6 +13,7 @@ import os
 import sys
 
 from companion.errors import UserError
+from companion.service.logs import configure_logging
 
 #: subcommand modules, in the order ``companion --help`` lists them
 SUBCOMMANDS = (
@@ -27,7 +28,18 @@ SUBCOMMANDS = (
     "minspeed",
     "analyze",
     "results",
+    "recover",
 )
+
+
+def package_version() -> str:
+    """The installed distribution's version (``companion --version``)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("marine-companion")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "unknown (not installed)"
 
 
 def _selected(argv: list[str]) -> tuple[str, ...]:
@@ -49,7 +61,11 @@ def build_parser(names: tuple[str, ...] = SUBCOMMANDS) -> argparse.ArgumentParse
             "gains, roll stabilisation and minimum-speed seeking over MAVLink."
         ),
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    parser.add_argument("--log-format", choices=("auto", "text", "journal"), default=None,
+                        help="log lines with timestamps (text) or for journald (journal: syslog priority prefix, "
+                             "no timestamp); auto (default): journal when standard error is the journal")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in names:
         try:
@@ -67,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser(_selected(argv))
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    configure_logging(args.log_format or "auto", level)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

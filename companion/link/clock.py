@@ -68,6 +68,7 @@ class VehicleClock:
         # wall-clock decisions, counted so a run can say it was not exact: blocking waits ended by
         # their wall-clock guard (the vehicle clock stalled) and lockstep re-acknowledgements
         self.wall_timeouts = 0
+        self.reboots = 0  # times the vehicle's clock went back (it rebooted) since we connected
         self._tick_listeners: list[Callable[[float], None]] = []
         transport.on("SYSTEM_TIME", self._on_system_time)
         transport.on_reconnect(self._resume_lockstep)
@@ -96,6 +97,8 @@ class VehicleClock:
         """The vehicle's clock went back (a reboot): start again from ``time_ms``."""
         self.last_sample_ms = time_ms
         self.vehicle_time_s = time_ms / 1000.0
+        self.acked_ms = -1
+        self.reboots += 1
 
     def _on_system_time(self, msg: Any) -> None:
         if self.transport.from_autopilot(msg) and isinstance(msg.time_boot_ms, int):

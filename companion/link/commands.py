@@ -16,6 +16,7 @@ from __future__ import annotations
 import collections
 import logging
 import math
+import time
 from typing import Any, Sequence
 
 from companion.link.clock import VehicleClock
@@ -38,10 +39,15 @@ class CommandChannel:
         self.acks: dict[int, tuple[int, int, int]] = {}  # command -> (result, progress, arrival counter)
         self.ack_count = 0
         self.rejected: collections.deque[tuple[float, int, int]] = collections.deque(maxlen=64)
-        self._awaiting: dict[int, float] = {}  # set-point command -> vehicle time it was sent
-        # set-point command -> (its latest parameters, vehicle time last sent, times sent)
-        self._sends: dict[int, tuple[tuple[float, ...], float, int]] = {}
+        # set-point command -> (vehicle time, wall time) it was first sent
+        self._awaiting: dict[int, tuple[float, float]] = {}
+        # set-point command -> (its latest parameters, vehicle time last sent, times sent, wall time last sent)
+        self._sends: dict[int, tuple[tuple[float, ...], float, int, float]] = {}
         self._refusals: collections.deque[str] = collections.deque(maxlen=16)
+        # the link's round trip (wall seconds from a command to its acknowledgement), recent ones: how
+        # long a command already sent may still be on its way (a restore waits that out)
+        self._sent_wall: dict[int, float] = {}
+        self.round_trips: collections.deque[float] = collections.deque(maxlen=32)
         transport.on("COMMAND_ACK", self._on_command_ack)
 
     @property
@@ -52,7 +58,32 @@ class CommandChannel:
     def send(self, command: int, params: Sequence[float], *, confirmation: int = 0) -> int:
         """Send a COMMAND_LONG; returns the acknowledgement counter to wait from."""
         self.transport.command_long(command, tuple(params), confirmation=confirmation)
+        self._sent_wall[command] = time.monotonic()  # the latest send: a resend's answer is timed from it
         return self.ack_count
+
+    @property
+    def max_round_trip_s(self) -> float:
+        """The longest recent command round trip (wall seconds; 0 before any was measured)."""
+        return max(self.round_trips, default=0.0)
+
+    @property
+    def try_wall_s(self) -> float:
+        """The wall clock one command period lasts at least: the configured minimum, or three times
+        the link's median round trip when that is longer (a loaded companion or a slow radio)."""
+        trips = sorted(self.round_trips)
+        median = trips[len(trips) // 2] if trips else 0.0
+        return max(self.clock.timeouts.min_try_wall_s, 3.0 * median)
+
+    def abandon(self) -> list[int]:
+        """Stop awaiting (and re-sending) every set-point still unanswered: a restore begins, and
+        nothing of the procedure may be sent after it. Returns the commands abandoned."""
+        abandoned = sorted(self._awaiting)
+        self._awaiting.clear()
+        self._sends.clear()
+        for command in abandoned:  # an answer to these no longer measures the link
+            self._sent_wall.pop(command, None)
+        self._refusals.clear()
+        return abandoned
 
     def answered_since(self, command: int, since: int) -> tuple[int, int] | None:
         """(result, progress) of an acknowledgement of ``command`` that arrived after counter ``since``."""
@@ -83,8 +114,19 @@ class CommandChannel:
         """A set-point COMMAND_LONG whose ACK is awaited in the background (module docstring)."""
         self.send(command, params)
         now = self.clock.vehicle_time_s if math.isfinite(self.clock.vehicle_time_s) else 0.0
-        self._awaiting.setdefault(command, now)
-        self._sends[command] = (tuple(params), now, 1)
+        wall = time.monotonic()
+        self._awaiting.setdefault(command, (now, wall))
+        self._sends[command] = (tuple(params), now, 1, wall)
+
+    def _waited(self, vehicle_s: float, wall_s: float, periods: float) -> bool:
+        """``periods`` command periods of vehicle time have passed since (vehicle_s, wall_s) — and,
+        unless in lockstep, as many minimum tries of wall clock: the answer to a command can only come
+        after the vehicle's clock as it is *now*, and a companion reading its telemetry some vehicle
+        seconds behind (a loaded computer at a high speed-up) would otherwise count the backlog it
+        is still reading as time the vehicle had to answer."""
+        if self.clock.vehicle_time_s - vehicle_s <= periods * self.period_s:
+            return False
+        return self.clock.lockstep or time.monotonic() - wall_s >= periods * self.try_wall_s
 
     @property
     def awaiting(self) -> tuple[int, ...]:
@@ -98,8 +140,7 @@ class CommandChannel:
             reason = self._refusals.popleft()
             self._refusals.clear()
             raise CommandFailed(reason)
-        now = self.clock.vehicle_time_s
-        overdue = [c for c, sent in self._awaiting.items() if now - sent > 3.0 * self.period_s]
+        overdue = [c for c, (vehicle_s, wall_s) in self._awaiting.items() if self._waited(vehicle_s, wall_s, 3.0)]
         if overdue:
             self._awaiting.clear()
             raise CommandFailed(f"the vehicle did not acknowledge command {overdue[0]}", command=overdue[0])
@@ -109,11 +150,11 @@ class CommandChannel:
         """Send again every awaited set-point last sent a command period of vehicle time ago."""
         now = self.clock.vehicle_time_s
         for command in list(self._awaiting):
-            params, last, sends = self._sends.get(command, ((), -math.inf, 1))
-            if params and now - last >= self.period_s:
+            params, last, sends, last_wall = self._sends.get(command, ((), -math.inf, 1, -math.inf))
+            if params and self._waited(last, last_wall, 1.0):
                 log.info("command %d unanswered for %.1f s: sent again", command, now - last)
                 self.send(command, params, confirmation=min(sends, 255))
-                self._sends[command] = (params, now, sends + 1)
+                self._sends[command] = (params, now, sends + 1, time.monotonic())
 
     def await_setpoints(self) -> None:
         """Wait (vehicle time, three command periods, sending unanswered ones again each period)
@@ -141,6 +182,9 @@ class CommandChannel:
             return
         self.ack_count += 1
         self.acks[msg.command] = (msg.result, getattr(msg, "progress", 0) or 0, self.ack_count)
+        sent = self._sent_wall.pop(msg.command, None)
+        if sent is not None:
+            self.round_trips.append(time.monotonic() - sent)
         awaited = self._awaiting.pop(msg.command, None) is not None
         if msg.result not in (MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS):
             self.rejected.append((self.clock.vehicle_time_s, msg.command, msg.result))

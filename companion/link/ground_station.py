@@ -6,7 +6,8 @@ for live estimates; COMMAND_LONG ``MAV_CMD_USER_1..5`` aimed at the companion, q
 a callback from the telemetry loop, answered with COMMAND_ACK. A procedure moves the vehicle, so
 only the ground station's system id (``gcs_sysid``) or an allowed one may start one. Another
 companion heard on the link (an onboard controller on our component id) is reported: two must not
-fly one vehicle at once.
+fly one vehicle at once. Listeners (:meth:`GroundStation.on_report`) see every report as it is
+sent, e.g. the status page of ``companion run``.
 """
 from __future__ import annotations
 
@@ -26,6 +27,23 @@ MAV_CMD_USER_1, MAV_CMD_USER_5 = 31010, 31014
 MAV_RESULT_DENIED, MAV_RESULT_UNSUPPORTED, MAV_RESULT_FAILED = 2, 3, 4
 STATUSTEXT_CHUNK = 50
 NAMED_VALUE_MAX = 10
+
+
+@dataclass(frozen=True)
+class Report:
+    """One report sent to the ground station, as listeners see it: ``kind`` is ``"text"``
+    (STATUSTEXT: ``text``, ``severity``), ``"value"`` (NAMED_VALUE_FLOAT: ``name``, ``value``) or
+    ``"ack"`` (COMMAND_ACK: ``command``, ``result``, ``progress``); ``time_s`` is vehicle time."""
+
+    kind: str
+    time_s: float
+    text: str = ""
+    severity: int = 6
+    name: str = ""
+    value: float = 0.0
+    command: int = 0
+    result: int = 0
+    progress: int = 0
 
 
 @dataclass(frozen=True)
@@ -63,6 +81,7 @@ class GroundStation:
         self._statustext_id = 0
         self._last_heartbeat_sent = -math.inf
         self._other_companion: tuple[int, int, float] | None = None  # (system, component, vehicle time)
+        self._report_listeners: list[Callable[[Report], None]] = []
         transport.on("COMMAND_LONG", self._on_command_long)
         transport.on("HEARTBEAT", self._on_heartbeat)
         clock.on_tick(self._heartbeat_due)
@@ -88,6 +107,7 @@ class GroundStation:
             message_id = self._statustext_id
         for seq, chunk in enumerate(chunks):
             self.transport.mav.statustext_send(severity, chunk, message_id, seq)
+        self._tell(Report("text", self.clock.vehicle_time_s, text=text, severity=severity))
 
     def named_value(self, name: str, value: float) -> None:
         """NAMED_VALUE_FLOAT for live graphs; ``name`` must be 1..10 printable ASCII characters."""
@@ -95,6 +115,7 @@ class GroundStation:
         now = self.clock.vehicle_time_s
         time_ms = int(now * 1000) & 0xFFFFFFFF if math.isfinite(now) else 0
         self.transport.mav.named_value_float_send(time_ms, name.encode("ascii"), float(value))
+        self._tell(Report("value", now, name=name, value=float(value)))
 
     def send_command_ack(self, command: int, result: int, progress: int = 0, target_system: int = 0,
                          target_component: int = 0) -> None:
@@ -108,6 +129,19 @@ class GroundStation:
 
     def _ack(self, command: int, result: int, progress: int, target_system: int, target_component: int) -> None:
         self.transport.mav.command_ack_send(command, result, progress, 0, target_system, target_component)
+        self._tell(Report("ack", self.clock.vehicle_time_s, command=command, result=result, progress=progress))
+
+    def on_report(self, listener: Callable[[Report], None]) -> None:
+        """Call ``listener(report)`` after each STATUSTEXT, NAMED_VALUE_FLOAT and COMMAND_ACK we send
+        (:class:`Report`). A listener only watches: one that raises is logged and never stops a report."""
+        self._report_listeners.append(listener)
+
+    def _tell(self, report: Report) -> None:
+        for listener in self._report_listeners:
+            try:
+                listener(report)
+            except Exception as exc:  # noqa: BLE001 - a watcher must never break the link
+                log.debug("report listener failed: %s", exc, exc_info=True)
 
     # ------------------------------------------------------------------ user commands
     def command_senders(self) -> set[int]:

@@ -56,6 +56,13 @@ class Setup:
     override_timeout_s: float = 3.0
 
 
+def _rebooted(ports: LinkPorts, strategy: AutopilotStrategy) -> None:
+    """The vehicle rebooted: set-points sent to the old boot are no longer awaited, and the strategy
+    forgets what it kept of it (targets, an excitation)."""
+    ports.commands.abandon()
+    strategy.on_reboot()
+
+
 def setup(ports: LinkPorts, profile: str | None, stream_rates: dict[int, float] | None, depth_sensor: DepthSensor,
           vehicle: dict | None = None) -> Setup:
     """The handshake (module docstring); ``vehicle`` overrides the profile's defaults with this
@@ -73,6 +80,7 @@ def setup(ports: LinkPorts, profile: str | None, stream_rates: dict[int, float] 
     ports.overrides.send = strategy.send_overrides
     ports.telemetry.refine = strategy.on_snapshot
     ports.modes.on_change(strategy.mode_changed)
+    ports.telemetry.on_reboot(lambda: _rebooted(ports, strategy))
     rates = dict(strategy.streams if stream_rates is None else stream_rates)
     request_streams(ports, rates)
     ports.parameters.int_encoding = chosen.int_encoding

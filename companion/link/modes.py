@@ -28,12 +28,39 @@ class ModeControl:
         self.announcements = announcements
         self.clock = clock
         self.profile = None  # the autopilot profile, once known
-        self.commanded: str | None = None  # the last mode the companion itself switched to
+        self._commanded: str | None = None  # the last mode the companion itself switched to
+        self._confirmed_at_s: float = float("nan")  # vehicle time the heartbeat confirmed it
+        self._confirmed_boot = 0  # the boot it was confirmed on (``clock.reboots`` then)
         self._listeners: list[Callable[[str], None]] = []
+        self._request_listeners: list[Callable[[str], None]] = []
+
+    @property
+    def commanded(self) -> str | None:
+        """The last mode the companion switched to (None after it is forgotten, or after a reboot)."""
+        return self._commanded if self._confirmed_boot == self.clock.reboots else None
+
+    @commanded.setter
+    def commanded(self, value: str | None) -> None:
+        """Forget (None) or set the mode the companion switched to; its confirmation time is forgotten."""
+        self._commanded = value
+        self._confirmed_at_s = float("nan")
+        self._confirmed_boot = self.clock.reboots
+
+    @property
+    def commanded_at_s(self) -> float:
+        """Vehicle time the heartbeat confirmed the companion's last mode change, on this boot (NaN
+        when forgotten, or when the vehicle rebooted since: its clock started again)."""
+        return self._confirmed_at_s if self._confirmed_boot == self.clock.reboots else float("nan")
 
     def on_change(self, listener: Callable[[str], None]) -> None:
         """Call ``listener(neutral)`` after every verified mode change the companion made."""
         self._listeners.append(listener)
+
+    def on_request(self, listener: Callable[[str], None]) -> Callable[[], None]:
+        """Call ``listener(neutral)`` before the companion asks for a mode (a crash trail records
+        it, whoever asked); returns the unsubscribe call."""
+        self._request_listeners.append(listener)
+        return lambda: self._request_listeners.remove(listener) if listener in self._request_listeners else None
 
     def _profile(self):
         if self.profile is None:
@@ -47,6 +74,9 @@ class ModeControl:
         params = profile.mode_command_params(target)
         timeouts = self.clock.timeouts
         tries = max(int(math.ceil(timeouts.mode_s / timeouts.command_s)), 1)
+        since_text = self.announcements.statustext_count
+        for listener in list(self._request_listeners):
+            listener(neutral)
         for _attempt in range(tries):
             since_hb = self.announcements.heartbeat_count
             since_ack = self.commands.send(MAV_CMD_DO_SET_MODE, params)
@@ -62,9 +92,12 @@ class ModeControl:
             self.clock.wait_until(lambda: refused() is not None or shown(), timeouts.command_s)
             result = refused()
             if result is not None:
-                raise ModeChangeFailed(f"vehicle refused mode {neutral!r} ({target}): result {result}")
+                said = self.announcements.warnings_since(since_text)
+                raise ModeChangeFailed(f"the vehicle refused mode {neutral!r} ({target}, MAV_RESULT {result})"
+                                       + (f": it said {said!r}" if said else ""))
             if shown():
                 self.commanded = neutral
+                self._confirmed_at_s = self.clock.vehicle_time_s
                 for listener in self._listeners:
                     listener(neutral)
                 return

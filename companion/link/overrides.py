@@ -86,6 +86,13 @@ class OverrideChannels:
         self.table = table or OverrideTable()
         self.send = send
         self.profile = None  # the autopilot profile, once known
+        self._hold_listeners: list[Callable[[int], None]] = []
+
+    def on_hold(self, listener: Callable[[int], None]) -> Callable[[], None]:
+        """Call ``listener(channel)`` before a channel not held so far is held (a crash trail records
+        it, whoever asked: a behaviour or the autopilot's strategy); returns the unsubscribe call."""
+        self._hold_listeners.append(listener)
+        return lambda: self._hold_listeners.remove(listener) if listener in self._hold_listeners else None
 
     @property
     def active(self) -> dict[int, int]:
@@ -122,6 +129,9 @@ class OverrideChannels:
         self.hold(self.profile.channel(channel_name), int(pwm))
 
     def hold(self, channel: int, pwm: int) -> None:
+        if channel not in self.table.active:
+            for listener in list(self._hold_listeners):
+                listener(channel)
         changed = self.table.active.get(channel) != pwm
         self.table.hold(channel, pwm)
         if changed:  # unchanged values go out with the per-snapshot refresh only

@@ -11,7 +11,8 @@ from __future__ import annotations
 import collections
 import logging
 import math
-from typing import Any, Iterable
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable
 
 from companion.link import param_codec
 from companion.link.clock import VehicleClock
@@ -20,6 +21,16 @@ from companion.link.transport import Transport
 from companion.link.vehicle_state import VehicleAnnouncements
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ForeignChange:
+    """A parameter changed by someone else: its value before, the value announced, when (vehicle s)."""
+
+    name: str
+    before: float
+    value: float
+    time_s: float
 
 
 class ParameterChannel:
@@ -34,6 +45,14 @@ class ParameterChannel:
         self.cache: dict[str, float] = {}
         self.types: dict[str, int] = {}
         self.events: dict[str, int] = collections.defaultdict(int)  # name -> PARAM_VALUEs received
+        # parameters whose changes by anyone else are watched (a procedure's footprint), and the
+        # changes seen: name -> ForeignChange (the vehicle announced a value no write of ours asked for)
+        self.watched: set[str] = set()
+        self.foreign: dict[str, ForeignChange] = {}
+        # name -> every value our writes asked for since watch(): an echo of an earlier write of
+        # ours can arrive after a later one was asked for (a slow link), and is still ours
+        self._asked: dict[str, list[float]] = collections.defaultdict(list)
+        self._write_listeners: list[Callable[[str, float], None]] = []
         transport.on("PARAM_VALUE", self._on_param_value)
 
     @property
@@ -44,9 +63,41 @@ class ParameterChannel:
         if not self.transport.from_vehicle(msg):
             return
         name = param_codec.param_id_str(msg.param_id)
+        value = param_codec.decode_value(msg.param_value, msg.param_type, self.int_encoding)
         self.types[name] = msg.param_type
-        self.cache[name] = param_codec.decode_value(msg.param_value, msg.param_type, self.int_encoding)
+        if name in self.watched and name in self.cache:
+            self._note_foreign(name, self.cache[name], value, msg.param_type)
+        self.cache[name] = value
         self.events[name] += 1
+
+    def _note_foreign(self, name: str, before: float, value: float, param_type: int) -> None:
+        """A watched parameter announced with a new value that no write of ours asked for: someone
+        else (a ground station, a script) changed it."""
+        if param_codec.echo_matches(before, value, param_type):
+            return
+        if self.ours(name, value):
+            return
+        change = ForeignChange(name, before, value, self.clock.vehicle_time_s)
+        self.foreign[name] = change
+        log.warning("%s changed from %g to %g by someone else", name, before, value)
+
+    def watch(self, names) -> None:
+        """Watch these parameters for changes by anyone else (from now on; earlier changes and
+        the values our writes asked for forgotten)."""
+        self.watched = set(names)
+        self.foreign = {}
+        self._asked.clear()
+
+    def on_write(self, listener: Callable[[str, float], None]) -> Callable[[], None]:
+        """Call ``listener(name, value)`` before each write is sent (a crash trail records it);
+        returns the unsubscribe call."""
+        self._write_listeners.append(listener)
+        return lambda: self._write_listeners.remove(listener) if listener in self._write_listeners else None
+
+    def ours(self, name: str, value: float) -> bool:
+        """``value`` of ``name`` is one a write of ours asked for since :meth:`watch`."""
+        param_type = self.types.get(name, param_codec.REAL32)
+        return any(param_codec.echo_matches(asked, value, param_type) for asked in self._asked.get(name, ()))
 
     # ------------------------------------------------------------------ by autopilot name
     def request(self, name: str) -> None:
@@ -78,6 +129,14 @@ class ParameterChannel:
             self.get_param(name, retries=retries)  # the type decides the bytes we send
         param_type = self.types.get(name, param_codec.REAL32)
         wire_value = param_codec.encode_value(value, param_type, self.int_encoding)
+        for listener in list(self._write_listeners):
+            listener(name, value)
+        asked = self._asked[name]
+        asked.append(value)
+        del asked[:-256]  # bounded for a resident loop that writes for hours without a watch
+        return self._write(name, value, wire_value, param_type, retries)
+
+    def _write(self, name: str, value: float, wire_value: float, param_type: int, retries: int) -> float:
         for _attempt in range(retries):
             since_param = self.events[name]
             since_text = self.announcements.statustext_count

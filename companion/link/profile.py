@@ -81,9 +81,12 @@ class AutopilotProfile:
     water_speed_sensor: bool = True  # False: VFR_HUD.airspeed is not a water speed; ground speed stands in
     depth_from_pressure: bool = True  # False: depth is the autopilot's own estimate (GLOBAL_POSITION_INT)
     depth_setpoint: bool = True  # False: no depth target can be commanded (a boat; ArduSub ALT_HOLD)
-    # the autopilot sends each loop's SERVO_OUTPUT_RAW right after that loop's ATTITUDE (ArduPilot):
-    # a snapshot then waits for it, so attitude and actuator come from the same loop
-    servo_follows_attitude: bool = False
+    # what the vehicle is, for the envelope a procedure keeps (companion.procedures.limits): "surface"
+    # (no depth: never checked on it), "underwater", or "any" (our simulator: boat or AUV by preset,
+    # its depth is a pressure reading either way)
+    vehicle_kind: str = "any"
+    # NAV_CONTROLLER_OUTPUT.target_bearing is the heading set-point the holding mode holds (our simulator)
+    reports_heading_target: bool = False
     # how the actuator read-back behaves between samples, for the identifier's input filter:
     # "foh" a physical deflection (our simulator reports the rudder itself), "zoh" an output held
     # from one control loop to the next (ArduPilot reports its commanded output)

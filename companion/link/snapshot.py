@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
@@ -42,7 +43,23 @@ class DepthSensor:
 
 @dataclass
 class TelemetryAssembler:
-    """Latest values of every telemetry field; :meth:`on_message` returns a snapshot on ATTITUDE."""
+    """Latest values of every telemetry field; snapshots completed on ATTITUDE (module docstring).
+
+    **Pairing by time stamp.** Each attitude sample is paired with the actuator sample of the same
+    instant, found by SERVO_OUTPUT_RAW's own ``time_usec``, not by arrival order: over a link that
+    delays and reorders (UDP, a radio) the outputs of the next or the previous sample can arrive
+    first, and pairing by arrival put the rudder up to a sample period off its attitude. The match
+    is the earliest output sample stamped within [t − 1 ms, t + ``match_ms``]: our simulator stamps a
+    tick's outputs with the tick's time (sent just before its ATTITUDE); ArduPilot sends each loop's
+    outputs just after that loop's ATTITUDE, stamped a few ms later.
+    A snapshot whose outputs have not arrived waits (in order, behind nothing newer) until they do,
+    or until an attitude ``reorder_window`` samples newer arrives; it is then released with the
+    outputs last held at or before its time (a lost output message).
+
+    **Order.** Snapshots are returned in time order. An attitude sample that arrives after a newer
+    one is placed in order if no newer snapshot was returned yet; on a link that has delivered a
+    sample late, complete snapshots are held ``hold_ms`` (set by the telemetry feed) so late ones
+    still find their place. A link that delivers in order is never held."""
 
     profile: AutopilotProfile
     depth_sensor: DepthSensor = field(default_factory=DepthSensor)
@@ -51,16 +68,30 @@ class TelemetryAssembler:
     servo_pwm: list[float] = field(default_factory=list)  # latest SERVO_OUTPUT_RAW, µs, outputs 1..16
     _warned: set[str] = field(default_factory=set)
     latest: Telemetry | None = None
-    _held: Telemetry | None = None  # a snapshot waiting for its loop's SERVO_OUTPUT_RAW
+    reorder_window: int = 2  # attitude samples a snapshot may wait for its outputs
+    # snapshots not yet returned, oldest first, each with whether its outputs are known
+    _pending: list[list] = field(default_factory=list)
+    _outputs: deque = field(default_factory=lambda: deque(maxlen=64))  # (time_ms, actuator fields)
+    _period_ms: float = 50.0  # between the latest two attitude samples
+    _last_attitude_ms: float = math.nan
+    released_without_outputs: int = 0  # snapshots whose output message never came (lost)
+    released_ms: float = -math.inf  # time of the newest snapshot returned
+    # how long a complete snapshot is held before it is returned (ms of vehicle time): 0 on a link
+    # that delivers in order; the telemetry feed raises it once the link has delivered a sample late
+    hold_ms: float = 0.0
+    # wait for a snapshot's own outputs (False in lockstep with our simulator: it sends a tick's outputs
+    # before its attitude over an ordered link, so outputs not there with their attitude were lost)
+    wait_for_outputs: bool = True
 
     def __post_init__(self) -> None:
-        self._handlers: dict[str, Callable[[Any], Telemetry | None]] = {
+        self._handlers: dict[str, Callable[[Any], list[Telemetry]]] = {
             "ATTITUDE": self._on_attitude,
             "SERVO_OUTPUT_RAW": self._on_servo_output_raw,
             "LOCAL_POSITION_NED": self._on_local_position_ned,
             "VFR_HUD": self._on_vfr_hud,
             "SCALED_PRESSURE": self._on_scaled_pressure,
             "GLOBAL_POSITION_INT": self._on_global_position_int,
+            "NAV_CONTROLLER_OUTPUT": self._on_nav_controller_output,
             "HEARTBEAT": self._on_heartbeat,
         }
 
@@ -68,58 +99,140 @@ class TelemetryAssembler:
     def message_types(self) -> frozenset[str]:
         return frozenset(self._handlers)
 
-    def on_message(self, msg: Any) -> Telemetry | None:
-        """Fold one message in; returns the completed snapshot when ``msg`` is an ATTITUDE."""
+    def take(self, msg: Any) -> list[Telemetry]:
+        """Fold one message in; returns the snapshots it completed, oldest first."""
         handler = self._handlers.get(msg.get_type())
-        return handler(msg) if handler else None
+        return (handler(msg) or []) if handler else []
 
-    # ------------------------------------------------------------------ handlers
-    def _on_attitude(self, msg: Any) -> Telemetry | None:
+    def on_message(self, msg: Any) -> Telemetry | None:
+        """Fold one message in; the newest snapshot it completed (None if none)."""
+        done = self.take(msg)
+        return done[-1] if done else None
+
+    # ------------------------------------------------------------------ attitude and outputs
+    @property
+    def match_ms(self) -> float:
+        """How far after an attitude sample its outputs may be stamped (half a sample period)."""
+        return 0.5 * self._period_ms
+
+    def restart(self) -> None:
+        """The vehicle rebooted: its clock starts again, so nothing stamped before carries over."""
+        self._pending.clear()
+        self._outputs.clear()
+        self._last_attitude_ms = math.nan
+        self.released_ms = -math.inf
+
+    def accepts(self, time_ms: float) -> bool:
+        """An attitude sample stamped ``time_ms`` can still be placed in order: it is newer than every
+        snapshot already returned and not a duplicate of one waiting."""
+        if time_ms <= self.released_ms:
+            return False
+        return all(round(entry[0].time_s * 1000.0) != round(time_ms) for entry in self._pending)
+
+    def _on_attitude(self, msg: Any) -> list[Telemetry]:
         time_ms = self._number(msg, "time_boot_ms")
-        if not math.isfinite(time_ms):
-            return None  # a snapshot without a time stamp is useless to vehicle-time logic
+        if not math.isfinite(time_ms) or not self.accepts(time_ms):
+            return []  # without a time stamp a snapshot is useless to vehicle-time logic; too late to place
+        late = math.isfinite(self._last_attitude_ms) and time_ms < self._last_attitude_ms
         yaw = self._number(msg, "yaw")
-        self._fields.update(
-            roll=self._number(msg, "roll"), pitch=self._number(msg, "pitch"),
-            yaw=wrap_pi(yaw) if math.isfinite(yaw) else math.nan,
-            roll_rate=self._number(msg, "rollspeed"), pitch_rate=self._number(msg, "pitchspeed"),
-            yaw_rate=self._number(msg, "yawspeed"))
-        self.latest = Telemetry(time_s=time_ms / 1000.0, **self._fields)
-        if not self.profile.servo_follows_attitude:
-            return self.latest
-        # ArduPilot: this loop's actuator outputs follow in SERVO_OUTPUT_RAW; a snapshot whose
-        # servo message never came is released by the next ATTITUDE, with the last outputs known
-        released, self._held = self._held, self.latest
-        return released
+        attitude = dict(roll=self._number(msg, "roll"), pitch=self._number(msg, "pitch"),
+                        yaw=wrap_pi(yaw) if math.isfinite(yaw) else math.nan,
+                        roll_rate=self._number(msg, "rollspeed"), pitch_rate=self._number(msg, "pitchspeed"),
+                        yaw_rate=self._number(msg, "yawspeed"))
+        if not late:
+            if math.isfinite(self._last_attitude_ms):
+                self._period_ms = min(max(time_ms - self._last_attitude_ms, 1.0), 1000.0)
+            self._last_attitude_ms = time_ms
+            self._fields.update(attitude)
+        snapshot = Telemetry(time_s=time_ms / 1000.0, **{**self._fields, **attitude})
+        outputs = self._outputs_for(time_ms)
+        if outputs is not None:
+            snapshot = replace(snapshot, **outputs)
+        elif not (self.wait_for_outputs and self._outputs_streaming(time_ms)):
+            outputs = self._held_at(time_ms)  # no output stream to wait for: the outputs last held
+        if not late:
+            self.latest = snapshot
+        if outputs is not None and not self._pending and self.hold_ms <= 0.0:
+            self.released_ms = time_ms
+            return [snapshot]
+        position = sum(1 for entry in self._pending if entry[0].time_s * 1000.0 < time_ms)
+        self._pending.insert(position, [snapshot, outputs is not None])
+        return self._release(self._last_attitude_ms)
 
-    def _on_servo_output_raw(self, msg: Any) -> Telemetry | None:
-        self._fold_servo_outputs(msg)
-        held = self._held
-        if held is None:
-            return None
-        time_ms = _unwrap_usec_ms(self._number(msg, "time_usec"), held.time_s * 1000.0)
-        if not (math.isfinite(time_ms) and time_ms >= held.time_s * 1000.0 - 1.0):
-            return None  # an older loop's outputs
-        self._held = None
-        actuators = {name: self._fields[name] for name in ("rudder", "elevator", "thrust_ratio", "mass_angle")
-                     if name in self._fields}
-        self.latest = replace(held, **actuators)
-        return self.latest
+    def _on_servo_output_raw(self, msg: Any) -> list[Telemetry]:
+        actuators = self._fold_servo_outputs(msg)
+        time_usec = self._number(msg, "time_usec")
+        reference = self._last_attitude_ms if math.isfinite(self._last_attitude_ms) else time_usec / 1000.0
+        time_ms = _unwrap_usec_ms(time_usec, reference)
+        if not math.isfinite(time_ms):
+            return []
+        self._outputs.append((time_ms, actuators))
+        for entry in self._pending:
+            stamp = entry[0].time_s * 1000.0
+            if not entry[1] and stamp - 1.0 <= time_ms <= stamp + self.match_ms:
+                entry[0], entry[1] = replace(entry[0], **actuators), True
+        return self._release(self._last_attitude_ms)
 
-    def _fold_servo_outputs(self, msg: Any) -> None:
+    def _outputs_streaming(self, time_ms: float) -> bool:
+        """Output samples arrive with every attitude sample: the recent ones came a median of one
+        attitude period apart (within 50 %) and the newest is within a few periods of ``time_ms``. Otherwise (no
+        output stream, or a slower one) a snapshot never waits: it takes the outputs last held."""
+        stamps = sorted(stamp for stamp, _ in list(self._outputs)[-6:])
+        spacings = sorted(b - a for a, b in zip(stamps, stamps[1:]))
+        if not spacings:
+            return False
+        median = spacings[len(spacings) // 2]  # one lost or reordered output does not stop the stream
+        return 0.0 < median <= 1.5 * self._period_ms and stamps[-1] >= time_ms - 5.0 * self._period_ms
+
+    def _outputs_for(self, time_ms: float) -> dict | None:
+        """The actuator fields of the earliest output sample stamped within the match window of ``time_ms``."""
+        matches = [(stamp, fields) for stamp, fields in self._outputs
+                   if time_ms - 1.0 <= stamp <= time_ms + self.match_ms]
+        return min(matches, key=lambda item: item[0])[1] if matches else None
+
+    def _held_at(self, time_ms: float) -> dict:
+        """The outputs last held at or before ``time_ms`` (a snapshot whose own outputs were lost)."""
+        before = [(stamp, fields) for stamp, fields in self._outputs if stamp <= time_ms + 1.0]
+        return max(before, key=lambda item: item[0])[1] if before else {}
+
+    def _release(self, newest_ms: float) -> list[Telemetry]:
+        """The oldest pending snapshots that are complete, or too old to wait any longer, in order."""
+        out: list[Telemetry] = []
+        while self._pending:
+            snapshot, complete = self._pending[0]
+            stamp = snapshot.time_s * 1000.0
+            age = newest_ms - stamp if math.isfinite(newest_ms) else 0.0
+            if not complete:
+                if age < self.reorder_window * self._period_ms - 1.0:
+                    break
+                snapshot = replace(snapshot, **self._held_at(stamp))
+                self.released_without_outputs += 1
+            elif age < self.hold_ms - 1.0:
+                break  # held a little, so a sample the link delivers late can still take its place
+            self._pending.pop(0)
+            self.released_ms = stamp
+            out.append(snapshot)
+        return out
+
+    def _fold_servo_outputs(self, msg: Any) -> dict[str, float]:
+        """The actuator fields one SERVO_OUTPUT_RAW reports (through the profile), also kept as the
+        latest values; ``servo_pwm`` holds its raw outputs."""
         self.servo_pwm = [self._number(msg, f"servo{i}_raw") if hasattr(msg, f"servo{i}_raw") else math.nan
                           for i in range(1, 17)]
+        actuators: dict[str, float] = {}
         outputs = self.profile.servo_outputs
         for actuator, telemetry_field in (("rudder", "rudder"), ("elevator", "elevator"), ("thrust", "thrust_ratio")):
             output = outputs.get(actuator)
             if output is None:
                 continue
             pwm = self._number(msg, f"servo{output}_raw")
-            self._fields[telemetry_field] = (
+            actuators[telemetry_field] = (
                 self.profile.pwm_to_thrust(pwm) if actuator == "thrust" else self.profile.pwm_to_angle(pwm))
         if self.profile.mass_servo is not None:
             pwm = self._number(msg, f"servo{self.profile.mass_servo}_raw")
-            self._fields["mass_angle"] = self.profile.pwm_to_angle(pwm)
+            actuators["mass_angle"] = self.profile.pwm_to_angle(pwm)
+        self._fields.update(actuators)
+        return actuators
 
     def _on_local_position_ned(self, msg: Any) -> None:
         down = self._number(msg, "z")
@@ -136,10 +249,18 @@ class TelemetryAssembler:
         self._fields.update(speed_water=water, speed_ground=ground)
 
     def _on_global_position_int(self, msg: Any) -> None:
-        """The autopilot's own (surface-calibrated) altitude: depth where pressure is not used."""
-        if not self.profile.depth_from_pressure:
+        """The autopilot's own (surface-calibrated) altitude: depth where pressure is not used. A
+        surface vessel has no depth (its GPS altitude is not one)."""
+        if not self.profile.depth_from_pressure and self.profile.vehicle_kind != "surface":
             relative_alt = self._number(msg, "relative_alt")
             self._fields["depth"] = -relative_alt / 1000.0 if math.isfinite(relative_alt) else math.nan
+
+    def _on_nav_controller_output(self, msg: Any) -> None:
+        """The heading set-point the autopilot reports holding (whole degrees), where its profile
+        says that is what ``target_bearing`` means."""
+        if self.profile.reports_heading_target:
+            bearing = self._number(msg, "target_bearing")
+            self._fields["heading_target"] = wrap_pi(math.radians(bearing)) if math.isfinite(bearing) else math.nan
 
     def _on_scaled_pressure(self, msg: Any) -> None:
         if not self.profile.depth_from_pressure:

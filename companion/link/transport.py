@@ -138,6 +138,11 @@ class Transport:
         self._master.mav.command_long_send(self.system_id, self.autopilot_component, command, confirmation, *values)
 
     @property
+    def bytes_received(self) -> int:
+        """Bytes received on this connection so far (pymavlink's count)."""
+        return int(getattr(self._master.mav, "total_bytes_received", 0) or 0)
+
+    @property
     def unparsed_bytes(self) -> int:
         """Bytes received but not yet parsed into messages (how far the reader lags the stream)."""
         mav = self._master.mav

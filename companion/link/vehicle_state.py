@@ -28,6 +28,7 @@ class VehicleAnnouncements:
         self.heartbeat_count = 0
         self.last_heartbeat: Any = None
         self.capabilities: int | None = None
+        self.hardware_uid: str | None = None  # AUTOPILOT_VERSION's board id (uid2, else uid), hex; None if 0
         self.statustexts: collections.deque[tuple[float, int, str]] = collections.deque(maxlen=64)
         self.statustext_count = 0
         self.mode_name: Callable[[int], str] | None = None  # the profile's, once known
@@ -77,6 +78,15 @@ class VehicleAnnouncements:
     def _on_autopilot_version(self, msg: Any) -> None:
         if self.transport.from_vehicle(msg):
             self.capabilities = int(msg.capabilities)
+            self.hardware_uid = _board_uid(msg) or self.hardware_uid
+
+    def warnings_since(self, since_count: int) -> str:
+        """The warnings (or worse) the vehicle sent after ``since_count`` texts, joined ("" if none)."""
+        new_count = self.statustext_count - since_count
+        if new_count <= 0:
+            return ""
+        recent = list(self.statustexts)[-min(new_count, len(self.statustexts)):]
+        return "; ".join(text for _time, severity, text in recent if severity <= MAV_SEVERITY_WARNING)
 
     def refusal_naming(self, name: str, since_count: int) -> str | None:
         """The newest STATUSTEXT warning (or worse) received after ``since_count`` texts that names ``name``."""
@@ -88,3 +98,17 @@ class VehicleAnnouncements:
             if severity <= MAV_SEVERITY_WARNING and name in text:
                 return text
         return None
+
+
+def _board_uid(msg: Any) -> str | None:
+    """The flight controller's own id from AUTOPILOT_VERSION (``uid2``'s 18 bytes, else ``uid``), as
+    hex; None when the autopilot sends zeros (a simulator, a board without one)."""
+    uid2 = getattr(msg, "uid2", None)
+    try:
+        raw = bytes(int(b) & 0xFF for b in uid2) if uid2 is not None else b""
+    except (TypeError, ValueError):
+        raw = b""
+    if any(raw):
+        return raw.hex()
+    uid = getattr(msg, "uid", 0)
+    return f"{int(uid):016x}" if isinstance(uid, int) and uid else None

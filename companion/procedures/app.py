@@ -24,11 +24,15 @@ from pymavlink.dialects.v20.common import (MAV_RESULT_ACCEPTED, MAV_RESULT_FAILE
 from companion.interface import Behavior, Telemetry
 from companion.procedures.campaign import (AttemptRecorded, CampaignConfig, DesignMade, GainsWritten,
                                            IdentificationCampaign, StepsChecked)
+from behaviors.base import footprint_of
+from companion.procedures.readiness import await_ready
 from companion.procedures.registry import PROCEDURES, ProcedureContext
 from companion.procedures.results import ProcedureResult
 from companion.procedures.runner import (RestoreGuard, RestorePoint, RunOutcome, SafetyLimits, not_started,
                                          run_procedure)
-from companion.records.store import Store
+from companion.procedures.trail import TrailRecorder, vehicle_identity
+from companion.link.errors import LinkError
+from companion.records.store import Store, StoreError
 
 __all__ = ["MAV_RESULT_ACCEPTED", "MAV_RESULT_FAILED", "MAV_RESULT_IN_PROGRESS", "MAV_RESULT_TEMPORARILY_REJECTED",
            "AbortFlag", "ConsoleProgress", "GcsProgress", "NamedRun", "drain_campaign_events", "install_signal_handlers",
@@ -159,7 +163,8 @@ class ConsoleProgress:
 
 def vehicle_record(store: Store, link, name: str | None = None, config: dict | None = None) -> int:
     profile = getattr(getattr(link, "profile", None), "name", None)
-    system_id = getattr(link, "system_id", None)
+    # the in-process link carries its system id itself, a VehicleLink on its transport
+    system_id = getattr(link, "system_id", None) or getattr(getattr(link, "transport", None), "system_id", None)
     return store.add_vehicle(name or f"sysid-{system_id}", profile, config or {})
 
 
@@ -189,26 +194,48 @@ def run_campaign(
     *,
     vehicle_id: int,
     abort: AbortFlag,
-    limits: SafetyLimits = SafetyLimits(),
+    limits: SafetyLimits | None = None,
     gcs: GcsProgress | None = None,
     console: ConsoleProgress | None = None,
 ) -> tuple[IdentificationCampaign, RunOutcome, int]:
     """Run the identification campaign as one procedure (``run_procedure``: one restore point from
-    its declared footprint), storing as it goes. Afterwards the vehicle is as found, except for the
-    final gains of a successful campaign (the step checks' trial gains are always undone)."""
-    config = config.resolved_for(getattr(link, "profile", None))
+    its declared footprint), storing as it goes and leaving a trail (``companion.procedures.trail``).
+    Afterwards the vehicle is as found, except for the final gains of a successful campaign (the
+    step checks' trial gains are always undone). A store that cannot be written (a full disk) ends
+    the procedure, restored; what could not be stored is in the outcome's ``store_problems``."""
+    profile = getattr(link, "profile", None)
+    config = config.resolved_for(profile)
+    limits = limits if limits is not None else SafetyLimits.for_profile(profile)
     campaign_id = store.start_campaign(vehicle_id, "identification", config.to_dict())
     campaign = IdentificationCampaign(config)
+    try:
+        objection = await_ready(link, tell=lambda text: _tell(link, text[:50], 4))
+    except LinkError as exc:  # lost while waiting: nothing was changed
+        objection = f"{type(exc).__name__}: {exc}"
+    if objection is not None:  # nothing was changed: refuse, with the vehicle's reason
+        outcome = RunOutcome("aborted", f"not started: the vehicle is not ready: {objection}", {})
+        _close_record(store, campaign_id, outcome)
+        if gcs is not None:
+            gcs.finish(outcome)
+        return campaign, outcome, campaign_id
     try:
         original = RestorePoint.capture(link, campaign.footprint)  # the original gains, for the step checks
     except Exception as exc:  # noqa: BLE001 - the link lost the answers: close the record, never raise
         outcome = not_started(exc)
-        store.finish_campaign(campaign_id, outcome.status, outcome.reason)
+        _close_record(store, campaign_id, outcome)
         if gcs is not None:
             gcs.finish(outcome)
         return campaign, outcome, campaign_id
     campaign.original_gains = dict(original.parameters)
     log.info("campaign %d started; original gains %s, mode %s", campaign_id, original.parameters, original.mode)
+    try:
+        trail_id = store.save_restore_point(campaign_id, original.as_json(), vehicle_identity(link))
+    except StoreError as exc:  # nothing was changed: a procedure without its trail is not started
+        outcome = RunOutcome("aborted", f"not started: the restore point could not be stored: {exc}", {})
+        _close_record(store, campaign_id, outcome)
+        if gcs is not None:
+            gcs.finish(outcome)
+        return campaign, outcome, campaign_id
 
     def on_step(telemetry: Telemetry, _behavior: Behavior) -> None:
         drain_campaign_events(store, campaign_id, campaign)
@@ -220,16 +247,39 @@ def run_campaign(
             console.update(fraction, f"t={telemetry.time_s:7.1f}s {current.name if current else ''}")
 
     # one capture: the original gains of the step checks are the restore point's own values
-    outcome = run_procedure(link, campaign, limits=limits, abort_requested=abort, on_step=on_step, restore=original)
+    recorder = TrailRecorder(store, trail_id, link)
     try:
-        drain_campaign_events(store, campaign_id, campaign)
+        outcome = run_procedure(link, campaign, limits=limits, abort_requested=abort, on_step=on_step,
+                                restore=original, on_change=recorder)
     finally:
-        store.finish_campaign(campaign_id, outcome.status, outcome.reason)
+        recorder.close()
+    try:
+        _store_safely(outcome, lambda: drain_campaign_events(store, campaign_id, campaign))
+    finally:
+        _close_record(store, campaign_id, outcome, trail_id)
         if gcs is not None:
             gcs.finish(outcome)
         if console is not None:
             console.close()
     return campaign, outcome, campaign_id
+
+
+def _store_safely(outcome: RunOutcome, write: Callable[[], None]) -> None:
+    """``write()`` after the vehicle is restored; a store that cannot be written is said in the
+    outcome (the vehicle and what was stored before are fine), never raised."""
+    try:
+        write()
+    except StoreError as exc:
+        log.error("%s", exc)
+        outcome.store_problems.append(str(exc))
+
+
+def _close_record(store: Store, campaign_id: int, outcome: RunOutcome, trail_id: int | None = None) -> None:
+    """The trail closed (the restore ran) and the campaign row finished, each as far as the store allows."""
+    if trail_id is not None:
+        _store_safely(outcome, lambda: store.finish_restore(trail_id, outcome.restore_problems,
+                                                            outcome.restore_notes))
+    _store_safely(outcome, lambda: store.finish_campaign(campaign_id, outcome.status, outcome.reason))
 
 
 @dataclass(frozen=True)
@@ -243,7 +293,7 @@ class NamedRun:
 
 
 def run_named_procedure(name: str, link, store: Store, *, vehicle_id: int, campaign_id: int | None, abort,
-                        context: ProcedureContext | None = None, limits: SafetyLimits = SafetyLimits()) -> NamedRun:
+                        context: ProcedureContext | None = None, limits: SafetyLimits | None = None) -> NamedRun:
     """Run a registered procedure (``companion.procedures.registry.PROCEDURES``) by name under one
     restore point and store its result."""
     spec = PROCEDURES.get(name)
@@ -254,7 +304,8 @@ def run_named_procedure(name: str, link, store: Store, *, vehicle_id: int, campa
         campaign_id = store.start_campaign(vehicle_id, name, {"preset": getattr(context, "preset", None)})
     result = ProcedureResult(name, "not started", "not started")
     outcome = None
-    refusal = spec.applies(getattr(link, "profile", None))
+    profile = getattr(link, "profile", None)
+    refusal = spec.applies(profile)
     if refusal is not None:  # never "completed": the procedure does not apply to this vehicle
         result = ProcedureResult(name, "refused", refusal)
         store.add_behavior_result(campaign_id, name, "refused", result.to_json())
@@ -264,12 +315,30 @@ def run_named_procedure(name: str, link, store: Store, *, vehicle_id: int, campa
         return NamedRun(result, spec.summary(result.to_json()), None)
     try:
         procedure = spec.build(link, context or ProcedureContext())
-        outcome = run_procedure(link, procedure, limits=limits, abort_requested=abort)
+        try:
+            restore = RestorePoint.capture(link, footprint_of(procedure))
+        except Exception as exc:  # noqa: BLE001 - nothing was changed yet: refuse to start, never raise
+            outcome = not_started(exc)
+        else:
+            try:
+                trail_id = store.save_restore_point(campaign_id, restore.as_json(), vehicle_identity(link))
+            except StoreError as exc:  # nothing was changed: a procedure without its trail is not started
+                outcome = RunOutcome("aborted", f"not started: the restore point could not be stored: {exc}", {})
+                result = procedure.result().with_outcome(outcome)
+                return NamedRun(result, spec.summary(result.to_json()), outcome)
+            recorder = TrailRecorder(store, trail_id, link)
+            try:
+                outcome = run_procedure(link, procedure, limits=limits or SafetyLimits.for_profile(profile),
+                                        abort_requested=abort, restore=restore, on_change=recorder)
+            finally:
+                recorder.close()
+            _store_safely(outcome, lambda: store.finish_restore(trail_id, outcome.restore_problems,
+                                                                outcome.restore_notes))
         result = procedure.result().with_outcome(outcome)
-        store.add_behavior_result(campaign_id, name, result.status, result.to_json())
+        _store_safely(outcome, lambda: store.add_behavior_result(campaign_id, name, result.status, result.to_json()))
     finally:
-        if own:
-            store.finish_campaign(campaign_id, result.status, result.reason)
+        if own and outcome is not None:
+            _store_safely(outcome, lambda: store.finish_campaign(campaign_id, result.status, result.reason))
     return NamedRun(result, spec.summary(result.to_json()), outcome)
 
 

@@ -25,52 +25,27 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Sequence, Union
 
 import numpy as np
 
 from behaviors.base import Behaviour, Footprint, Status
 from behaviors.gain_scheduling import GainDesign, ScheduleKind
-from behaviors.heading_steps import HeadingStepTest, StepTestConfig, reengage_hold
-from behaviors.identification import IdentificationAttempt, IdentificationManoeuvre, ManoeuvreConfig, thesis_estimator
+from behaviors.heading_steps import HeadingStepTest, reengage_hold
+from behaviors.identification import TRAIN, VALIDATE, IdentificationAttempt, IdentificationManoeuvre
 from behaviors.sequence import Deferred, Instant, ParallelBehavior, SequenceBehavior
-from behaviors.steadiness import SteadinessRule
+from behaviors.verification import VerificationStep
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
-from companion.numerics.cascade_gains import CascadeRules, quicktune_feed_forward
-from behaviors.schedules import schedule_kind
-from companion.checks import check_thrust_levels, require_choice, require_non_negative, require_positive
-from companion.numerics.gains import CAMPAIGN_DAMPING, GainBounds
+from companion.numerics.cascade_gains import quicktune_feed_forward
+from companion.procedures.campaign_config import (AXES, CHECKS, DEFAULT_THRUSTS, PROCEDURES,  # noqa: F401 - re-exported
+                                                  QUICK_CONVERGENCE_DELAY_S, QUICK_NOISE_BAND, QUICK_PITCH_DOUBLET,
+                                                  QUICK_R2_THRESHOLD, CampaignConfig, GainCheck)
+from companion.procedures.campaign_verification import CampaignVerification
 from companion.procedures.results import ProcedureResult
+from companion.procedures.verified_design import LIMIT_PARAMETERS, HeadingLimits
 
 log = logging.getLogger(__name__)
-
-DEFAULT_THRUSTS = (0.60, 0.70, 0.80, 0.90, 1.00)
-#: the quick procedure's yaw stopping rule (ConvergenceRule.noise_band): Θ within 0.5 σ of itself over
-#: 1 s, at the earliest 1.5 s after the doublet (≈ 1.5 yaw time constants 1/|a22|). Chosen by replaying
-#: 50 full-window yaw records (seeds 1-10, 5 thrusts) through the estimator: stop median 7.7 s,
-#: a22 error median 2.4 % (max 4.0 %) against 10.8 s and 2.3 % for eq. 3.39. Measured, not taken:
-#: the drift rule (ConvergenceRule.relative_drift) 1 % over 1.5 s stopped at 6.0-6.9 s but a22 median
-#: error rose to 2.5-3.9 % (max 7.5 %); the noise band without the 1.5 s delay stopped at 6.4 s with
-#: a22 up to 6.7 %. Pitch keeps eq. 3.39: its estimates are still moving by 100 % when the band holds
-#: (the 2nd-order pitch model does not hold the heave coupling), so it trains its whole window.
-QUICK_NOISE_BAND = 0.5
-QUICK_CONVERGENCE_DELAY_S = 1.5
-#: the quick procedure's acceptance threshold (the thesis: 0.61): a model below it is retried with a
-#: fresh doublet. Pitch R² was bound twice (over MAVLink, seeds 1-10): by noise, the thesis' 0.06 rad
-#: validation doublet moving pitch by ~1°, a few times the 0.3° attitude noise (pitch R² 0.98-1.00 on
-#: noise-free runs), and by the yaw doublet flown at the same time (turning changes speed, and the
-#: pitch moment goes with speed²): with yaw and pitch in turn the 0.10 rad doublets failed 0.9 only
-#: twice (0.89, 0.899), together 5 times (0.56-0.85). A 0.15 rad pitch doublet (training and
-#: validation) lifts the signal over both: 3 retries in 53 pitch attempts, 0.30 m of depth excursion
-#: at 2 m (0.10 rad: 0.23 m). Measured, not taken: the pitch doublet after the yaw one (4.5 or 6 s in:
-#: 10-13 retries), a shorter pitch record (6 s after the doublet: 9-19 retries in 20 seeds)
-QUICK_R2_THRESHOLD = 0.9
-QUICK_PITCH_DOUBLET = 0.15  # rad, the quick procedure's pitch training and validation doublet
-#: the campaign procedures: the quick one (the application's default) and the seeds' (thesis §3.3.1)
-PROCEDURES = ("quick", "thesis")
-AXES = ("yaw", "pitch")
-
 
 # --------------------------------------------------------------------------- events
 @dataclass(frozen=True)
@@ -107,169 +82,6 @@ class GainsWritten:
 CampaignEvent = Union[AttemptRecorded, StepsChecked, DesignMade, GainsWritten]
 
 
-@dataclass(frozen=True)
-class CampaignConfig:
-    """Everything that shapes a campaign; stored with it."""
-
-    thrusts: tuple[float, ...] = DEFAULT_THRUSTS
-    depth: float | None = 2.0  # m (thesis §3.3.1: straight runs at 2 m); None: no depth set-point
-    axes: tuple[str, ...] = ("yaw", "pitch")
-    yaw: ManoeuvreConfig = ManoeuvreConfig()
-    pitch: ManoeuvreConfig = ManoeuvreConfig(axis="pitch", settle_s=15.0, training_amplitude=0.10,
-                                             validation_amplitude=0.06)
-    bounds: GainBounds = GainBounds()  # heading gain bounds
-    # gain schedules designed and written (registry names); the pitch schedule is opt-in: it
-    # changes the autopilot's depth behaviour, which the seeds' procedure does not touch
-    schedules: tuple[str, ...] = ("heading",)
-    cascade: CascadeRules = CascadeRules()  # design targets of the native ArduPilot heading gains
-    write_gains: bool = True
-    # heading-step checks: the original gains, one constant gain tuned at the lowest thrust (or, on
-    # ArduPilot, Rover QuickTune's feed-forward rule) and the scheduled gains; () skips them, and
-    # then no gain is written (nothing unverified is left on a vehicle)
-    step_labels: tuple[str, ...] = ("original", "constant", "scheduled")
-    step_test: StepTestConfig = StepTestConfig()
-    verify: "GainCheck" = field(default_factory=lambda: GainCheck())
-    # identify yaw and pitch at one thrust together (their doublets staggered) instead of in turn
-    parallel_axes: bool = False
-    # fields the user set explicitly: the autopilot's campaign defaults do not replace them
-    user_set: tuple[str, ...] = ()
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "thrusts", check_thrust_levels(self.thrusts, "CampaignConfig.thrusts"))
-        if not self.axes or len(set(self.axes)) != len(self.axes) or any(a not in AXES for a in self.axes):
-            raise ValueError(f"CampaignConfig.axes must be yaw and/or pitch, each once, not {self.axes!r}")
-        if self.depth is not None:
-            require_positive(self, "depth")
-        for label in self.step_labels:
-            if label not in ("original", "constant", "quicktune", "scheduled"):
-                raise ValueError(f"CampaignConfig.step_labels: unknown check {label!r} "
-                                 "(original, constant, quicktune, scheduled)")
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    def quick(self) -> "CampaignConfig":
-        """The quick procedure (the application's default; ``--procedure thesis`` keeps the seeds'):
-
-        - settles and resettles end once the vehicle is steady (the thesis' 40/15 s become the maximum);
-        - the pre-excitation is 0.5 s, validation records end 4 s after their doublet (the slowest
-          yaw/pitch time constant is ~1 s);
-        - yaw and pitch run together, the pitch doublet half a period after the yaw one;
-        - yaw training stops on the noise-aware rule (:data:`QUICK_NOISE_BAND`), pitch on eq. 3.39;
-        - heading gains are designed for ζ = 0.75 instead of eq. 3.57's 0.7071, a margin for the
-          doublet's |a22| bias (``companion.numerics.gains``, CAMPAIGN_DAMPING);
-        - a model is accepted at validation R² ≥ 0.9 (the thesis: 0.61), and the pitch doublets are
-          0.15 rad (the thesis: 0.10 training, 0.06 validation; :data:`QUICK_R2_THRESHOLD`).
-
-        The configuration itself (this dataclass's defaults) is the thesis procedure."""
-        rule = SteadinessRule()
-        yaw = replace(self.yaw, steadiness=rule, pre_excitation_s=0.5, validation_post_s=4.0,
-                      convergence_noise_band=QUICK_NOISE_BAND, convergence_delay_s=QUICK_CONVERGENCE_DELAY_S,
-                      r2_threshold=max(self.yaw.r2_threshold, QUICK_R2_THRESHOLD))
-        pitch = replace(self.pitch, steadiness=rule, pre_excitation_s=0.5 + self.yaw.doublet_period_s / 2,
-                        validation_post_s=4.0, r2_threshold=max(self.pitch.r2_threshold, QUICK_R2_THRESHOLD),
-                        training_amplitude=QUICK_PITCH_DOUBLET, validation_amplitude=QUICK_PITCH_DOUBLET)
-        return replace(self, yaw=yaw, pitch=pitch, parallel_axes=True,
-                       bounds=replace(self.bounds, damping=CAMPAIGN_DAMPING))
-
-    def for_procedure(self, procedure: str) -> "CampaignConfig":
-        """``"quick"`` (:meth:`quick`) or ``"thesis"`` (unchanged: the seeds' fixed timings and eq. 3.57)."""
-        if procedure == "quick":
-            return self.quick()
-        if procedure == "thesis":
-            return self
-        raise ValueError(f"unknown procedure {procedure!r}: use one of {', '.join(PROCEDURES)}")
-
-    def with_thesis_estimator(self) -> "CampaignConfig":
-        """The seeds' exact estimator on both axes (P0 = 100·I, zero-order holds)."""
-        return replace(self, yaw=thesis_estimator(self.yaw), pitch=thesis_estimator(self.pitch))
-
-    def kinds(self) -> list[ScheduleKind]:
-        """The requested gain schedules (heading with this config's bounds, cascade with its rules)."""
-        options = {"heading": self.bounds, "cascade": self.cascade}
-        return [schedule_kind(name, options.get(name)) for name in self.schedules]
-
-    def with_profile_defaults(self, profile) -> "CampaignConfig":
-        """This configuration with the autopilot's campaign defaults (``profile.campaign_defaults``:
-        thrusts, axes and doublet amplitudes it can fly), except the fields in ``user_set``.
-        Without a profile, or with no defaults, unchanged."""
-        defaults = getattr(profile, "campaign_defaults", None)
-        given = {k: v for k, v in (defaults.given() if defaults is not None else {}).items() if k not in self.user_set}
-        config = self
-        if "thrusts" in given:
-            config = replace(config, thrusts=tuple(given["thrusts"]))
-        if "axes" in given:
-            config = replace(config, axes=tuple(given["axes"]))
-        amplitudes = {k: given[k] for k in ("training_amplitude", "validation_amplitude") if k in given}
-        if amplitudes:
-            config = replace(config, yaw=replace(config.yaw, **amplitudes))
-        return config
-
-    def resolved_for(self, profile) -> "CampaignConfig":
-        """This configuration for one autopilot, applied once by ``run_campaign``: its campaign
-        defaults (:meth:`with_profile_defaults`), "heading" naming the profile's heading schedule
-        (the PI on the simulator, the native cascade on ArduPilot, designed for its rudder full
-        scale), no depth set-point where the autopilot has none, and QuickTune's rule as the
-        comparison on cascaded autopilots."""
-        if profile is None:
-            return self
-        config = self.with_profile_defaults(profile)
-        heading = getattr(profile, "heading_schedule", "heading")
-        schedules = tuple(heading if name == "heading" else name for name in config.schedules)
-        config = replace(config, schedules=schedules,
-                         cascade=replace(config.cascade, full_scale=profile.angle_full_scale_rad,
-                                         **getattr(profile, "gain_ranges", {})))
-        if not getattr(profile, "depth_setpoint", True):
-            config = replace(config, depth=None)
-        # a modelled servo deflection is continuous (first-order hold); a raw loop output is held (zero-order)
-        hold = "foh" if getattr(profile, "actuator_rate_rad_s", None) else getattr(profile, "actuator_hold", "foh")
-        if hold != "foh":
-            config = replace(config, yaw=replace(config.yaw, input_hold=hold), pitch=replace(config.pitch, input_hold=hold))
-        if getattr(profile, "train_full_window", False):
-            config = replace(config, yaw=replace(config.yaw, stop_on_convergence=False),
-                             pitch=replace(config.pitch, stop_on_convergence=False))
-        if heading == "cascade":
-            config = replace(config, step_labels=tuple("quicktune" if label == "constant" else label
-                                                       for label in config.step_labels))
-        return config
-
-
-@dataclass(frozen=True)
-class GainCheck:
-    """When the heading steps let the scheduled gains stay on the vehicle: at every thrust the
-    scheduled gains overshoot at most ``max_overshoot_pct`` and do not oscillate, and (with
-    ``better_than_original``) their summed step error (IAE) is below the original gains'."""
-
-    max_overshoot_pct: float = 10.0
-    max_oscillations: int = 1
-    better_than_original: bool = True
-
-    def __post_init__(self) -> None:
-        require_non_negative(self, "max_overshoot_pct")
-        if not (isinstance(self.max_oscillations, int) and self.max_oscillations >= 0):
-            raise ValueError(f"GainCheck.max_oscillations must be an integer ≥ 0, not {self.max_oscillations!r}")
-
-    def verdict(self, steps: Sequence[dict]) -> str | None:
-        """None when the check passes, else the reason."""
-        scheduled = [s for s in steps if s["label"] == "scheduled"]
-        if not scheduled:
-            return "no heading-step check of the scheduled gains"
-        for result in scheduled:
-            overshoot = result["max_overshoot_pct"]
-            if not (isinstance(overshoot, float) and math.isfinite(overshoot)):
-                return f"thrust {result['thrust']:.2f}: no overshoot measured"
-            if overshoot > self.max_overshoot_pct:
-                return f"thrust {result['thrust']:.2f}: overshoot {overshoot:.1f} % > {self.max_overshoot_pct:.0f} %"
-            if result.get("oscillations", 0) > self.max_oscillations:
-                return f"thrust {result['thrust']:.2f}: the heading oscillates ({result['oscillations']} reversals)"
-        original = [s for s in steps if s["label"] == "original"]
-        if self.better_than_original and original:
-            new, old = sum(s["iae_s"] for s in scheduled), sum(s["iae_s"] for s in original)
-            if not new < old:
-                return f"the scheduled gains are not better than the original ones (step IAE {new:.1f} s vs {old:.1f} s)"
-        return None
-
-
 class IdentificationCampaign(Behaviour):
     """The campaign as one behaviour (see module docstring)."""
 
@@ -280,6 +92,7 @@ class IdentificationCampaign(Behaviour):
         self.original_gains = dict(original_gains or {})
         self.events: list[CampaignEvent] = []  # drained by the application (companion.procedures.app)
         self.accepted: list[IdentificationAttempt] = []
+        self.attempts: list[IdentificationAttempt] = []  # every attempt, accepted or not
         self.manoeuvres: list[dict] = []
         self.designs: dict[str, GainDesign] = {}
         self.design_errors: dict[str, str] = {}
@@ -291,14 +104,22 @@ class IdentificationCampaign(Behaviour):
         self._total = 0
         parameters = {name for kind in self.kinds for name in kind.parameters}
         self.heading_kind = next((k for k in self.kinds if k.axis == "yaw"), None)
-        if config.step_labels and self.heading_kind is not None:
+        if config.checked != "none" and self.heading_kind is not None:
             parameters |= set(self.heading_kind.parameters)
         self.verification: str | None = None
+        self.verifier: CampaignVerification | None = None  # the short campaign's ("verify")
+        if config.checked == "verify" and self.heading_kind is not None:
+            parameters |= set(LIMIT_PARAMETERS)  # read for the predictions (restored unchanged)
         self.footprint = Footprint.of(parameters, ("mode", "thrust", "heading", "depth", "rudder", "elevator"))
 
     @property
     def heading_design(self) -> GainDesign | None:
         return self.designs.get(self.heading_kind.name) if self.heading_kind is not None else None
+
+    @property
+    def records_rejected_for_link(self) -> int:
+        """Attempts not used because the link lost too much of their records."""
+        return sum(1 for attempt in self.attempts if attempt.rejected_for)
 
     @property
     def kept_parameters(self) -> frozenset[str]:
@@ -321,16 +142,48 @@ class IdentificationCampaign(Behaviour):
                 items.append(ParallelBehavior(manoeuvres, name=f"yaw and pitch at {thrust:.2f}"))
             else:
                 items.extend(manoeuvres)
+            if self.verifier_wanted and index == 0 and len(cfg.thrusts) > 1:
+                # the lowest speed's own design, while the vehicle is there and steady
+                items.append(Deferred(lambda thrust=thrust: self._verifier().own_step(self.accepted, thrust),
+                                      self._heading_gains))
         items.append(Deferred(self._design_step))
-        heading_gains = Footprint.of(self.heading_kind.parameters if self.heading_kind else (),
-                                     ("mode", "thrust", "heading"))
-        for thrust in cfg.thrusts:
-            for label in cfg.step_labels:
-                items.append(Deferred(self._step_test_factory(thrust, label), heading_gains))
+        if self.verifier_wanted:
+            last = cfg.thrusts[-1]  # where the identification ends, steady after its validation record
+            for slot in (lambda: self._verifier().scheduled_step(self.heading_design, "highest", here=last),
+                         lambda: self._verifier().scheduled_step(self.heading_design, "lowest"),
+                         lambda: self._verifier().original_step(self._original_heading(), "highest", self.heading_design),
+                         lambda: self._verifier().original_step(self._original_heading(), "lowest", self.heading_design)):
+                items.append(Deferred(slot, self._heading_gains))
+        elif cfg.checked == "compare":
+            for thrust in cfg.thrusts:
+                for label in cfg.step_labels:
+                    items.append(Deferred(self._step_test_factory(thrust, label), self._heading_gains))
         items.append(Deferred(self._final_gains_step, self.footprint))
-        # progress counts the manoeuvres and the step checks (the design and the final write are instants)
-        self._total = len(cfg.thrusts) * (len(cfg.axes) + len(cfg.step_labels))
+        # progress counts the manoeuvres and the checks (the design and the final write are instants)
+        checks = {"verify": 2, "compare": len(cfg.thrusts) * len(cfg.step_labels)}.get(cfg.checked, 0)
+        self._total = len(cfg.thrusts) * len(cfg.axes) + checks
         return SequenceBehavior(items, on_complete=self._on_complete, name="campaign")
+
+    # ------------------------------------------------------------------ verification ("verify")
+    @property
+    def verifier_wanted(self) -> bool:
+        return self.config.checked == "verify" and self.heading_kind is not None
+
+    @property
+    def _heading_gains(self) -> Footprint:
+        return Footprint.of(self.heading_kind.parameters if self.heading_kind else (), ("mode", "thrust", "heading"))
+
+    def _original_heading(self) -> dict[str, float]:
+        names = self.heading_kind.parameters if self.heading_kind else ()
+        return {k: v for k, v in self.original_gains.items() if k in names}
+
+    def _verifier(self) -> CampaignVerification:
+        """The verification's bookkeeping, made once the original gains (and limits) are known."""
+        if self.verifier is None:
+            limits = HeadingLimits.from_vehicle(self.original_gains, full_scale=self.config.cascade.full_scale,
+                                                rudder_rate=self.config.rudder_rate)
+            self.verifier = CampaignVerification(self.heading_kind, self.config.verification, self.config.keep, limits)
+        return self.verifier
 
     def _design_step(self) -> Behaviour:
         texts: list[Command] = []
@@ -347,6 +200,8 @@ class IdentificationCampaign(Behaviour):
             self.designs[kind.name] = design
             self.events.append(DesignMade(design))
             texts.append(StatusText(f"{kind.name} schedule designed at {len(design.points)} speeds"))
+            if self.verifier_wanted and kind is self.heading_kind:
+                self._verifier().predict(design, self.accepted, self._original_heading())
         return Instant(*texts, name="design")
 
     def _gains_for(self, label: str, thrust: float) -> dict[str, float] | None:
@@ -407,10 +262,13 @@ class IdentificationCampaign(Behaviour):
         if not self.config.write_gains or not self.designs:
             return None
         if self.heading_kind is not None and self.heading_kind.name in self.designs:
-            if not self.config.step_labels:
+            if self.config.checked == "none":
                 self.verification = "not verified: the heading-step checks were skipped, so no gain is written"
                 return Instant(StatusText("gains not written: not verified (no heading-step checks)", 4), name="write gains")
-            self.verification = self.config.verify.verdict(self.step_results)
+            if self.verifier_wanted:
+                self.verification = self._verifier().decide()
+            else:
+                self.verification = self.config.verify.verdict(self.step_results)
             if self.verification is not None:
                 self.design_errors["verification"] = self.verification
                 return Instant(StatusText(f"gains rejected: {self.verification}"[:50], 4), name="write gains")
@@ -445,11 +303,16 @@ class IdentificationCampaign(Behaviour):
             self.phase_times = _add_times(self.phase_times, behavior.stage_times)
             self.manoeuvres.append({k: v for k, v in behavior.result().items() if k != "attempts"})
             for attempt in behavior.attempts:
+                self.attempts.append(attempt)
                 self.events.append(AttemptRecorded(attempt))
                 if attempt.accepted:
                     self.accepted.append(attempt)
         elif isinstance(behavior, HeadingStepTest):
             result = behavior.result()
+            self.step_results.append(result)
+            self.events.append(StepsChecked(result))
+        elif isinstance(behavior, VerificationStep):
+            result = self._verifier().record(behavior, self.accepted)
             self.step_results.append(result)
             self.events.append(StepsChecked(result))
 
@@ -460,7 +323,7 @@ class IdentificationCampaign(Behaviour):
         if self._sequence is None or not self._total:
             return 0.0
         done = sum(len(b.children) if isinstance(b, ParallelBehavior) else 1 for b in self._sequence.completed
-                   if isinstance(b, (IdentificationManoeuvre, HeadingStepTest, ParallelBehavior)))
+                   if isinstance(b, (IdentificationManoeuvre, HeadingStepTest, VerificationStep, ParallelBehavior)))
         return min(1.0, done / self._total)
 
     @property
@@ -486,16 +349,14 @@ class IdentificationCampaign(Behaviour):
         return commands
 
     def _count_phase_time(self, now: float) -> None:
-        """Vehicle seconds per phase of the campaign (what the campaign costs at sea):
-        identification (settles, records), checks (heading steps) and the rest (design, writes)."""
+        """Vehicle seconds per phase of the campaign (what the campaign costs at sea), by what the
+        vehicle is doing: ``settle`` (waiting to be steady before a record), ``excitation`` (the
+        training records), ``validation`` (the fresh records that accept a model), ``verification``
+        (the short campaign's decisive steps, their settles included), ``heading_steps`` (the
+        thesis comparison) and ``design_writes`` (designs, parameter writes and mode changes). With
+        yaw and pitch together the yaw manoeuvre's stage names the time."""
         last = getattr(self, "_phase_clock", None)
-        current = self._sequence.current if self._sequence is not None else None
-        if isinstance(current, (IdentificationManoeuvre, ParallelBehavior)):
-            phase = "identification"
-        elif isinstance(current, HeadingStepTest):
-            phase = "heading_steps"
-        else:
-            phase = "other"
+        phase = _phase_of(self._sequence.current if self._sequence is not None else None)
         if last is not None and now > last[0]:
             self.vehicle_time_by_phase[last[1]] = self.vehicle_time_by_phase.get(last[1], 0.0) + (now - last[0])
         self._phase_clock = (now, phase)
@@ -517,6 +378,11 @@ class IdentificationCampaign(Behaviour):
             return self._sequence.stop(self.reason or "aborted")
         return []
 
+    def phases_in_order(self) -> dict[str, float]:
+        """``vehicle_time_by_phase`` in the order a campaign flies them (PHASES), then any other."""
+        order = {name: index for index, name in enumerate(PHASES)}
+        return dict(sorted(self.vehicle_time_by_phase.items(), key=lambda item: order.get(item[0], len(order))))
+
     def result(self) -> ProcedureResult:
         figures = {
             "config": self.config.to_dict(),
@@ -526,6 +392,9 @@ class IdentificationCampaign(Behaviour):
             "design_errors": self.design_errors,
             "verification": self.verification or ("passed" if self.final_gains else None),
             "steps": [{k: v for k, v in r.items() if k != "series"} for r in self.step_results],
+            "checks": self.config.checked,
+            "verified": self.verifier.summary() if self.verifier is not None else None,
+            "vehicle_time_by_phase": self.phases_in_order(),
             "final_gains": self.final_gains,
         }
         return ProcedureResult.of("identification", self.status, self.reason, figures)
@@ -538,3 +407,25 @@ def _add_times(total: dict[str, float], more: dict[str, float]) -> dict[str, flo
     for stage, seconds in more.items():
         out[stage] = out.get(stage, 0.0) + seconds
     return out
+
+
+#: the campaign's phases of vehicle time, in the order they are flown (``_phase_of``)
+PHASES = ("settle", "excitation", "validation", "verification", "heading_steps", "design_writes")
+
+#: what the vehicle is doing in each stage of an identification manoeuvre
+_STAGE_PHASES = {TRAIN: "excitation", VALIDATE: "validation"}
+
+
+def _phase_of(current: Behaviour | None) -> str:
+    """The campaign phase a running step counts to (``IdentificationCampaign._count_phase_time``)."""
+    if isinstance(current, ParallelBehavior):  # the yaw manoeuvre's stage, or the pitch one's once yaw is done
+        manoeuvres = [c for c in current.children if isinstance(c, IdentificationManoeuvre)]
+        running = sorted((c for c in manoeuvres if not c.done), key=lambda c: c.config.axis != "yaw")
+        current = running[0] if running else (manoeuvres[0] if manoeuvres else None)
+    if isinstance(current, IdentificationManoeuvre):
+        return _STAGE_PHASES.get(current.stage, "settle")
+    if isinstance(current, VerificationStep):
+        return "verification"
+    if isinstance(current, HeadingStepTest):
+        return "heading_steps"
+    return "design_writes"

@@ -35,6 +35,9 @@ class MinSpeedProcedureConfig:
     # the move there (None: today's 0.005/s ramp): governed by the autopilot's depth integrator with
     # this depth-error budget (m) along the model's level-flight pitch curve (MinSpeedConfig doc)
     start_depth_budget_m: float | None = None
+    # the levelled move there instead (needs ``start_margin``): the model's level-flight pitch fed
+    # forward through the depth set-point while the set-point falls at 0.02/s (MinSpeedConfig doc)
+    start_feedforward: bool = False
 
     def __post_init__(self) -> None:
         require_range(self, "nominal_thrust", 0.0, 1.0)
@@ -58,6 +61,12 @@ class MinSpeedProcedureConfig:
         """
         return cls(**({"start_margin": 0.008, "start_depth_budget_m": 0.22} | overrides))
 
+    @classmethod
+    def levelled(cls, **overrides) -> "MinSpeedProcedureConfig":
+        """The levelled start: to the analytic T_R* + 0.008 (as :meth:`governed`) at 0.02/s, the
+        level-flight pitch change fed forward through the depth set-point (behaviors.min_speed)."""
+        return cls(**({"start_margin": 0.008, "start_feedforward": True} | overrides))
+
 
 class MinSpeedProcedure(SequenceBehavior):
     def __init__(self, config: MinSpeedProcedureConfig = MinSpeedProcedureConfig(), *,
@@ -74,7 +83,10 @@ class MinSpeedProcedure(SequenceBehavior):
         if config.start_margin is not None and isinstance(predicted, (int, float)) and math.isfinite(predicted):
             seeker_config = replace(seeker_config, start_thrust=float(predicted) + config.start_margin)
             curve = (analytic or {}).get("trim_pitch_curve")
-            if config.start_depth_budget_m is not None and curve:
+            if config.start_feedforward and curve:
+                seeker_config = replace(seeker_config, start_feedforward=True,
+                                        start_pitch_curve=tuple((float(r), float(t)) for r, t in curve))
+            elif config.start_depth_budget_m is not None and curve:
                 seeker_config = replace(seeker_config, start_depth_budget_m=config.start_depth_budget_m,
                                         start_pitch_curve=tuple((float(r), float(t)) for r, t in curve))
         self.analytic = analytic
@@ -132,4 +144,4 @@ def min_speed_procedure(link, abort, config: MinSpeedProcedureConfig = MinSpeedP
                         analytic: dict | None = None, limits: SafetyLimits | None = None) -> ProcedureResult:
     """Build and run the minimum-speed procedure under one restore point (module docstring)."""
     procedure = MinSpeedProcedure(config, depth_gains=read_depth_gains(link), analytic=analytic)
-    return run_for_result(link, procedure, abort_requested=abort, limits=limits or SafetyLimits())
+    return run_for_result(link, procedure, abort_requested=abort, limits=limits)

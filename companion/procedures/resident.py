@@ -18,17 +18,24 @@ stops procedures with COMMAND_LONG aimed at component 191:
 A start is answered COMMAND_ACK IN_PROGRESS (with progress for the campaign) and finally ACCEPTED or
 FAILED; a retransmitted start of the procedure already running is answered IN_PROGRESS again; a
 start while another procedure runs, a start on a disarmed vehicle, or an abort with nothing running
-is answered TEMPORARILY_REJECTED. Everything runs on vehicle time; SIGINT/SIGTERM abort what runs and end.
+is answered TEMPORARILY_REJECTED; a start of a procedure the configuration does not allow
+(``ServeConfig.procedures``) is answered DENIED. Everything runs on vehicle time; SIGINT/SIGTERM
+abort what runs and end. An optional observer (``Companion(observer=...)``, e.g. the status page of
+``companion.service``) is told when a procedure starts and ends; it only watches.
 """
 from __future__ import annotations
 
 import logging
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Protocol
+
+from pymavlink.dialects.v20.common import MAV_RESULT_DENIED
 
 from behaviors.gain_scheduling import GainDesign, GainScheduler, SchedulingConfig
 from behaviors.base import Footprint
+from companion.errors import UserError
+from companion.link.errors import LinkError
 from companion.numerics.drift import DriftConfig
 from companion.numerics.gains import GainBounds
 from companion.numerics.schedule import YawSchedule
@@ -55,6 +62,14 @@ log = logging.getLogger(__name__)
 
 #: the longest run a ground station may ask for with param1 (seconds of vehicle time)
 MAX_PROCEDURE_S = 3600.0
+
+
+class CompanionObserver(Protocol):
+    """What the resident loop tells a watcher (the status page); called in the loop's thread."""
+
+    def procedure_started(self, name: str, command: int) -> None: ...
+
+    def procedure_finished(self, entry: dict) -> None: ...
 
 
 def schedule_from_store(store: Store) -> YawSchedule | None:
@@ -88,13 +103,23 @@ class ServeConfig:
     # health monitoring: passive identification against the stored models between procedures
     health: bool = True
     drift: DriftConfig = DriftConfig()
+    # the procedures a ground station may start (names of registry.COMMANDS); an abort is always obeyed
+    procedures: tuple[str, ...] = tuple(COMMANDS.values())
+
+    def __post_init__(self) -> None:
+        unknown = [name for name in self.procedures if name not in COMMANDS.values()]
+        if unknown:
+            raise ValueError(f"ServeConfig.procedures: unknown procedure(s) {', '.join(map(repr, unknown))} "
+                             f"(known: {', '.join(COMMANDS.values())})")
 
 
 class Companion:
     """The resident loop; ``run()`` returns when signalled (or after ``max_vehicle_s``)."""
 
-    def __init__(self, link, store: Store, vehicle_id: int, config: ServeConfig, stop: AbortFlag) -> None:
+    def __init__(self, link, store: Store, vehicle_id: int, config: ServeConfig, stop: AbortFlag,
+                 observer: CompanionObserver | None = None) -> None:
         self.link, self.store, self.vehicle_id, self.config, self.stop = link, store, vehicle_id, config, stop
+        self.observer = observer
         self.pending: list[tuple[int, tuple[float, ...]]] = []
         self.procedure_abort: AbortFlag | None = None
         self.running: int | None = None
@@ -119,6 +144,10 @@ class Companion:
             return
         if command not in COMMANDS:
             self.link.ground.send_command_ack(command, MAV_RESULT_FAILED)
+            return
+        if COMMANDS[command] not in self.config.procedures:
+            self.link.status_text(f"{COMMANDS[command]} is not allowed by the configuration"[:50], 4)
+            self.link.ground.send_command_ack(command, MAV_RESULT_DENIED)
             return
         if command in (self.running, *(c for c, _ in self.pending)):
             # a retransmission (the GCS did not see our first ACK): the same answer again
@@ -221,6 +250,7 @@ class Companion:
         self.running = command
         name = COMMANDS[command]
         abort = self._abort_requested()
+        self._notify("procedure_started", name, command)
         try:
             if command == IDENTIFICATION_COMMAND:
                 gcs = GcsProgress(self.link, command)
@@ -243,6 +273,11 @@ class Companion:
                 self.link.ground.send_command_ack(command, MAV_RESULT_ACCEPTED if status == "completed" else MAV_RESULT_FAILED,
                                            100 if status == "completed" else 0)
                 entry = {"procedure": name, "status": status, "summary": ran.summary}
+        except (LinkError, UserError) as exc:  # expected conditions: a sentence
+            log.warning("procedure %d failed: %s", command, exc)
+            log.debug("procedure %d failed", command, exc_info=True)
+            self.link.ground.send_command_ack(command, MAV_RESULT_FAILED)
+            entry = {"procedure": name, "status": "failed", "reason": str(exc)}
         except Exception as exc:  # noqa: BLE001 - the resident loop must survive a failed procedure
             log.exception("procedure %d failed", command)
             self.link.ground.send_command_ack(command, MAV_RESULT_FAILED)
@@ -252,3 +287,13 @@ class Companion:
             self.running = None
         self.history.append(entry)
         log.info("procedure finished: %s", entry)
+        self._notify("procedure_finished", entry)
+
+    def _notify(self, event: str, *args) -> None:
+        """Tell the observer, if any; a watcher that fails never disturbs the loop."""
+        if self.observer is None:
+            return
+        try:
+            getattr(self.observer, event)(*args)
+        except Exception as exc:  # noqa: BLE001 - the observer only watches
+            log.warning("status observer failed on %s: %s", event, exc)

@@ -101,4 +101,4 @@ def roll_procedure(link, abort, config: RollProcedureConfig = RollProcedureConfi
                    limits: SafetyLimits | None = None) -> ProcedureResult:
     """Build and run the roll procedure under one restore point; its result as the runner saw it end."""
     return run_for_result(link, RollProcedure(config, simulator=simulator), abort_requested=abort,
-                          limits=limits or SafetyLimits())
+                          limits=limits)

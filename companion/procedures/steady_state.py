@@ -81,7 +81,7 @@ class SteadyStateProcedure(SequenceBehavior):
 
 
 def steady_state_procedure(link, abort, config: SteadyStateConfig = SteadyStateConfig(), *,
-                           limits: SafetyLimits = SafetyLimits()) -> ProcedureResult:
+                           limits: SafetyLimits | None = None) -> ProcedureResult:
     """Squares, then turns, under one restore point."""
     return run_for_result(link, SteadyStateProcedure(config), abort_requested=abort, limits=limits)
 

@@ -200,7 +200,7 @@ def _select(record: SteeringRecord, mask: np.ndarray) -> SteeringRecord:
 def _read_tlog(path: str, profile: AutopilotProfile, full_scale: float) -> SteeringRecord:
     from pymavlink import mavutil
 
-    from companion.link.autopilots.ardusub import unmix_vectored
+    from companion.link.autopilots.vectored_mix import unmix_vectored
 
     try:
         conn = mavutil.mavlink_connection(path, notimestamps=False)
@@ -337,7 +337,7 @@ def _collect_dataflash(reader, att: list, rcou: list, gps: list, xkf: list, para
 
 def _dataflash_record(path: str, profile: AutopilotProfile, full_scale: float, att, rcou, gps, xkf, params, units,
                       bad: int) -> SteeringRecord:
-    from companion.link.autopilots.ardusub import unmix_vectored
+    from companion.link.autopilots.vectored_mix import unmix_vectored
 
     a = _series(att, "fewer than 2 ATT messages", path)
     out = _series(rcou, "no RCOU messages: the log carries no servo output", path)

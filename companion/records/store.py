@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from companion.errors import UserError
+from companion.records.owner import ProcessOwner
 from companion.records.serialise import from_json, json_ready, to_json
 
 if TYPE_CHECKING:
@@ -122,6 +123,36 @@ MIGRATIONS: tuple[str, ...] = (
         recorded_utc TEXT NOT NULL
     );
     CREATE INDEX sweep_cases_sweep ON sweep_cases(sweep);
+    """,
+    # version 3: the trail a procedure leaves: which process runs it (from the campaign's start),
+    # how the vehicle was found (stored before its first change) and every change as it is made;
+    # the next start follows a trail whose process died. A campaign may hold several procedures
+    # (a rehearsal's behaviours), each its own trail.
+    """
+    CREATE TABLE trails (
+        id INTEGER PRIMARY KEY,
+        campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+        owner_pid INTEGER,
+        owner_host TEXT,
+        owner_boot TEXT,
+        owner_started TEXT,
+        opened_utc TEXT NOT NULL,
+        restore_json TEXT,
+        vehicle_json TEXT NOT NULL DEFAULT '{}',
+        restored_utc TEXT,
+        problems_json TEXT,
+        notes_json TEXT
+    );
+    CREATE INDEX trails_campaign ON trails(campaign_id);
+    CREATE TABLE changes (
+        id INTEGER PRIMARY KEY,
+        trail_id INTEGER NOT NULL REFERENCES trails(id),
+        vehicle_time_s REAL,
+        kind TEXT NOT NULL,
+        detail_json TEXT NOT NULL,
+        recorded_utc TEXT NOT NULL
+    );
+    CREATE INDEX changes_trail ON changes(trail_id);
     """,
 )
 
@@ -335,7 +366,7 @@ class Store:
                 self._db.execute(f"PRAGMA application_id={APPLICATION_ID}")
 
     def _transaction(self):
-        return _Transaction(self._db)
+        return _Transaction(self._db, self.path)
 
     @property
     def schema_version(self) -> int:
@@ -360,13 +391,89 @@ class Store:
                             (name, profile, _json(config or {}), _now()))
 
     def start_campaign(self, vehicle_id: int, kind: str, config: dict | None = None) -> int:
-        return self._insert(
-            "INSERT INTO campaigns(vehicle_id, kind, status, config_json, started_utc) VALUES (?,?,?,?,?)",
-            (vehicle_id, kind, "running", _json(config or {}), _now()))
+        """A campaign row, ``running``, with a trail naming this process as its owner (so another
+        process can tell a live campaign from one whose process died)."""
+        with self._transaction():
+            campaign_id = int(self._db.execute(
+                "INSERT INTO campaigns(vehicle_id, kind, status, config_json, started_utc) VALUES (?,?,?,?,?)",
+                (vehicle_id, kind, "running", _json(config or {}), _now())).lastrowid)
+            self._open_trail(campaign_id)
+        return campaign_id
+
+    def _open_trail(self, campaign_id: int) -> int:
+        owner = ProcessOwner.current()
+        return int(self._db.execute(
+            "INSERT INTO trails(campaign_id, owner_pid, owner_host, owner_boot, owner_started, opened_utc)"
+            " VALUES (?,?,?,?,?,?)", (campaign_id, owner.pid, owner.host, owner.boot_id, owner.started, _now())).lastrowid)
 
     def finish_campaign(self, campaign_id: int, status: str, reason: str | None = None) -> None:
         with self._transaction():
             self._db.execute("UPDATE campaigns SET status=?, reason=?, finished_utc=? WHERE id=?",
+                             (status, reason, _now(), campaign_id))
+
+    # ------------------------------------------------------------------ the trail
+    def save_restore_point(self, campaign_id: int, restore: dict, vehicle: dict) -> int:
+        """How the vehicle was found, before a procedure's first change: stored in the campaign's
+        trail not yet used, or a new trail of this campaign (its next procedure); returns the
+        trail's id (its changes and its restore are recorded under it)."""
+        owner = ProcessOwner.current()
+        with self._transaction():
+            row = self._db.execute("SELECT id FROM trails WHERE campaign_id=? AND restore_json IS NULL"
+                                   " AND restored_utc IS NULL ORDER BY id DESC LIMIT 1", (campaign_id,)).fetchone()
+            trail_id = int(row[0]) if row is not None else self._open_trail(campaign_id)
+            self._db.execute("UPDATE trails SET restore_json=?, vehicle_json=?, owner_pid=?, owner_host=?,"
+                             " owner_boot=?, owner_started=? WHERE id=?",
+                             (_json(restore), _json(vehicle), owner.pid, owner.host, owner.boot_id, owner.started,
+                              trail_id))
+        return trail_id
+
+    def add_change(self, trail_id: int, vehicle_time_s: float | None, kind: str, detail: dict) -> None:
+        """One change to the vehicle, recorded before it is sent."""
+        self._insert("INSERT INTO changes(trail_id, vehicle_time_s, kind, detail_json, recorded_utc)"
+                     " VALUES (?,?,?,?,?)", (trail_id, vehicle_time_s, kind, _json(detail), _now()))
+
+    def finish_restore(self, trail_id: int, problems: list[str], notes: list[str]) -> None:
+        """The restore ran: what it could not do and what it decided (the trail is closed)."""
+        with self._transaction():
+            self._db.execute("UPDATE trails SET restored_utc=?, problems_json=?, notes_json=? WHERE id=?",
+                             (_now(), _json(problems), _json(notes), trail_id))
+
+    def open_trails(self) -> list[dict]:
+        """Trails not closed, oldest first: a procedure whose restore point was stored and whose
+        restore never ran, and the latest trail of a campaign still ``running`` (its restore point
+        left out when its restore already ran: nothing of it is left to put back); each with its
+        owner, restore point, vehicle and changes (the caller decides whether the owner is gone).
+        A ``running`` campaign with no trail at all (written by other code) comes with no owner."""
+        rows = self._db.execute(
+            "SELECT t.id AS trail_id, c.id AS campaign_id, c.kind, c.status, c.started_utc, t.restore_json,"
+            " t.restored_utc, t.vehicle_json, t.owner_pid, t.owner_host, t.owner_boot, t.owner_started"
+            " FROM campaigns c LEFT JOIN trails t ON t.campaign_id = c.id"
+            " WHERE (t.restored_utc IS NULL AND t.restore_json IS NOT NULL)"
+            "   OR (c.status = 'running' AND (t.id IS NULL OR t.id = (SELECT MAX(id) FROM trails WHERE campaign_id = c.id)))"
+            " ORDER BY c.id, t.id").fetchall()
+        out = []
+        for row in rows:
+            item = dict(row)
+            restore_json = item.pop("restore_json")
+            restored = item.pop("restored_utc") is not None
+            item["restore"] = json.loads(restore_json) if restore_json and not restored else None
+            item["vehicle"] = json.loads(item.pop("vehicle_json")) if item["vehicle_json"] else {}
+            item["owner"] = ProcessOwner(item.pop("owner_pid"), item.pop("owner_host") or "",
+                                         item.pop("owner_boot") or "", item.pop("owner_started") or "")
+            item["changes"] = [] if item["trail_id"] is None or restored else [
+                {"vehicle_time_s": c["vehicle_time_s"], "kind": c["kind"], "detail": json.loads(c["detail_json"])}
+                for c in self._select("changes", trail_id=item["trail_id"])]
+            out.append(item)
+        return out
+
+    def close_trail(self, trail_id: int | None, campaign_id: int, status: str, reason: str) -> None:
+        """An interrupted trail followed (or with nothing to follow): the trail closed and, if the
+        campaign still reads ``running``, the campaign ended with ``status`` and ``reason``."""
+        with self._transaction():
+            if trail_id is not None:
+                self._db.execute("UPDATE trails SET restored_utc=COALESCE(restored_utc, ?) WHERE id=?",
+                                 (_now(), trail_id))
+            self._db.execute("UPDATE campaigns SET status=?, reason=?, finished_utc=? WHERE id=? AND status='running'",
                              (status, reason, _now(), campaign_id))
 
     def add_run(self, campaign_id: int, attempt: IdentificationAttempt) -> int:
@@ -525,22 +632,50 @@ class Store:
 
 
 class _Transaction:
-    """BEGIN IMMEDIATE … COMMIT, or ROLLBACK on error (the connection is in autocommit mode)."""
+    """``BEGIN IMMEDIATE`` … ``COMMIT`` (rolled back on an error); an SQLite error inside becomes a
+    StoreError with one sentence (a full disk, a lock held too long), never a traceback."""
 
-    def __init__(self, db: sqlite3.Connection) -> None:
+    def __init__(self, db: sqlite3.Connection, path: Path) -> None:
         self._db = db
+        self._path = path
         self._outer = False
 
     def __enter__(self):
         self._outer = not self._db.in_transaction
         if self._outer:
-            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                self._db.execute("BEGIN IMMEDIATE")
+            except sqlite3.Error as exc:
+                raise StoreError(_write_failure(self._path, exc)) from None
         return self._db
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if not self._outer:
             return
         if exc_type is None:
-            self._db.execute("COMMIT")
-        else:
+            try:
+                self._db.execute("COMMIT")
+                return
+            except sqlite3.Error as commit_error:
+                self._rollback()
+                raise StoreError(_write_failure(self._path, commit_error)) from None
+        self._rollback()
+        if isinstance(exc, sqlite3.Error):
+            raise StoreError(_write_failure(self._path, exc)) from None
+
+    def _rollback(self) -> None:
+        try:
             self._db.execute("ROLLBACK")
+        except sqlite3.Error:  # nothing to roll back (SQLite already did)
+            pass
+
+
+def _write_failure(path: Path, exc: sqlite3.Error) -> str:
+    """One sentence for an SQLite write error."""
+    text = str(exc)
+    if "full" in text:
+        return (f"the store {path} could not be written: the disk is full (everything written before is kept; "
+                "free some space)")
+    if "locked" in text or "busy" in text:
+        return f"the store {path} could not be written: another process held it locked for {BUSY_TIMEOUT_S:g} s"
+    return f"the store {path} could not be written ({text})"

@@ -22,7 +22,6 @@ from companion.link.autopilots.ardusub import CAMPAIGN_DEFAULTS as ARDUSUB_CAMPA
 from companion.procedures.app import AbortFlag, ConsoleProgress, run_campaign, vehicle_record
 from companion.procedures.campaign import CampaignConfig
 from companion.procedures.results import finite_or_none
-from companion.procedures.runner import SafetyLimits
 from companion.records.store import Store, json_safe
 
 log = logging.getLogger(__name__)
@@ -263,10 +262,12 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                                         {"preset": config.preset, "seed": config.seed, **summary.get("variant", {})})
             console = ConsoleProgress("identification", enabled=config.progress)
             campaign, outcome, campaign_id = run_campaign(link, store, config.campaign, vehicle_id=vehicle_id,
-                                                          abort=abort, console=console, limits=SafetyLimits())
+                                                          abort=abort, console=console)
             summary.update(status=outcome.status, reason=outcome.reason, campaign_id=campaign_id,
+                           restore_problems=outcome.restore_problems, restore_notes=outcome.restore_notes,
+                           records_rejected_for_link=campaign.records_rejected_for_link,
                            vehicle_time_s=outcome.vehicle_time_s,
-                           vehicle_time_by_phase={k: round(v, 2) for k, v in campaign.vehicle_time_by_phase.items()},
+                           vehicle_time_by_phase={k: round(v, 2) for k, v in campaign.phases_in_order().items()},
                            identification_stage_s={k: round(v, 2) for k, v in campaign.phase_times.items()})
             extra: dict = {}
             if outcome.status == "completed":
@@ -275,6 +276,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                 extra["steady_state"] = _run_steady_state(link, store, config, campaign_id, abort, summary)
         finally:
             snapshots_dropped, wall_timeouts = link.telemetry.snapshots_dropped, link.clock.wall_timeouts
+            summary["link_quality"] = link.telemetry.quality()
             link.close()
         truth, speeds = {}, {}
         for attempt in campaign.accepted:
@@ -290,6 +292,8 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
                                      "iae_s": finite_or_none(s.get("iae_s")), "oscillations": s.get("oscillations")}
                                     for s in campaign.step_results]
         summary["verification"] = campaign.verification or ("passed" if campaign.final_gains else None)
+        summary["checks"] = campaign.config.checked
+        summary["verified"] = campaign.verifier.summary() if campaign.verifier is not None else None
         summary["final_gains"] = campaign.final_gains
         summary["store"] = str(store_path)
         summary["report"] = str(out / "report.html") if config.report else None

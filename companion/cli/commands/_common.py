@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import json
 import math
 import os
@@ -27,6 +28,9 @@ def add_connect_arguments(parser: argparse.ArgumentParser, required: bool = True
                         help="autopilot profile (default: detected from the parameter names)")
     parser.add_argument("--signing-key", metavar="HEX", default=None, type=signing_key_argument,
                         help="MAVLink 2 signing key as 64 hex characters (32 bytes)")
+    parser.add_argument("--lockstep", action="store_true",
+                        help="acknowledge vehicle time to our simulator started with --lockstep (its clock then "
+                             "advances only as the companion reads it: same seed, same numbers)")
     vehicle = parser.add_argument_group("vehicle properties (over the profile's defaults)")
     vehicle.add_argument("--rudder-full-scale", type=_positive, default=None, metavar="RAD",
                          help="rudder deflection at full steering output (ArduPilot profiles: 0.5236 rover, 0.35 sub)")
@@ -136,6 +140,18 @@ def add_procedure_argument(parser: argparse.ArgumentParser) -> None:
                              "short validation records, the noise-aware stopping rule, heading gains for ζ = 0.75; "
                              "thesis: the seeds' fixed timings (40 s settles, 16.5 s records), eq. 3.39 and eq. 3.57")
     parser.add_argument("--quick", dest="procedure", action="store_const", const="quick", help=argparse.SUPPRESS)
+    parser.add_argument("--full-comparison", action="store_true",
+                        help="fly the thesis' comparison: ±20° heading steps with the original, the constant "
+                             "(QuickTune on ArduPilot) and the scheduled gains at every thrust (the quick procedure "
+                             "flies the designed gains' step at the lowest and highest speed and predicts the rest)")
+
+
+def apply_procedure(config, args: argparse.Namespace):
+    """The campaign configuration for ``--procedure`` and ``--full-comparison``."""
+    config = config.for_procedure(args.procedure)
+    if getattr(args, "full_comparison", False) and config.step_labels:
+        config = replace(config, checks="compare")
+    return config
 
 
 def print_json(value) -> None:
@@ -168,7 +184,7 @@ def connected_vehicle(args: argparse.Namespace):
     try:
         try:
             link = VehicleLink.connect(args.connect, profile=args.profile, signing_key=signing_key(args),
-                                       vehicle=vehicle_properties(args))
+                                       vehicle=vehicle_properties(args), lockstep=getattr(args, "lockstep", False))
         except LinkError as exc:  # no heartbeat, endpoint that cannot be opened, ...
             raise ConnectFailed(f"error: {exc}") from exc
         try:
@@ -177,3 +193,89 @@ def connected_vehicle(args: argparse.Namespace):
             link.close()
     finally:
         undo()
+
+
+def link_fit_for_identification(link) -> bool:
+    """Measure what the link delivers (two vehicle seconds of telemetry); False, with the sentence
+    saying what to change, when it is too slow to identify from; a slower link than asked for is
+    said and accepted."""
+    from companion.link.errors import LinkError
+    from companion.procedures.readiness import measure_link_rate
+
+    try:
+        rate = measure_link_rate(link)
+    except LinkError as exc:
+        print(f"error: the link rate could not be measured: {exc}", file=sys.stderr)
+        return False
+    verdict, warning = rate.verdict(), rate.warning()
+    if verdict is not None:
+        print(f"error: {verdict}", file=sys.stderr)
+        return False
+    if warning is not None:
+        print(f"warning: {warning}", file=sys.stderr)
+    return True
+
+
+def link_quality_record(link, campaign=None) -> dict:
+    """What the link delivered (samples late, lost, duplicated) and how many identification records
+    were not used because the link lost too much of them."""
+    quality = dict(link.telemetry.quality()) if hasattr(link, "telemetry") else {}
+    if campaign is not None:
+        quality["records_rejected"] = campaign.records_rejected_for_link
+    return quality
+
+
+def add_recovery_argument(parser: argparse.ArgumentParser) -> None:
+    """``--yes``: put the vehicle back after an interrupted procedure without asking."""
+    parser.add_argument("--yes", action="store_true",
+                        help="if an earlier procedure was interrupted (its process died), put the vehicle back as "
+                             "it found it without asking (for scripts and services)")
+
+
+def follow_interrupted_trails(link, store, args: argparse.Namespace, guard=None) -> bool:
+    """Before anything else on a vehicle: a procedure whose process died left a trail; say what it
+    left changed and put the vehicle back (asked on a terminal, ``--yes`` for scripts). False when
+    one is left unrecovered, or recovered only in part (the caller must not start another procedure;
+    the trail stays open and the next start tries again)."""
+    from companion.link.errors import LinkError
+    from companion.procedures.trail import close_without_vehicle, interrupted, recover
+
+    for trail in interrupted(store):
+        print(f"campaign {trail.campaign_id} ({trail.kind}, started {trail.started_utc}) was interrupted: "
+              f"the companion ({trail.owner.describe()}) stopped during it", file=sys.stderr)
+        if trail.restore is None and not trail.changes:
+            close_without_vehicle(store, trail)
+            print("  it had changed nothing yet (or its restore had run): closed as interrupted", file=sys.stderr)
+            continue
+
+        def decide(found: list[str], trail=trail) -> bool:
+            for line in found or ["nothing differs from how it was found"]:
+                print(f"  {line}", file=sys.stderr)
+            if getattr(args, "yes", False):
+                return True
+            if not sys.stdin.isatty():
+                return False
+            answer = input(f"Put the vehicle back as campaign {trail.campaign_id} found it? [y/N] ")
+            return answer.strip().lower() in ("y", "yes")
+
+        try:
+            done = recover(link, store, trail, decide, guard=guard)
+        except LinkError as exc:  # the trail stays open: the next start tries again
+            print(f"  not put back: {type(exc).__name__}: {exc}; the trail stays open", file=sys.stderr)
+            return False
+        for note in done.notes:
+            print(f"  {note}", file=sys.stderr)
+        if not done.applied and not done.other_vehicle:
+            print(f"  not put back: run `companion recover --connect {args.connect} --yes` (or answer y), "
+                  "then start again", file=sys.stderr)
+            return False
+        for problem in done.problems:
+            print(f"  could not put back: {problem}", file=sys.stderr)
+        if done.applied and not done.complete:
+            print(f"  put back except the items above; campaign {trail.campaign_id} stays open: fix them (or set "
+                  f"them by hand) and run `companion recover --connect {args.connect} --yes` again",
+                  file=sys.stderr)
+            return False
+        if done.applied:
+            print(f"  put back; campaign {trail.campaign_id} closed as interrupted", file=sys.stderr)
+    return True

@@ -5,8 +5,12 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.cli.commands._common import (add_procedure_argument, add_schedules_argument, ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
-                                       print_json, thrust_list)
+from companion.cli.commands._campaign_text import phase_line, verification_lines
+from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_procedure_argument, apply_procedure,
+                                            add_recovery_argument, add_schedules_argument, add_store_argument,
+                                            connected_vehicle, follow_interrupted_trails, link_fit_for_identification, link_quality_record,
+                                            print_json,
+                                            thrust_list)
 
 
 def add_parser(subparsers) -> None:
@@ -21,6 +25,7 @@ def add_parser(subparsers) -> None:
                              "ArduPilot DataFlash .bin, a PX4 .ulg or a CSV (t, yaw, rudder, speed); ordinary course "
                              "changes at steady speed are enough (--profile decodes the actuators; default sim)")
     add_store_argument(parser)
+    add_recovery_argument(parser)
     parser.add_argument("--thrusts", type=thrust_list, default=None,
                         help="thrust settings (default: the autopilot's: 60..100%% on our simulator and ArduRover, "
                              "45..65%% on ArduSub)")
@@ -34,6 +39,10 @@ def add_parser(subparsers) -> None:
                         help="the seeds' exact estimator (P0 = 100·I, zero-order holds) instead of the defaults")
     parser.add_argument("--no-write", action="store_true", help="design the gains but do not write them")
     parser.add_argument("--r2-threshold", type=float, default=None, help="validation acceptance threshold (default: 0.61)")
+    parser.add_argument("--max-distance", type=float, default=None, metavar="M",
+                        help="abort and restore if the vehicle goes more than M metres over ground from where the "
+                             "campaign started (default: not checked; the default campaign's straight runs add up "
+                             "to about 2.6 km)")
     parser.add_argument("--report", metavar="DIR", default=None, help="also write the HTML report into DIR")
     parser.add_argument("--json", action="store_true", help="print the campaign result as JSON")
     parser.set_defaults(func=run)
@@ -56,7 +65,7 @@ def campaign_config(args: argparse.Namespace):
         config = replace(config, depth=args.depth)
     if args.no_steps:
         config = replace(config, step_labels=())
-    config = config.for_procedure(args.procedure)
+    config = apply_procedure(config, args)
     if args.thesis_estimator:
         config = config.with_thesis_estimator()
     if args.no_write:
@@ -77,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
               "mission) is required", file=sys.stderr)
         return 2
     from companion.procedures.app import ConsoleProgress, run_campaign, vehicle_record
+    from companion.procedures.limits import SafetyLimits
     from companion.records.report import write_report
     from companion.records.store import Store
 
@@ -87,23 +97,44 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         with connected_vehicle(args) as (link, abort), Store(args.store) as store:
+            try:
+                limits = SafetyLimits.for_profile(link.profile, max_distance_m=args.max_distance)
+            except ValueError as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return 2
+            if not follow_interrupted_trails(link, store, args, guard=getattr(abort, "guard", None)):
+                return 1
+            if not link_fit_for_identification(link):
+                return 1
             campaign, outcome, campaign_id = run_campaign(
-                link, store, config, vehicle_id=vehicle_record(store, link), abort=abort,
+                link, store, config, vehicle_id=vehicle_record(store, link), abort=abort, limits=limits,
                 console=ConsoleProgress("identification", enabled=not args.json))
-            report = str(write_report(store, campaign_id, args.report)) if args.report else None
+            link_quality = link_quality_record(link, campaign)
+            report = str(write_report(store, campaign_id, args.report)) if args.report and not outcome.store_problems \
+                else None
     except ConnectFailed as exc:
         print(exc, file=sys.stderr)
         return 1
     result = {"campaign_id": campaign_id, "status": outcome.status, "reason": outcome.reason,
-              "restore_problems": outcome.restore_problems, "store": args.store, "report": report,
-              **{k: v for k, v in campaign.result().figures.items() if k in ("accepted", "design", "steps", "final_gains")}}
+              "restore_problems": outcome.restore_problems, "restore_notes": outcome.restore_notes,
+              "store_problems": outcome.store_problems, "link_quality": link_quality,
+              "store": args.store, "report": report,
+              **{k: v for k, v in campaign.result().figures.items() if k in ("accepted", "design", "steps", "final_gains", "checks", "verified",
+                                                               "vehicle_time_s", "vehicle_time_by_phase")}}
     if args.json:
         print_json(result)
     else:
         print(f"campaign {campaign_id}: {outcome.status}" + (f" ({outcome.reason})" if outcome.reason else ""))
+        for line in outcome.restore_problems:
+            print(f"  NOT restored: {line}")
+        for line in outcome.restore_notes + outcome.store_problems:
+            print(f"  {line}")
         for a in result["accepted"]:
             model = ", ".join(f"{k} {v:.4f}" for k, v in a["model"].items() if isinstance(v, float))
             print(f"  {a['axis']:5s} thrust {a['thrust']:.2f} speed {a['speed']:.2f} m/s R2 {a['r2']:.3f}: {model}")
+        for line in filter(None, [phase_line(result.get("vehicle_time_s"), result.get("vehicle_time_by_phase") or {}),
+                                  *verification_lines(result.get("verified"))]):
+            print(f"  {line}")
         if result["final_gains"]:
             print(f"  gains written: {result['final_gains']}")
         if report:

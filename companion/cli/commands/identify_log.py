@@ -5,7 +5,8 @@ cross-validates each one and designs the gain schedules
 (:mod:`companion.procedures.log_identification`), stores them as a campaign of kind ``"log"`` and
 prints one line per segment (used or why not) and the models, or one JSON object (``--json``:
 ``campaign_id``, ``status``, ``reason``, ``log`` with the checks made, ``segments``, ``accepted``,
-``design``, ``gains_written`` (always null: a log cannot verify gains), ``store``, ``report``;
+``design``, ``gains_written`` (always null: a log cannot verify gains), ``export`` (the command
+that writes the designed gains as a parameter file, null without a design), ``store``, ``report``;
 strict JSON, an undetermined number is null with its reason under ``null_reasons``).
 Exit 0 when a model was accepted and the schedules designed, 1 otherwise or for an unreadable log.
 """
@@ -58,6 +59,9 @@ def run_log(args: argparse.Namespace) -> int:
            "accepted": [a.summary() for a in result.accepted],
            "design": {name: to_json(d) for name, d in result.designs.items()} or None,
            "design_errors": result.design_errors, "gains_written": None, "store": args.store, "report": report}
+    from companion.cli.commands.results import export_command
+
+    out["export"] = export_command(args.store, campaign_id) if result.designs and result.status == "completed" else None
     reasons = null_reasons(out["segments"], NULL_REASON, "segments")
     if reasons:
         out["null_reasons"] = reasons
@@ -98,5 +102,10 @@ def _print_table(out: dict, result) -> None:
             gains = ", ".join(f"{k} {v:.3f}" for k, v in point.scheduled.items())
             print(f"    at {point.speed:.2f} m/s: {gains}")
     print("  gains designed, not written: a log cannot check them with heading steps on the vehicle")
+    if result.designs and out["status"] == "completed":
+        from companion.cli.commands.results import export_command
+
+        print(f"  as a parameter file for a ground station: {export_command(out['store'], out['campaign_id'])}"
+              " [--speed M_S] [--format qgc]")
     if out["report"]:
         print(f"  report: {out['report']}")

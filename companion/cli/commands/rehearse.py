@@ -5,7 +5,8 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.cli.commands._common import add_procedure_argument, add_schedules_argument, print_json, thrust_list
+from companion.cli.commands._campaign_text import phase_line, verification_lines
+from companion.cli.commands._common import add_procedure_argument, apply_procedure, add_schedules_argument, print_json, thrust_list
 
 
 def add_parser(subparsers) -> None:
@@ -114,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         campaign = replace(campaign, thrusts=args.thrusts)
     if args.no_steps:
         campaign = replace(campaign, step_labels=())
-    campaign = campaign.for_procedure(args.procedure)
+    campaign = apply_procedure(campaign, args)
     if args.thesis_estimator:
         campaign = campaign.with_thesis_estimator()
     if args.behaviors is None:
@@ -157,10 +158,9 @@ def _fmt(value, spec: str) -> str:
 def print_summary(summary: dict) -> None:
     print(f"rehearsal on preset {summary['preset']} at {summary['speedup']:g}x: {summary.get('status')}"
           + (f" ({summary['reason']})" if summary.get("reason") else ""))
-    phases = summary.get("vehicle_time_by_phase") or {}
-    if phases:
-        print(f"campaign: {_fmt(summary.get('vehicle_time_s'), '.0f')} s of vehicle time ("
-              + ", ".join(f"{name.replace('_', ' ')} {seconds:.0f} s" for name, seconds in phases.items()) + ")")
+    line = phase_line(summary.get("vehicle_time_s"), summary.get("vehicle_time_by_phase") or {})
+    if line:
+        print(line)
     rows = summary.get("runs") or []
     if rows:
         print("\nyaw models (identified vs the simulator's linearised truth) and designed gains")
@@ -172,13 +172,17 @@ def print_summary(summary: dict) -> None:
                   f"{_fmt(r['delta0'], '7.4f')} {_fmt(r['r2'], '6.3f')} {_fmt(r['converged_s'], '6.1f')} "
                   f"{_fmt(r['kp'], '6.3f')} {_fmt(r['ki'], '7.4f')}")
     steps = summary.get("heading_steps") or []
-    if steps:
+    if steps and not summary.get("verified"):  # the verification's table below says more
         labels = sorted({s["label"] for s in steps})
         print("\n±20° heading steps, max overshoot %")
         print(f"{'thrust':>6} " + " ".join(f"{label:>10}" for label in labels))
         for thrust in sorted({s["thrust"] for s in steps}):
             cells = {s["label"]: s["max_overshoot_pct"] for s in steps if s["thrust"] == thrust}
             print(f"{thrust:6.2f} " + " ".join(f"{_fmt(cells.get(label), '10.1f')}" for label in labels))
+    lines = verification_lines(summary.get("verified"))
+    if lines:
+        print()
+        print("\n".join(lines))
     roll = summary.get("roll")
     if roll:
         print(f"\nroll stabilisation: std {_fmt(roll.get('std_open_deg'), '.2f')} deg open loop -> "

@@ -1,11 +1,12 @@
-"""``companion results``: what the store holds (campaigns, models, gains, behaviour results)."""
+"""``companion results``: what the store holds (campaigns, models, gains, behaviour results); the
+designed gains of a campaign as parameter files ground stations load (``--export``)."""
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
 
-from companion.cli.commands._common import add_store_argument, print_json
+from companion.cli.commands._common import add_store_argument, positive_float, print_json
 
 
 def add_parser(subparsers) -> None:
@@ -15,6 +16,14 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--campaign", type=int, default=None, help="show this campaign in detail (default: list all)")
     parser.add_argument("--report", metavar="DIR", default=None, help="(re)write the HTML report of --campaign (or the latest) into DIR")
     parser.add_argument("--json", action="store_true", help="print JSON")
+    parser.add_argument("--export", metavar="FILE", default=None,
+                        help="write the designed gains of --campaign N as a parameter file a ground station loads: one "
+                             "file per identified speed (FILE-<speed>ms.parm), or one at --speed")
+    parser.add_argument("--speed", type=positive_float, default=None, metavar="M_S",
+                        help="with --export: the gains the schedule gives at this speed, in one file")
+    parser.add_argument("--format", choices=("parm", "qgc"), default=None,
+                        help="with --export: parm (ArduPilot: MAVProxy param load, Mission Planner) or qgc "
+                             "(QGroundControl .params, PX4); default: from the suffix, .params is qgc, else parm")
     parser.set_defaults(func=run)
 
 
@@ -25,6 +34,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"error: no store at {args.store} (run `companion rehearse` or `companion identify`, or pass --store)",
               file=sys.stderr)
         return 1
+    if args.export is not None or args.speed is not None or args.format is not None:
+        return export(args)
     with Store(args.store, read_only=True) as store:  # a reading command never writes to the file
         campaign_id = args.campaign
         if args.report:
@@ -77,3 +88,31 @@ def run(args: argparse.Namespace) -> int:
 def _short(result: dict) -> dict:
     """The scalar part of a behaviour result (time series left out)."""
     return {k: v for k, v in result.items() if isinstance(v, (int, float, str, bool)) or v is None}
+
+
+def export(args: argparse.Namespace) -> int:
+    """``--export FILE [--speed U] [--format parm|qgc]`` of ``--campaign N``."""
+    from companion.cli.main import package_version
+    from companion.records.gain_export import export_gains
+    from companion.records.store import Store
+
+    if args.export is None:
+        print("companion results: error: --speed and --format go with --export FILE", file=sys.stderr)
+        return 2
+    if args.campaign is None:
+        print("companion results: error: --export needs --campaign N (`companion results` lists the campaigns)",
+              file=sys.stderr)
+        return 2
+    with Store(args.store, read_only=True) as store:
+        paths = export_gains(store, args.campaign, args.export, speed=args.speed, fmt=args.format,
+                             generator=f"marine-companion {package_version()}")
+    for path in paths:
+        print(path)
+    return 0
+
+
+def export_command(store: str, campaign_id: int) -> str:
+    """The command that exports a campaign's designed gains (printed by ``identify --log``)."""
+    import shlex
+
+    return f"companion results --store {shlex.quote(store)} --campaign {campaign_id} --export gains.parm"

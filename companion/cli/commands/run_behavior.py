@@ -7,8 +7,9 @@ import math
 import sys
 from dataclasses import replace
 
-from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_store_argument, connected_vehicle,
-                                       print_json)
+from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_recovery_argument,
+                                            add_store_argument, connected_vehicle, follow_interrupted_trails,
+                                            print_json)
 
 
 def add_parser(subparsers) -> None:
@@ -24,6 +25,7 @@ def add_parser(subparsers) -> None:
     parser.add_argument("behavior", choices=("roll", "min-speed", "steady-state"))
     add_connect_arguments(parser)
     add_store_argument(parser)
+    add_recovery_argument(parser)
     parser.add_argument("--duration", type=float, default=None,
                         help="vehicle seconds of closed-loop operation (default: roll 60, min-speed 200); "
                              "steady-state: per leg and per turn (default 120 and 150)")
@@ -31,10 +33,11 @@ def add_parser(subparsers) -> None:
                         help="cruise / nominal thrust ratio (default: 0.7; steady-state 0.6 on the legs, 0.5 in "
                              "the turns); on ArduRover a fraction of WP_SPEED")
     parser.add_argument("--period", type=float, default=None, help="min-speed: decision period Ts in s (default: 1)")
-    parser.add_argument("--start", choices=("governed", "ramp", "nominal"), default=None,
+    parser.add_argument("--start", choices=("governed", "levelled", "ramp", "nominal"), default=None,
                         help="min-speed: where seeking starts. governed (default with --preset): move to the analytic "
                              "TR* + 0.008 as fast as the autopilot's depth integrator carries the pitch change (0.22 m "
-                             "depth budget); ramp: move at 0.005/s to TR* + --start-margin; nominal: seek from the "
+                             "depth budget); levelled: the same move with the level-flight pitch change fed forward on "
+                             "the depth set-point (about half the depth error, often a slower settle); ramp: move at 0.005/s to TR* + --start-margin; nominal: seek from the "
                              "nominal thrust (the thesis). Without --preset there is no TR*: nominal")
     parser.add_argument("--start-margin", type=float, default=None, metavar="TR",
                         help="min-speed: the margin over the analytic TR* the move aims at (default: governed 0.008, "
@@ -61,8 +64,9 @@ def min_speed_start(start: str | None, margin: float | None, *, analytic: bool, 
         return MinSpeedProcedureConfig(**fields)
     if not analytic:
         raise ValueError(f"--start {start} needs --preset (the vehicle data that give the analytic TR*)")
-    if start == "governed":
-        return MinSpeedProcedureConfig.governed(**fields, **({"start_margin": margin} if margin is not None else {}))
+    if start in ("governed", "levelled"):
+        build = MinSpeedProcedureConfig.governed if start == "governed" else MinSpeedProcedureConfig.levelled
+        return build(**fields, **({"start_margin": margin} if margin is not None else {}))
     return MinSpeedProcedureConfig(start_margin=0.04 if margin is None else margin, **fields)
 
 
@@ -99,13 +103,15 @@ def run(args: argparse.Namespace) -> int:
                          turns=replace(steady.turns, turn_s=args.duration))
     try:
         with connected_vehicle(args) as (link, abort), Store(args.store) as store:
+            if not follow_interrupted_trails(link, store, args, guard=getattr(abort, "guard", None)):
+                return 1
             outcome = run_named_behavior(name, link, store, vehicle_id=vehicle_record(store, link), campaign_id=None,
                                          abort=abort, preset=args.preset, simulator=args.simulator_hooks,
                                          roll_config=roll, min_speed_config=min_speed, steady_config=steady)
     except ConnectFailed as exc:
         print(exc, file=sys.stderr)
         return 1
-    summary = outcome["summary"]
+    summary = outcome.summary
     if args.json:
         print_json(summary)
     else:

@@ -59,8 +59,8 @@ PROFILE = AutopilotProfile(
     strategy="ardurover",
     water_speed_sensor=False,
     depth_from_pressure=False,
+    vehicle_kind="surface",
     depth_setpoint=False,
-    servo_follows_attitude=True,
     actuator_hold="zoh",
     output_lead_s=0.010,  # 25 Hz snapshots of the 50 Hz rover loop (STREAMS below)
     # yaw only (a boat has no dive plane); thrusts are fractions of WP_SPEED: 60, 80, 100 %
@@ -72,7 +72,7 @@ PROFILE = AutopilotProfile(
 #: GLOBAL_POSITION_INT joins the base streams (the autopilot's own position and altitude).
 #: ATTITUDE and SERVO_OUTPUT_RAW at 25 Hz, every second loop of the 50 Hz rover loop: at 20 Hz the
 #: samples come 40 and 60 ms apart in turn (measured), and 50 Hz is refused (DENIED). Each snapshot
-#: pairs a loop's attitude with that loop's outputs (``servo_follows_attitude``), which the next
+#: pairs a loop's attitude with that loop's outputs (by their time stamps, ``companion.link.snapshot``), which the next
 #: physics step applies: a zero-order hold for the identifier (``actuator_hold``). Pairing with the
 #: previous message instead scattered a22 and b2 by ±5 %, and same-loop pairing with a first-order
 #: hold biased them by −13 % (measured on SITL).
@@ -89,6 +89,7 @@ class Strategy(ArduPilotStrategy):
         self.speed_fraction = math.nan
         self._sent_at = -math.inf
         self._excitation: dict | None = None
+        self._refreshing = False  # targets of a procedure to refresh while in GUIDED (False once forgotten)
         #: learnt override corrections (actuator -> offset in its units), kept between excitations
         self._override_bias: dict[str, float] = {}
 
@@ -97,6 +98,7 @@ class Strategy(ArduPilotStrategy):
 
     def set_heading(self, heading: float) -> None:
         self.heading = heading
+        self._refreshing = True
         self._send()
 
     def set_thrust(self, thrust_level: float) -> None:
@@ -104,7 +106,18 @@ class Strategy(ArduPilotStrategy):
         if not 0.0 <= thrust_level <= 1.0:
             raise ValueError(f"thrust (fraction of WP_SPEED) {thrust_level!r} outside 0..1")
         self.speed_fraction = thrust_level
+        self._refreshing = True
         self._send()
+
+    def forget_targets(self) -> None:
+        """After a restore the procedure's heading and speed are no longer refreshed: a boat left in
+        GUIDED then does what Rover does when its targets stop (it stops after 3 s), as it would had
+        the companion not been there; the next procedure sends its own."""
+        self.heading = self.speed_fraction = math.nan
+        self._refreshing = False
+
+    def forget_excitation(self) -> None:
+        self._excitation = None
 
     def set_depth(self, depth: float) -> None:
         raise self._cannot("depth set-point: it is a boat (run the campaign without a depth)")
@@ -151,6 +164,8 @@ class Strategy(ArduPilotStrategy):
             self._excitation = None  # whoever left MANUAL ended the excitation
         if ended:
             self.ports.overrides.release(None)
+        if self._in_guided():
+            self._refreshing = True  # the companion put it in GUIDED: its targets are kept alive
         self._send()
 
     # ------------------------------------------------------------------ held outputs
@@ -193,8 +208,16 @@ class Strategy(ArduPilotStrategy):
             log.debug("%s held at %.4f reads %.4f: override now %.4f", actuator, held["target"], read, held["command"])
             self.ports.overrides.override(actuator, held["command"])
 
+    def not_ready(self, telemetry: Telemetry) -> str | None:
+        """GUIDED (the campaign's holding mode) needs the EKF's position: Rover refuses the mode without
+        it (measured on SITL before its EKF used GPS: MAV_RESULT_FAILED)."""
+        if not telemetry.finite("north", "east"):
+            return "no position estimate yet (GUIDED, the holding mode, needs one: the EKF is still initialising)"
+        return None
+
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
-        if self._excitation is None and self._in_guided() and telemetry.time_s - self._sent_at >= self.refresh_s:
+        if (self._refreshing and self._excitation is None and self._in_guided()
+                and telemetry.time_s - self._sent_at >= self.refresh_s):
             self._send()
         self._trim_held(telemetry)
         return self.servo_model(telemetry)

@@ -43,12 +43,14 @@ at 20 Hz the doublet's switches fall up to 50 ms between samples and a22/b2 scat
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 from companion.interface import Telemetry
 from companion.link.autopilots.ardupilot import ArduPilotStrategy, yaw_quaternion
 from companion.link.errors import ParamTimeout
 from companion.link.profile import AutopilotProfile, CampaignDefaults
+from companion.link.autopilots.vectored_mix import (STICK_CENTRE, STICK_HALF_RANGE, VECTORED_FACTORS,  # noqa: F401
+                                                    VectoredAxes, throttle_stick, unmix_vectored)
 
 #: the native gain ranges the cascade design keeps to on ArduSub (AC_AttitudeControl_Sub's documented
 #: ATC_ANG_YAW_P 0–6 and ATC_RAT_YAW_I 0–0.05). ATC_RAT_YAW_FF: 0, because ArduSub 4.7 computes the
@@ -89,8 +91,8 @@ PROFILE = AutopilotProfile(
     strategy="ardusub",
     water_speed_sensor=False,
     depth_from_pressure=False,
+    vehicle_kind="underwater",
     depth_setpoint=False,
-    servo_follows_attitude=True,
     actuator_hold="zoh",
     train_full_window=True,
     gain_ranges=GAIN_RANGES,
@@ -101,62 +103,12 @@ PROFILE = AutopilotProfile(
 #: the base streams, GLOBAL_POSITION_INT (depth) and HOME_POSITION (the surface, see Strategy.depth)
 STREAMS = {30: 50.0, 36: 50.0, 32: 10.0, 33: 10.0, 74: 10.0, 242: 0.5}
 
-#: AP_Motors6DOF SUB_FRAME_VECTORED factors (roll, yaw, throttle, forward) of motors 1..6
-VECTORED_FACTORS = (
-    (0.0, 1.0, 0.0, -1.0),
-    (0.0, -1.0, 0.0, -1.0),
-    (0.0, -1.0, 0.0, 1.0),
-    (0.0, 1.0, 0.0, 1.0),
-    (1.0, 0.0, -1.0, 0.0),
-    (-1.0, 0.0, -1.0, 0.0),
-)
-MOTOR_PWM_CENTRE, MOTOR_PWM_HALF_RANGE = 1500.0, 400.0  # MOT_PWM_MIN/MAX 1100/1900
-STICK_CENTRE, STICK_HALF_RANGE = 1500, 400  # RC 3/4/5 trim and range: no climb, no turn, stop
 ACRO_YAW_P_DEFAULT = 3.375  # ArduSub's ACRO_YAW_P define: MANUAL's yaw scale is ACRO_YAW_P / this
 RELEASE_AFTER_S = 0.25  # a centred stick is held this long (vehicle time) before it is released
 VERTICAL_AVERAGE_S = 10.0  # time constant of ALT_HOLD's mean vertical thrust (its depth loop swings ±0.3)
 DEPTH_STICK_GAIN = 0.3  # MANUAL: throttle (±1) per metre of depth error, around ALT_HOLD's mean
 DEPTH_STICK_LIMIT = 0.3  # the most throttle the depth stick adds
 PILOT_PRESENCE_S = 1.0  # vehicle seconds between "no change" overrides (FS_PILOT_TIMEOUT is 3 s)
-
-
-@dataclass(frozen=True)
-class VectoredAxes:
-    """The vectored frame's demands recovered from its motor outputs (each in ±1).
-
-    ``throttle`` is ArduSub's bidirectional throttle: positive = climb (motors 5/6 have throttle
-    factor −1, so a climb drives them below 1500 µs)."""
-
-    yaw: float
-    forward: float
-    throttle: float = math.nan
-
-
-def _motor_output(pwm) -> float | None:
-    valid = isinstance(pwm, (int, float)) and 800 <= pwm <= 2200
-    return (pwm - MOTOR_PWM_CENTRE) / MOTOR_PWM_HALF_RANGE if valid else None
-
-
-def unmix_vectored(pwm: list[float]) -> VectoredAxes | None:
-    """Least-squares un-mix (Σ fᵢ·oᵢ / Σ fᵢ²) of the thruster outputs in µs; None when one of
-    motors 1..4 is missing. ``throttle`` is NaN without motors 5 and 6."""
-    outputs = [_motor_output(p) for p in list(pwm[:6]) + [None] * (6 - len(pwm[:6]))]
-    if any(o is None for o in outputs[:4]):
-        return None
-
-    def axis(index: int, motors: range) -> float:
-        factors = [VECTORED_FACTORS[m][index] for m in motors]
-        return sum(f * outputs[m] for f, m in zip(factors, motors)) / sum(f * f for f in factors)
-
-    throttle = axis(2, range(4, 6)) if None not in outputs[4:] else math.nan
-    return VectoredAxes(yaw=axis(1, range(4)), forward=axis(3, range(4)), throttle=throttle)
-
-
-def throttle_stick(throttle: float) -> int:
-    """RC 3 PWM that gives MANUAL this bidirectional throttle (set_throttle((norm + 1) / 2));
-    centre for NaN."""
-    value = min(max(throttle, -1.0), 1.0) if math.isfinite(throttle) else 0.0
-    return round(STICK_CENTRE + value * STICK_HALF_RANGE)
 
 
 class Strategy(ArduPilotStrategy):
@@ -211,6 +163,23 @@ class Strategy(ArduPilotStrategy):
         if not (math.isfinite(here) and abs(here - depth) <= 0.5):
             raise self._cannot(f"depth target: ALT_HOLD holds the depth it is entered at ({here:.2f} m), "
                                f"not {depth:.2f} m; bring the vehicle there first or run without a depth")
+
+    def forget_targets(self) -> None:
+        """After a restore the procedure's heading is no longer refreshed (ALT_HOLD then holds the
+        heading it has, as it does without a companion)."""
+        self.heading = math.nan
+
+    def release_after_crash(self, actuators: list[str]) -> None:
+        """ArduSub keeps a released override's last value: each stick a dead companion may have
+        held is centred, then released ``RELEASE_AFTER_S`` later (as :meth:`release` does)."""
+        for actuator in actuators:
+            self.ports.overrides.override_raw(actuator, STICK_CENTRE)
+            self._release_at[actuator] = self.now + RELEASE_AFTER_S
+
+    def on_reboot(self) -> None:
+        super().on_reboot()
+        self._release_at.clear()  # the old boot's sticks: nothing is held on the new one
+        self._manual_depth = math.nan
 
     def _send(self) -> None:
         if not self._in_hold() or not math.isfinite(self.heading):

@@ -113,6 +113,32 @@ class AutopilotStrategy:
     def mode_changed(self, neutral: str) -> None:
         """Called after the link switched mode (targets a new mode needs are sent here)."""
 
+    # ------------------------------------------------------------------ endings
+    def forget_targets(self) -> None:
+        """A procedure's restore is done: targets the strategy refreshes on its own (a GUIDED
+        heading and speed...) are no longer the companion's to send; none by default."""
+
+    def forget_excitation(self) -> None:
+        """End an open-loop excitation without the mode switch that normally ends it (someone else
+        has the vehicle, or it rebooted: the companion must not change its mode); none by default."""
+
+    def release_after_crash(self, actuators: list[str]) -> None:
+        """Give back overrides a companion that died may have left held (its trail names them; this
+        process holds nothing): a release of each channel, repeated like any release."""
+        for actuator in actuators:
+            self.ports.overrides.release(actuator)
+
+    def on_reboot(self) -> None:
+        """The vehicle rebooted: what the strategy kept of the old boot (targets, an excitation, a
+        stick being centred) means nothing on the new one."""
+        self.forget_excitation()
+        self.forget_targets()
+
+    def not_ready(self, telemetry: Telemetry) -> str | None:
+        """Why a procedure cannot start on this vehicle yet (an estimator still initialising ...),
+        None when it can."""
+        return None
+
     # ------------------------------------------------------------------ upkeep
     def on_snapshot(self, telemetry: Telemetry) -> Telemetry:
         """Per-snapshot upkeep (refresh targets); may complete the snapshot (e.g. a commanded

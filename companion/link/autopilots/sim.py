@@ -38,12 +38,13 @@ PROFILE = AutopilotProfile(
     flown=True,
     heading_schedule="heading",
     strategy="sim",
+    reports_heading_target=True,
     thrust_meaning="the simulator's thrust ratio (its thruster map, SPEC §3.5), sent as DO_CHANGE_SPEED percent",
 )
 
 
 class Strategy(ArduPilotStrategy):
-    streams = {**BASE_STREAMS, 29: 10.0}  # + SCALED_PRESSURE (depth)
+    streams = {**BASE_STREAMS, 29: 10.0, 62: 10.0}  # + SCALED_PRESSURE (depth), NAV_CONTROLLER_OUTPUT (targets)
     # the holding mode keeps the last thrust and heading commanded and the mass servo its position
     persistent_setpoints = ("thrust", "heading", "rolling_mass")
 

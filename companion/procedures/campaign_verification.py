@@ -1,0 +1,157 @@
+"""The short campaign's verification: the steps it flies, their predictions and the verdict
+(``companion.procedures.verified_design`` says which steps and why).
+
+:class:`CampaignVerification` is the campaign's bookkeeping for it. The campaign asks it for the
+next step to fly at each of its slots — the lowest speed's own design right after that model was
+accepted, then, after the design, the schedule at the highest speed (where the vehicle is), the
+schedule at the lowest where the own design's flight does not stand for it, and the original gains
+where a flown step was not predicted by its model — each slot answering None when there is nothing
+to fly. Every flown step is recorded with the model's prediction for the same gains; the schedule
+and the original gains are predicted at every identified speed; :meth:`decide` applies the
+:class:`~companion.procedures.verified_design.KeepRule`.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from typing import Sequence
+
+from behaviors.gain_scheduling import GainDesign, ScheduleKind
+from behaviors.verification import VerificationConfig, VerificationStep
+from companion.numerics.step_response import SETTLE_BAND
+from companion.procedures.verified_design import CONTROLLERS, HeadingLimits, KeepRule, predicted_step
+
+log = logging.getLogger(__name__)
+
+
+class CampaignVerification:
+    """Which verification steps to fly, their predictions, and the verdict (module docstring)."""
+
+    def __init__(self, kind: ScheduleKind, config: VerificationConfig, rule: KeepRule,
+                 limits: HeadingLimits) -> None:
+        self.kind, self.config, self.rule, self.limits = kind, config, rule, limits
+        self.controller = CONTROLLERS.get(kind.name, "pi")
+        self.flown: list[dict] = []
+        self.predicted: list[dict] = []
+        self.coverage: dict[float, str] = {}  # lowest thrust -> whether its own-design flight stands for the schedule
+        self._sign = 1.0
+
+    # ------------------------------------------------------------------ the models
+    @staticmethod
+    def _yaw(attempts: Sequence) -> list:
+        return sorted((a for a in attempts if a.axis == "yaw" and a.accepted), key=lambda a: a.thrust)
+
+    def _model_at(self, attempts: Sequence, thrust: float):
+        models = self._yaw(attempts)
+        return min(models, key=lambda a: abs(a.thrust - thrust)).model if models else None
+
+    def _predict(self, model, gains: dict[str, float], duration_s: float | None = None) -> dict:
+        """The model's step with ``gains``, over ``duration_s`` (default: the longest a flown step lasts)."""
+        duration = duration_s if duration_s and math.isfinite(duration_s) and duration_s > 1.0 else self.config.max_s
+        return predicted_step(self.controller, model, gains, self.limits, self.config.step, duration)
+
+    def _step(self, thrust: float, gains: dict[str, float], label: str, *, steady_now: bool = False) -> VerificationStep:
+        step = VerificationStep(thrust, gains, self.config, sign=self._sign, rudder_max=self.limits.rudder_max,
+                                label=label, steady_now=steady_now)
+        self._sign = -self._sign  # alternate, so the campaign stays near its course
+        return step
+
+    # ------------------------------------------------------------------ the slots
+    def own_step(self, attempts: Sequence, thrust: float) -> VerificationStep | None:
+        """The lowest speed's own design, flown right after its model was accepted (None without one)."""
+        models = [a for a in self._yaw(attempts) if a.thrust == thrust]
+        if not models:
+            return None
+        attempt = models[-1]
+        try:
+            gains = self.kind.model_gains(attempt.model, attempt.speed)
+        except ValueError as exc:  # no design at this speed: the schedule is flown there later
+            log.info("no own design at thrust %.2f: %s", thrust, exc)
+            return None
+        return self._step(thrust, gains, "own", steady_now=True)  # right after the validation record
+
+    def ends(self, design: GainDesign) -> tuple[float, float] | None:
+        """The lowest and highest identified thrusts of the design (None without points)."""
+        thrusts = sorted(point.thrust for point in design.points if point.thrust is not None)
+        return (thrusts[0], thrusts[-1]) if thrusts else None
+
+    def scheduled_step(self, design: GainDesign | None, end: str, *, here: float | None = None) -> VerificationStep | None:
+        """The schedule at the ``"highest"`` or ``"lowest"`` identified speed, unless already flown
+        there (the schedule itself, or an own design the schedule agrees with). ``here``: the thrust
+        whose validation record the campaign has just ended, steady (a step there starts at once)."""
+        ends = self.ends(design) if design is not None else None
+        if ends is None:
+            return None
+        thrust = ends[1] if end == "highest" else ends[0]
+        if any(s["thrust"] == thrust and s["label"] == "scheduled" for s in self.flown):
+            return None
+        if self.coverage.get(thrust) == "covered":
+            return None
+        point = next(p for p in design.points if p.thrust == thrust)
+        return self._step(thrust, dict(point.scheduled), "scheduled", steady_now=thrust == here)
+
+    def original_step(self, original: dict[str, float], end: str, design: GainDesign | None) -> VerificationStep | None:
+        """The original gains at a verified speed whose flown step its model did not predict (the
+        comparison with them is then flown, not predicted); None otherwise."""
+        ends = self.ends(design) if design is not None else None
+        if ends is None or not original:
+            return None
+        thrust = ends[1] if end == "highest" else ends[0]
+        designed = [s for s in self.flown if s["thrust"] == thrust and s["label"] in ("scheduled", "own")]
+        if not designed or any(s["thrust"] == thrust and s["label"] == "original" for s in self.flown):
+            return None
+        step = designed[-1]
+        if step.get("predicted") is None or self.rule.agree(step, step["predicted"]) is None:
+            return None
+        log.info("thrust %.2f: %s; the original gains are flown there", thrust, self.rule.agree(step, step["predicted"]))
+        return self._step(thrust, dict(original), "original")
+
+    # ------------------------------------------------------------------ records
+    def record(self, step: VerificationStep, attempts: Sequence) -> dict:
+        """A flown step's result with the model's prediction for its gains."""
+        result = step.result()
+        model = self._model_at(attempts, step.thrust)
+        flown_s = step.metrics.get("duration_s")
+        result["predicted"] = self._predict(model, step.gains, flown_s) if model is not None else None
+        self.flown.append(result)
+        return result
+
+    def predict(self, design: GainDesign, attempts: Sequence, original: dict[str, float]) -> None:
+        """The schedule's and the original gains' steps at every identified speed, on its model; and
+        whether the lowest speed's own-design flight stands for the schedule there."""
+        self.predicted = []
+        for point in design.points:
+            model = self._model_at(attempts, point.thrust)
+            if model is None:
+                continue
+            scheduled = self._predict(model, point.scheduled)
+            self.predicted.append({"thrust": point.thrust, "speed": point.speed, "label": "scheduled", **scheduled})
+            if original:
+                self.predicted.append({"thrust": point.thrust, "speed": point.speed, "label": "original",
+                                       **self._predict(model, original)})
+            own = next((s for s in self.flown if s["thrust"] == point.thrust and s["label"] == "own"), None)
+            if own is not None and own.get("predicted") is not None:
+                self.coverage[point.thrust] = "covered" if self.rule.covers(own["predicted"], scheduled) else \
+                    "not covered"
+
+    def decide(self) -> str | None:
+        """The keep rule's verdict (None: the gains may be written)."""
+        return self.rule.verdict(self.flown, self.predicted)
+
+    def summary(self) -> dict:
+        """Flown and predicted steps (figures only, no series), the coverage and the rule, for JSON."""
+        def figures(step: dict) -> dict:
+            keep = ("thrust", "label", "decided", "why_undecided", "flights", "max_overshoot_pct", "iae_s",
+                    "oscillations", "overshoot_pct", "settling_time_s", "rise_time_s", "speed", "saturated")
+            out = {k: step[k] for k in keep if k in step}
+            if step.get("steps"):
+                out["settling_time_s"] = step["steps"][0].get("settling_time_s", math.nan)
+                out["duration_s"] = step["steps"][0].get("duration_s", math.nan)
+            if step.get("predicted") is not None:
+                out["predicted"] = {k: step["predicted"][k] for k in ("overshoot_pct", "iae_s", "settling_time_s",
+                                                                         "oscillations", "saturated")}
+            return out
+
+        return {"flown": [figures(s) for s in self.flown], "predicted": [figures(s) for s in self.predicted],
+                "coverage": {f"{t:.2f}": v for t, v in self.coverage.items()}, "settle_band": SETTLE_BAND,
+                "controller": self.controller}

@@ -1,0 +1,172 @@
+"""Which heading steps a short campaign flies, what it predicts instead, and when its gains stay
+(SPEC C5: "every design is checked by heading steps through the autopilot before it is kept").
+
+The thesis compared three gain sets by flying each at every speed (Fig. 3.16): 15 steps, four fifths
+of a campaign's time at sea. A product only needs to know that the gains it writes are good:
+
+* **flown**: the designed gains' step at the lowest and the highest identified speed. The schedule
+  between them is an interpolation of one design rule through models that each passed validation
+  (R² ≥ 0.9 on a fresh record), and those two speeds bracket the dynamics (the slowest and the
+  fastest yaw response). The lowest is flown right after its own model was accepted, with that
+  model's own design (the vehicle is there and steady: no extra settle); the highest at the end,
+  with the fitted schedule. A step is ``behaviors.verification.VerificationStep``: one step that
+  ends when it has decided.
+* **predicted**: every other step — the schedule at each identified speed, and the original gains
+  everywhere — flown on the accepted model under the autopilot's own heading controller
+  (``companion.numerics.step_response``, eq. A.1 / A.2).
+
+:class:`KeepRule` decides. The gains are written only when (1) every flown step decided, overshot at
+most ``max_overshoot_pct`` and reversed at most ``max_oscillations`` times; (2) the model predicted
+each flown step (overshoot within ``overshoot_tolerance_pct`` points, step error within
+``iae_tolerance`` of it) — otherwise the predictions cannot stand in for flights and the original
+gains are flown at that speed too, and compared as flown; (3) at every identified speed the
+schedule's predicted step passes (1) and its error is below the original gains' (predicted, or
+flown where (2) failed); and (4) a speed flown with its own model's design is covered by the
+schedule: the two predicted steps agree within the same tolerances, else the schedule is flown
+there too. Measured on the simulator (in-process, 3 seeds × 5 speeds): predicted overshoot within
+0.5 points of the flown one for the original gains and 0.1–2 points below it for the designed
+ones (the flown step's noise), predicted step error 3–6 % above the flown one.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+from companion.checks import require_non_negative, require_positive
+from companion.numerics.step_response import RudderPlant, predict_step
+
+#: the autopilot's heading controller each schedule kind is the gains of (eq. A.1, eq. A.2)
+CONTROLLERS = {"heading": "pi", "cascade": "cascade"}
+#: read with the original gains (never written: a restore finds them unchanged), for the predictions
+LIMIT_PARAMETERS = ("rudder_max", "rudder_rate", "heading_imax", "turn_rate_max", "heading_rate_imax")
+
+
+@dataclass(frozen=True)
+class HeadingLimits:
+    """What bounds a heading step besides the gains: the rudder's limit and slew rate (rad, rad/s),
+    the PI's integrator clamp (rad), the cascade's full scale (rad per unit output) and turn-rate
+    limit (rad/s)."""
+
+    rudder_max: float
+    rudder_rate: float = math.inf
+    imax: float = 0.15
+    full_scale: float = 0.5236
+    rate_max: float = math.inf
+
+    @classmethod
+    def from_vehicle(cls, values: dict[str, float], *, full_scale: float, rudder_rate: float | None) -> "HeadingLimits":
+        """From the parameters read with the original gains (:data:`LIMIT_PARAMETERS`) and the
+        profile's rudder full scale and servo rate; what the vehicle does not say takes the profile's."""
+        rate = values.get("rudder_rate", rudder_rate if rudder_rate else math.inf)
+        turn = values.get("turn_rate_max", 0.0)
+        return cls(rudder_max=values.get("rudder_max", full_scale), rudder_rate=rate if rate and rate > 0 else math.inf,
+                   imax=values.get("heading_imax", 0.15), full_scale=full_scale,
+                   rate_max=math.radians(turn) if turn and turn > 0 else math.inf)
+
+
+def predicted_step(controller: str, model, gains: dict[str, float], limits: HeadingLimits, step: float,
+                   duration_s: float) -> dict:
+    """One heading step of ``step`` rad flown on the yaw ``model`` (a22, b2, δ0) with ``gains``,
+    scored over ``duration_s`` (a flown step's own length when compared with it: the step error
+    integrates to the end of the record)."""
+    plant = RudderPlant(model.a22, model.b2, model.delta0, limits.rudder_max, limits.rudder_rate)
+    options = {"imax": limits.imax} if controller == "pi" else {"full_scale": limits.full_scale,
+                                                                "rate_max": limits.rate_max}
+    return predict_step(plant, controller, gains, abs(step), duration_s, **options)
+
+
+@dataclass(frozen=True)
+class KeepRule:
+    """When verified gains stay on the vehicle (module docstring)."""
+
+    max_overshoot_pct: float = 10.0
+    max_oscillations: int = 1
+    overshoot_tolerance_pct: float = 3.0  # points between a flown step's overshoot and its prediction
+    iae_tolerance: float = 0.2  # relative difference between a flown step's error and its prediction
+    better_than_original: bool = True
+
+    def __post_init__(self) -> None:
+        require_non_negative(self, "max_overshoot_pct")
+        require_positive(self, "overshoot_tolerance_pct", "iae_tolerance")
+        if not (isinstance(self.max_oscillations, int) and self.max_oscillations >= 0):
+            raise ValueError(f"KeepRule.max_oscillations must be an integer ≥ 0, not {self.max_oscillations!r}")
+
+    # ------------------------------------------------------------------ pieces
+    def step_fails(self, step: dict) -> str | None:
+        """Why one step (flown or predicted) does not pass, None when it does."""
+        overshoot = step.get("max_overshoot_pct", step.get("overshoot_pct"))
+        if not (isinstance(overshoot, (int, float)) and math.isfinite(overshoot)):
+            return "no overshoot measured"
+        if overshoot > self.max_overshoot_pct:
+            return f"overshoot {overshoot:.1f} % > {self.max_overshoot_pct:g} %"
+        if step.get("oscillations", 0) > self.max_oscillations:
+            return f"the heading oscillates ({step['oscillations']} reversals)"
+        return None
+
+    def agree(self, flown: dict, predicted: dict) -> str | None:
+        """None when ``predicted`` matches ``flown`` within the tolerances, else how it does not."""
+        flown_overshoot = flown.get("max_overshoot_pct", flown.get("overshoot_pct", math.nan))
+        overshoot_gap = abs(flown_overshoot - predicted["overshoot_pct"])
+        flown_iae, predicted_iae = flown.get("iae_s", math.nan), predicted["iae_s"]
+        iae_gap = abs(flown_iae / predicted_iae - 1.0) if predicted_iae > 0 else math.inf
+        if not overshoot_gap <= self.overshoot_tolerance_pct:
+            return (f"overshoot {flown_overshoot:.1f} % where {predicted['overshoot_pct']:.1f} % was predicted "
+                    f"(tolerance {self.overshoot_tolerance_pct:g} points)")
+        if not iae_gap <= self.iae_tolerance:
+            return (f"step error {flown_iae:.2f} s where {predicted_iae:.2f} s was predicted "
+                    f"(tolerance {self.iae_tolerance:.0%})")
+        return None
+
+    # ------------------------------------------------------------------ the verdict
+    def verdict(self, flown: Sequence[dict], predicted: Iterable[dict]) -> str | None:
+        """None when the designed gains may stay, else why not (one sentence).
+
+        ``flown``: the flown steps (``label`` "scheduled" or "own", or "original" where a prediction
+        failed), each with ``thrust``, ``decided``, its metrics and ``predicted`` (the model's step
+        with the same gains); ``predicted``: per identified thrust, the schedule's and the original
+        gains' predicted steps (``label`` "scheduled" / "original")."""
+        designed = [s for s in flown if s["label"] in ("scheduled", "own")]
+        if not designed:
+            return "no verification step was flown"
+        untrusted: set[float] = set()
+        for step in designed:
+            where = f"thrust {step['thrust']:.2f}"
+            if not step.get("decided", True):
+                return f"{where}: {step.get('why_undecided') or 'the step could not decide'}"
+            failure = self.step_fails(step)
+            if failure:
+                return f"{where}: {failure}"
+            if step.get("predicted") is not None and self.agree(step, step["predicted"]) is not None:
+                untrusted.add(step["thrust"])
+        flown_original = {s["thrust"]: s for s in flown if s["label"] == "original"}
+        for thrust in sorted(untrusted):
+            step = next(s for s in designed if s["thrust"] == thrust)
+            original = flown_original.get(thrust)
+            if original is None:
+                return (f"thrust {thrust:.2f}: the model did not predict the flown step "
+                        f"({self.agree(step, step['predicted'])}) and the original gains were not flown there")
+            if self.better_than_original and not step["iae_s"] < original["iae_s"]:
+                return (f"thrust {thrust:.2f}: not better than the original gains as flown "
+                        f"(step error {step['iae_s']:.2f} s vs {original['iae_s']:.2f} s)")
+        by_thrust: dict[float, dict[str, dict]] = {}
+        for step in predicted:
+            by_thrust.setdefault(step["thrust"], {})[step["label"]] = step
+        for thrust, steps in sorted(by_thrust.items()):
+            scheduled = steps.get("scheduled")
+            if scheduled is None:
+                continue
+            failure = self.step_fails(scheduled)
+            if failure:
+                return f"thrust {thrust:.2f} (predicted): {failure}"
+            original = steps.get("original")
+            if (self.better_than_original and original is not None and thrust not in untrusted
+                    and not scheduled["iae_s"] < original["iae_s"]):
+                return (f"thrust {thrust:.2f} (predicted): not better than the original gains "
+                        f"(step error {scheduled['iae_s']:.2f} s vs {original['iae_s']:.2f} s)")
+        return None
+
+    def covers(self, own: dict, scheduled: dict) -> bool:
+        """The schedule's predicted step at a speed flown with that speed's own design agrees with
+        the own design's prediction (so the flight stands for the schedule there)."""
+        return self.agree(own, scheduled) is None

@@ -1,0 +1,166 @@
+"""The short campaign's verification: one heading step that ends when it has decided, the model's
+prediction of it, and the rule that keeps or refuses the gains (companion.procedures.verified_design)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from behaviors.base import Status
+from behaviors.verification import VerificationConfig, VerificationStep
+from companion.interface import SetHeading, Telemetry
+from companion.numerics.angles import wrap_pi
+from companion.procedures.verified_design import HeadingLimits, KeepRule, predicted_step
+
+RUDDER_MAX = math.radians(30.0)
+
+
+@dataclass(frozen=True)
+class YawModel:
+    a22: float = -1.0
+    b2: float = 0.7
+    delta0: float = 0.0
+
+
+def _fly(step: VerificationStep, model: YawModel, speed=lambda t: 1.2, seconds: float = 120.0, dt: float = 0.05,
+         noise: float = 0.0, seed: int = 1) -> list[float]:
+    """A vehicle whose autopilot holds the set heading with the step's PI gains (eq. A.1) on the
+    first-order yaw model (eq. 3.6); returns the vehicle times at which a step began."""
+    rng = np.random.default_rng(seed)
+    kp, ki = step.gains["heading_p"], step.gains["heading_i"]
+    heading = rate = integral = 0.0
+    target, t, began = 0.0, 0.0, []
+    while t < seconds and not step.status.finished:
+        telemetry = Telemetry(time_s=t, yaw=wrap_pi(heading + noise * rng.standard_normal()), yaw_rate=rate,
+                              speed_water=speed(t) + noise * rng.standard_normal(), rudder=0.0)
+        error = wrap_pi(target - heading)
+        rudder = min(max(kp * error + integral, -RUDDER_MAX), RUDDER_MAX)
+        telemetry = Telemetry(**{**telemetry.__dict__, "rudder": rudder})
+        flights = step.flights
+        for command in step.tick(telemetry):
+            if isinstance(command, SetHeading):
+                target = command.heading
+        if step.flights > flights:
+            began.append(t)
+        integral = min(max(integral + ki * error * dt, -0.15), 0.15)
+        rate += (model.a22 * rate + model.b2 * (rudder - model.delta0)) * dt
+        heading += rate * dt
+        t = round(t + dt, 6)
+    return began
+
+
+GAINS = {"heading_p": 0.8, "heading_i": 0.05}
+
+
+def test_a_decided_step_is_flown_once_and_its_prediction_agrees_with_it():
+    step = VerificationStep(0.6, GAINS, VerificationConfig(), rudder_max=RUDDER_MAX, label="own")
+    _fly(step, YawModel())
+    assert step.status is Status.SUCCESS and step.flights == 1
+    flown = step.result()
+    predicted = predicted_step("pi", YawModel(), GAINS, HeadingLimits(rudder_max=RUDDER_MAX),
+                               VerificationConfig().step, step.metrics["duration_s"])
+    assert KeepRule().agree(flown, predicted) is None
+    assert step.metrics["duration_s"] < VerificationConfig().max_s  # it ended on the band, not the clock
+
+
+def test_a_chained_step_waits_for_a_speed_bump_to_pass_and_is_then_flown_once():
+    bump = lambda t: 1.1 + (0.12 * math.exp(-(t - 2.0) / 1.5) if t > 2.0 else 0.1 * t / 2.0)  # noqa: E731
+    step = VerificationStep(0.6, GAINS, VerificationConfig(), rudder_max=RUDDER_MAX, steady_now=True)
+    began = _fly(step, YawModel(), speed=bump, noise=0.005)
+    assert step.status is Status.SUCCESS and step.flights == 1
+    assert began[0] > 4.0  # not on the bump's crest (two-second means are flat there)
+    assert abs(bump(began[0]) - 1.1) < 0.015 * 1.1 * 2
+
+    steady = VerificationStep(0.6, GAINS, VerificationConfig(), rudder_max=RUDDER_MAX, steady_now=True)
+    began_steady = _fly(steady, YawModel(), noise=0.005)
+    assert began_steady[0] <= 3.5  # three one-second means, no settle
+
+
+def test_a_step_disturbed_twice_cannot_decide_and_says_why():
+    surging = lambda t: 1.2 + 0.3 * math.sin(t / 3.0)  # noqa: E731 - the speed never holds
+    step = VerificationStep(0.6, GAINS, VerificationConfig(settle_max_s=5.0), rudder_max=RUDDER_MAX)
+    _fly(step, YawModel(), speed=surging)
+    assert step.status is Status.FAILURE and step.flights == 2
+    assert not step.decided and "disturbed" in step.why_undecided
+
+
+def test_the_keep_rule_refuses_what_overshoots_what_was_not_predicted_and_what_is_worse_than_the_original():
+    rule = KeepRule()
+    good = {"thrust": 0.6, "label": "own", "decided": True, "max_overshoot_pct": 5.0, "iae_s": 2.6, "oscillations": 0,
+            "predicted": {"overshoot_pct": 4.4, "iae_s": 2.7}}
+    predicted = [{"thrust": 0.6, "label": "scheduled", "overshoot_pct": 4.4, "iae_s": 2.9, "oscillations": 0},
+                 {"thrust": 0.6, "label": "original", "overshoot_pct": 19.0, "iae_s": 4.5, "oscillations": 0}]
+    assert rule.verdict([good], predicted) is None
+    assert "no verification step" in rule.verdict([], predicted)
+    overshooting = {**good, "max_overshoot_pct": 12.0}
+    assert "overshoot 12.0 %" in rule.verdict([overshooting], predicted)
+    undecided = {**good, "decided": False, "why_undecided": "the step was saturated"}
+    assert "saturated" in rule.verdict([undecided], predicted)
+    surprising = {**good, "iae_s": 4.0}  # the model did not predict it: its predictions cannot stand in
+    assert "original gains were not flown" in rule.verdict([surprising], predicted)
+    flown_original = {"thrust": 0.6, "label": "original", "decided": True, "max_overshoot_pct": 18.0, "iae_s": 3.5,
+                      "oscillations": 0}
+    assert "not better than the original" in rule.verdict([surprising, flown_original], predicted)
+    assert rule.verdict([surprising, {**flown_original, "iae_s": 5.0}], predicted) is None
+    worse_predicted = [predicted[0], {**predicted[1], "iae_s": 2.0}]
+    assert "(predicted): not better" in rule.verdict([good], worse_predicted)
+
+
+def test_a_prediction_sees_the_rudder_limit_and_the_schedule_covered_by_a_nearby_design():
+    limits = HeadingLimits(rudder_max=math.radians(5.0))
+    saturated = predicted_step("pi", YawModel(), {"heading_p": 3.0, "heading_i": 0.1}, limits, math.radians(20.0), 25.0)
+    assert saturated["saturated"]
+    free = predicted_step("pi", YawModel(), GAINS, HeadingLimits(rudder_max=RUDDER_MAX), math.radians(20.0), 25.0)
+    assert not free["saturated"]
+    nearby = predicted_step("pi", YawModel(), {"heading_p": 0.82, "heading_i": 0.05}, HeadingLimits(rudder_max=RUDDER_MAX),
+                            math.radians(20.0), 25.0)
+    far = predicted_step("pi", YawModel(), {"heading_p": 0.3, "heading_i": 0.05}, HeadingLimits(rudder_max=RUDDER_MAX),
+                         math.radians(20.0), 25.0)
+    assert KeepRule().covers(free, nearby) and not KeepRule().covers(free, far)
+
+
+@pytest.mark.parametrize("bad", [{"max_oscillations": -1}, {"overshoot_tolerance_pct": 0.0}])
+def test_a_keep_rule_with_impossible_numbers_is_refused(bad):
+    with pytest.raises(ValueError):
+        KeepRule(**bad)
+
+
+# ---------------------------------------------------------------------------- the campaign
+def _quick_campaign(seed: int, **changes):
+    from dataclasses import replace
+
+    from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
+    from companion.procedures.runner import RestorePoint, run_procedure
+    from harness.inprocess import InProcessLink
+
+    link = InProcessLink(seed=seed)
+    config = replace(CampaignConfig(thrusts=(0.7, 0.85, 1.0), axes=("yaw",)).quick(), **changes)
+    campaign = IdentificationCampaign(config)
+    restore = RestorePoint.capture(link, campaign.footprint)
+    campaign.original_gains = dict(restore.parameters)
+    return link, campaign, run_procedure(link, campaign), restore
+
+
+def test_the_quick_campaign_flies_the_ends_predicts_the_middle_and_writes_what_it_verified():
+    link, campaign, outcome, _ = _quick_campaign(3)
+    assert outcome.status == "completed" and campaign.config.checked == "verify"
+    flown = campaign.verifier.flown
+    assert [(s["thrust"], s["label"]) for s in flown] == [(0.7, "own"), (1.0, "scheduled")]
+    assert all(s["decided"] and s["flights"] == 1 for s in flown)
+    assert all(KeepRule().agree(s, s["predicted"]) is None for s in flown)
+    assert {s["thrust"] for s in campaign.verifier.predicted} == {0.7, 0.85, 1.0}
+    phases = campaign.phases_in_order()
+    assert "verification" in phases and "heading_steps" not in phases
+    assert list(phases)[:3] == ["settle", "excitation", "validation"]
+    written = {name: link.param(name) for name in campaign.final_gains}
+    assert written == pytest.approx(campaign.final_gains, rel=1e-6)
+
+
+def test_a_verification_that_cannot_pass_leaves_the_original_gains():
+    link, campaign, outcome, restore = _quick_campaign(3, keep=KeepRule(max_overshoot_pct=0.5))
+    assert outcome.status == "failed" and "overshoot" in outcome.reason
+    assert campaign.final_gains is None
+    for name, value in restore.parameters.items():
+        assert link.param(name) == pytest.approx(value)
