@@ -1,6 +1,7 @@
 """Faults tried and survived (the fault-injection suite): the matrix fault kind × phase × seed,
-one fault per case, each through ``harness.fault_proxy.FaultProxy`` between the companion and a
-``--lockstep`` simulator (``harness/fault_cases.py`` runs and checks a case).
+one fault per case, each through ``harness.fault_proxy.FaultProxy`` (TCP) or
+``harness.udp_relay.UdpRelay`` (UDP) between the companion and a ``--lockstep`` simulator
+(``harness/fault_cases.py`` runs and checks a case), over each transport asked for.
 
 A case *survived* when no exception escaped the procedure, the vehicle was found again as it was
 (every autopilot parameter, the mode unless the pilot took it, the thrust, the last heading
@@ -8,15 +9,23 @@ set-point, no RC override held) and the store passed ``PRAGMA integrity_check`` 
 committed row and a closed campaign row. The seed moves where in its phase the fault starts (0–4
 frames after the phase's trigger) and which byte a corruption flips.
 
+Restores are counted twice: **confirmed by state** (what the vehicle held afterwards on a direct
+reconnection: every parameter, mode, armed, the thrust it runs at, the heading it steers to, matched
+what it was found with) and **claimed** (the companion ended the procedure and its
+``restore_problems`` were empty); a restore claimed but not confirmed is the dangerous kind and is
+listed.
+
 Columns: ``drop``, ``delay``, ``duplicate``, ``reorder``, ``corrupt`` (bounded to 3 frames of
 either direction within 2 s), ``cut`` (silent: every frame dropped for 0.3 s, sockets open) and
-``cut-closed`` (the connections close; the companion is accepted again 0.5 s later). Prints the
-table of cases survived / tried, the outcomes, the faults that never met their phase (the run ended
-first), and for every case that did not survive what failed and the command that reruns it.
+``cut-closed`` (the connections close; the companion is accepted again 0.5 s later; over UDP there
+is no connection to close: the link is silent for 0.5 s). Prints, per transport, the table of cases
+survived / tried, the outcomes, the restores confirmed by state and claimed, the faults that never
+met their phase (the run ended first), and for every case that did not survive what failed and the
+command that reruns it.
 
-    python bench/bench_faults.py [--seeds 2] [--procedures campaign,roll,min_speed]
+    python bench/bench_faults.py [--transport tcp,udp] [--seeds 2] [--procedures campaign,roll,min_speed]
         [--kinds drop,delay,duplicate,reorder,corrupt,cut,cut-closed] [--speedup 50] [--json]
-    python bench/bench_faults.py --case campaign/excitation:drop:seed1 [-v]   # rerun one case
+    python bench/bench_faults.py --case campaign/excitation:drop:seed1 [--transport udp] [-v]   # rerun one case
 """
 from __future__ import annotations
 
@@ -29,7 +38,8 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from harness.fault_cases import CASE_PROCEDURES, FRAME_KINDS, PHASES, Case, CaseResult, run_case, single_case
+from harness.fault_cases import (CASE_PROCEDURES, FRAME_KINDS, PHASES, TRANSPORTS, Case, CaseResult, run_case,
+                                 single_case)
 from harness.simulator import SimulatorError, start_sim
 
 log = logging.getLogger("bench_faults")
@@ -61,22 +71,24 @@ def matrix(procedures: list[str], kinds: list[str], seeds: int) -> list[tuple[st
 
 
 class Runner:
-    """Runs cases on one simulator, started again if it died."""
+    """Runs cases on one simulator of ``transport``, started again if it died."""
 
-    def __init__(self, speedup: float, workdir: Path) -> None:
-        self.speedup, self.workdir = speedup, workdir
+    def __init__(self, speedup: float, workdir: Path, transport: str = "tcp") -> None:
+        self.speedup, self.workdir, self.transport = speedup, workdir, transport
         self.sim = None
         self.count = 0
 
     def run(self, case: Case) -> CaseResult:
         if self.sim is None or not self.sim.alive():
             self.close()
-            self.sim = start_sim(transport="tcp", speedup=self.speedup, seed=SIM_SEED, lockstep=True)
+            self.sim = start_sim(transport=self.transport, speedup=self.speedup, seed=SIM_SEED, lockstep=True)
         self.count += 1
         try:
-            return run_case(self.sim, case, self.workdir / f"store-{self.count}.sqlite")
+            return run_case(self.sim, case, self.workdir / f"store-{self.transport}-{self.count}.sqlite",
+                            transport=self.transport)
         except Exception as exc:  # noqa: BLE001 - the harness itself failed (e.g. no simulator): a finding too
-            result = CaseResult(case, crash=f"harness: {type(exc).__name__}: {exc}")
+            result = CaseResult(case, crash=f"harness: {type(exc).__name__}: {exc}", transport=self.transport,
+                                state_problems=["not checked: the harness failed"])
             self.close()  # the vehicle may be left in any state: the next case gets a fresh simulator
             return result
 
@@ -111,30 +123,69 @@ def _ratio(results: list[CaseResult]) -> str:
     return f"{sum(r.survived for r in results)}/{len(results)}" if results else "-"
 
 
-def report(rows: list[tuple[str, str, CaseResult]], kinds: list[str], wall_s: float) -> str:
+def report(rows: list[tuple[str, str, CaseResult]], kinds: list[str], wall_s: float, transport: str = "tcp") -> str:
     results = [r for _, _, r in rows]
     outcomes = Counter(r.status or "crash" for r in results)
     fired = sum(1 for r in results if not r.untriggered)
-    lines = [table(rows, kinds), "",
+    confirmed = sum(r.restored_by_state for r in results)
+    claimed = sum(r.restore_claimed for r in results)
+    untrue = [r for r in results if r.restore_claimed and not r.restored_by_state]
+    lines = [f"== {transport.upper()} ==", table(rows, kinds), "",
              f"{len(results)} cases, {sum(r.survived for r in results)} survived (no crash, vehicle restored, store "
              f"intact); outcomes: " + ", ".join(f"{k} {v}" for k, v in sorted(outcomes.items())),
+             f"restores confirmed by state: {confirmed} of {len(results)} (the vehicle held what it was found with); "
+             f"claimed by the companion (restore_problems empty): {claimed} of {len(results)}; claimed but not "
+             f"confirmed: {len(untrue)}",
              f"the fault met its phase in {fired} of {len(results)} cases; the companion broke "
              f"{sum(r.wall_decisions for r in results)} lockstep stalls; {wall_s:.0f} s wall"]
     for result in results:
         if result.untriggered:
             lines.append(f"  never met its phase: {result.case.label} ({result.status}: {result.reason})")
+    rerun = f" --transport {transport}" if transport != "tcp" else ""
     for result in results:
         if not result.survived:
-            lines.append(f"NOT SURVIVED {result.case.label}: {result.status} ({result.reason})")
+            lines.append(f"NOT SURVIVED {result.case.label}: {result.status} ({result.reason})"
+                         + (" [restore claimed, state differs]" if result in untrue else ""))
             lines += [f"    {p}" for p in result.problems]
+            if result.restore_problems:
+                lines.append(f"    the companion said: {result.restore_problems}")
             if result.crash:
                 lines.append(f"    crash: {result.crash.splitlines()[0]}")
-            lines.append(f"    rerun: python bench/bench_faults.py --case {result.case.label} -v")
+            lines.append(f"    rerun: python bench/bench_faults.py --case {result.case.label}{rerun} -v")
     return "\n".join(lines)
+
+
+def run_matrix(cells: list[tuple[str, str, Case]], transport: str, speedup: float, workdir: Path,
+               as_json: bool) -> list[tuple[str, str, CaseResult]]:
+    """Every cell over one transport, on one simulator (started again if it died)."""
+    rows: list[tuple[str, str, CaseResult]] = []
+    runner = Runner(speedup, workdir, transport)
+    try:
+        for number, (label, kind, case) in enumerate(cells, start=1):
+            result = runner.run(case)
+            rows.append((label, kind, result))
+            if as_json:
+                print(json.dumps({"transport": transport, "case": case.label, "survived": result.survived,
+                                  "status": result.status, "reason": result.reason, "problems": result.problems,
+                                  "state_problems": result.state_problems, "crash": result.crash,
+                                  "restored_by_state": result.restored_by_state,
+                                  "restore_claimed": result.restore_claimed,
+                                  "restore_problems": result.restore_problems, "faults": result.faults,
+                                  "before": result.before, "after": result.after, "link": result.link,
+                                  "wall_s": round(result.wall_s, 2)}), flush=True)
+            else:
+                print(f"[{transport} {number}/{len(cells)}] {case.label}: "
+                      f"{'survived' if result.survived else 'NOT SURVIVED'}"
+                      f" ({result.status}{': ' + result.reason if result.reason else ''})"
+                      + "".join(f"\n    {p}" for p in result.problems), file=sys.stderr, flush=True)
+    finally:
+        runner.close()
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--transport", default="tcp", help="tcp, udp or both: tcp,udp (default: %(default)s)")
     parser.add_argument("--seeds", type=int, default=2)
     parser.add_argument("--procedures", default=",".join(CASE_PROCEDURES))
     parser.add_argument("--kinds", default=",".join(KINDS))
@@ -149,35 +200,27 @@ def main(argv: list[str] | None = None) -> int:
     unknown = set(kinds) - set(KINDS)
     if unknown:
         parser.error(f"unknown kinds {sorted(unknown)} (known: {', '.join(KINDS)})")
+    transports = [t for t in args.transport.split(",") if t]
+    if not transports or set(transports) - set(TRANSPORTS):
+        parser.error(f"--transport: one or more of {', '.join(TRANSPORTS)}, not {args.transport!r}")
     if args.case:
         label = args.case.split(":")
         cells = [(label[0], label[1] if len(label) > 1 else "?", parse_case(args.case))]
     else:
         cells = matrix([p for p in args.procedures.split(",") if p], kinds, args.seeds)
-    started = time.monotonic()
-    rows: list[tuple[str, str, CaseResult]] = []
+    reports = []
     with tempfile.TemporaryDirectory(prefix="bench-faults-") as workdir:
-        runner = Runner(args.speedup, Path(workdir))
-        try:
-            for number, (label, kind, case) in enumerate(cells, start=1):
-                result = runner.run(case)
-                rows.append((label, kind, result))
-                if args.json:
-                    print(json.dumps({"case": case.label, "survived": result.survived, "status": result.status,
-                                      "reason": result.reason, "problems": result.problems, "crash": result.crash,
-                                      "restore_problems": result.restore_problems, "faults": result.faults,
-                                      "wall_s": round(result.wall_s, 2)}), flush=True)
-                else:
-                    print(f"[{number}/{len(cells)}] {case.label}: {'survived' if result.survived else 'NOT SURVIVED'}"
-                          f" ({result.status}{': ' + result.reason if result.reason else ''})"
-                          + "".join(f"\n    {p}" for p in result.problems), file=sys.stderr, flush=True)
-        except SimulatorError as exc:
-            print(f"simulator did not start: {exc}", file=sys.stderr)
-            return 1
-        finally:
-            runner.close()
+        for transport in transports:
+            started = time.monotonic()
+            try:
+                rows = run_matrix(cells, transport, args.speedup, Path(workdir), args.json)
+            except SimulatorError as exc:
+                print(f"simulator did not start: {exc}", file=sys.stderr)
+                return 1
+            reports.append(report(rows, list(dict.fromkeys(kind for _, kind, _ in rows)), time.monotonic() - started,
+                                  transport))
     if not args.json:
-        print(report(rows, list(dict.fromkeys(kind for _, kind, _ in rows)), time.monotonic() - started))
+        print("\n\n".join(reports))
     return 0  # a benchmark prints figures, it does not pass or fail
 
 

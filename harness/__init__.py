@@ -8,9 +8,13 @@
 * :mod:`harness.mavlink_clients` — pymavlink clients of that simulator (``connect_client``).
 * :mod:`harness.fault_proxy` — a MAVLink-aware TCP proxy that injects link faults (drop, delay,
   duplicate, reorder, corrupt, cut) between the companion and the vehicle, at phases recognised
-  from the companion's traffic; :mod:`harness.fault_cases` runs a procedure through it and checks
-  that the vehicle and the store come back as found (``tests/test_fault_injection.py``,
-  ``bench/bench_faults.py``).
+  from the companion's traffic, with an optional byte-rate cap; :mod:`harness.udp_relay` — the same
+  faults over UDP plus seeded link conditions (loss, delay, jitter, reordering, duplication, a
+  byte-rate cap); both built from :mod:`harness.mavlink_frames` (frames in a stream or a datagram),
+  :mod:`harness.fault_schedule` (triggers and faults), :mod:`harness.link_conditions` and
+  :mod:`harness.delivery_log` (what the vehicle was last told). :mod:`harness.fault_cases` runs a
+  procedure through either and checks that the vehicle and the store come back as found
+  (``tests/test_fault_injection.py``, ``bench/bench_faults.py``).
 * :mod:`harness.datasets` — synthetic data sets (ROMEO regime points and surge, steady-state
   squares and turns).
 

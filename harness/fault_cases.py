@@ -1,23 +1,28 @@
-"""Fault-injection cases: a procedure run through :class:`harness.fault_proxy.FaultProxy` with a
-schedule of faults, then checked against the vehicle as it was found (the
-fault-injection suite). Shared by ``tests/test_fault_injection.py`` (grouped schedules that cover every fault kind
-at every phase) and ``bench/bench_faults.py`` (the matrix kind × phase × seed, one fault per case).
+"""Fault-injection cases: a procedure run through :class:`harness.fault_proxy.FaultProxy` (TCP) or
+:class:`harness.udp_relay.UdpRelay` (UDP) with a schedule of faults, then checked against the
+vehicle as it was found (the fault-injection suite). Shared by ``tests/test_fault_injection.py``
+(grouped schedules that cover every fault kind at every phase) and ``bench/bench_faults.py`` (the
+matrix kind × phase × seed, one fault per case, over either transport).
 
-A case, on a ``--lockstep`` simulator served over TCP:
+A case, on a ``--lockstep`` simulator served over TCP or UDP (the transport of the case is the
+simulator's: a TCP simulator is reached through the proxy, a UDP one through the relay):
 
-1. connects the companion through a fresh proxy, puts the vehicle in hold, armed, and notes every
-   parameter of the autopilot profile, its mode and its thrust;
+1. connects the companion through a fresh proxy or relay, puts the vehicle in hold, armed, and notes
+   every parameter of the autopilot profile, its mode, its thrust and its heading;
 2. arms the proxy with the case's faults and runs the procedure through the application path
    (``run_campaign`` / ``run_named_behavior``) into a store file; with ``abort_after`` an operator
    abort is requested once the companion has sent that many frames of a kind, so the restore
    itself can be hit;
-3. reconnects directly (no proxy) and compares: every parameter, the mode (unless the outcome says
-   the pilot took the vehicle), the thrust the vehicle runs at, the last heading set-point the
-   vehicle received, no RC override left held, and the store (``PRAGMA integrity_check``, the
-   campaign row closed with a status and a reason, every row the application committed present).
+3. reconnects directly (no proxy) and compares **by state**, what the vehicle holds afterwards:
+   every parameter, the mode (unless the outcome says the pilot took the vehicle), armed, the thrust
+   it runs at and the heading it steers to (the mean yaw over 2 s after 8 s of vehicle time, against
+   the heading it was found holding); then what it was last told (the last heading set-point
+   delivered, no RC override left held) and the store (``PRAGMA integrity_check``, the campaign row
+   closed with a status and a reason, every row the application committed present).
 
-What did not hold is returned as ``problems`` (empty: the case survived); an exception escaping the
-procedure is a ``crash``. Phases are recognised from the companion's own traffic (the first thrust
+What did not hold is returned as ``problems`` (empty: the case survived), the part of them about the
+vehicle's state as ``state_problems`` (empty: the restore is confirmed by state, whatever the
+companion claimed in its ``restore_problems``); an exception escaping the procedure is a ``crash``. Phases are recognised from the companion's own traffic (the first thrust
 set-point is the settle, the first RC override the excitation, the first PARAM_SET the step
 checks' trial gains ...), counted from the clean runs on this simulator (see :data:`PHASES`).
 """
@@ -31,21 +36,28 @@ import traceback
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from harness.fault_proxy import BOTH, FAULT_KINDS, Fault, FaultProxy, Trigger
+from harness.fault_proxy import BOTH, FAULT_KINDS, Fault, FaultProxy, LinkConditions, Trigger
+from harness.udp_relay import UdpRelay
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CASE_PROCEDURES", "FRAME_KINDS", "PHASES", "Case", "CaseResult", "Phase", "closed_cut_case",
-           "mixed_case", "restore_case", "run_case", "single_case", "silent_cut_case"]
+__all__ = ["CASE_PROCEDURES", "FRAME_KINDS", "PHASES", "TRANSPORTS", "Case", "CaseResult", "Phase", "closed_cut_case",
+           "fault_link", "mixed_case", "native_names", "restore_case", "run_case", "single_case", "silent_cut_case",
+           "state_differences", "vehicle_state"]
 
 MAV_CMD_CONDITION_YAW = 115
 MAV_CMD_DO_CHANGE_SPEED = 178
 
 CASE_PROCEDURES = ("campaign", "roll", "min_speed")
+TRANSPORTS = ("tcp", "udp")
 FRAME_KINDS = tuple(kind for kind in FAULT_KINDS if kind != "cut")  # faults on single frames
 #: RC channel value tolerance and set-point tolerances of the checks
 THRUST_TOLERANCE = 0.011  # thrust ratio (the simulator reports whole percent)
 HEADING_TOLERANCE_DEG = 0.01
+#: the heading held, by state: the mean yaw over HEADING_WINDOW_S after HEADING_SETTLE_S of vehicle
+#: time on the direct reconnection, within HEADING_HELD_DEG of the heading found (the yaw wanders
+#: ±0.8° in hold at 70 %; a set-point left at a step's +20° shows at once); only with steerage
+HEADING_SETTLE_S, HEADING_WINDOW_S, HEADING_HELD_DEG, STEERAGE_THRUST = 8.0, 2.0, 3.0, 0.3
 #: the companion's link in the cases: a lockstep stall (a lost acknowledgement or sample) is broken
 #: after 0.1 s of wall clock instead of 1 s (only the wall time of a case depends on it)
 CASE_STALL_S = 0.1
@@ -189,14 +201,31 @@ class CaseResult:
     reason: str | None = None
     crash: str | None = None
     problems: list[str] = field(default_factory=list)
-    restore_problems: list[str] = field(default_factory=list)
+    state_problems: list[str] = field(default_factory=list)  # the vehicle's state afterwards (in problems too)
+    restore_problems: list[str] = field(default_factory=list)  # what the companion itself reported
     faults: list[dict] = field(default_factory=list)  # FaultProxy.summary()
     wall_s: float = 0.0
     wall_decisions: int = 0  # the companion's waits ended on wall clock and lockstep stalls it broke
+    transport: str = "tcp"
+    before: dict = field(default_factory=dict)  # the vehicle as found (no parameters)
+    after: dict = field(default_factory=dict)  # the vehicle afterwards, by state (no parameters)
+    link: dict = field(default_factory=dict)  # the proxy's or relay's counts per direction
+    thrust_sent: list[float] = field(default_factory=list)  # DO_CHANGE_SPEED throttle (%) as the companion sent them
+    thrust_delivered: list[float] = field(default_factory=list)  # ... as the vehicle received them
 
     @property
     def survived(self) -> bool:
         return self.crash is None and not self.problems
+
+    @property
+    def restored_by_state(self) -> bool:
+        """The vehicle held afterwards what it was found with (or was left with on purpose)."""
+        return not self.state_problems
+
+    @property
+    def restore_claimed(self) -> bool:
+        """The companion ended the procedure and said its restore had no problem."""
+        return self.crash is None and self.status is not None and not self.restore_problems
 
     @property
     def untriggered(self) -> list[str]:
@@ -208,7 +237,7 @@ class _AbortAfter:
     """An abort source (polled once per snapshot) that asks for an abort once the companion has sent
     ``count`` frames of ``message`` through the proxy; carries the flag's restore guard."""
 
-    def __init__(self, proxy: FaultProxy, message: str, count: int) -> None:
+    def __init__(self, proxy: FaultProxy | UdpRelay, message: str, count: int) -> None:
         from companion.procedures.app import AbortFlag
 
         self.proxy, self.message, self.count = proxy, message, count
@@ -263,21 +292,32 @@ def min_speed_config():
     return MinSpeedProcedureConfig(settle_s=4.0, duration_s=16.0)
 
 
-def _native_names() -> list[str]:
+def native_names() -> list[str]:
     """Every parameter of the simulator profile (what any procedure could change)."""
     from companion.link.autopilots.sim import PROFILE
 
     return sorted(set(PROFILE.params.values()))
 
 
-def _snapshot(link, names: list[str]) -> dict:
-    """Parameters (native), mode and thrust of the vehicle as ``link`` sees it now."""
+def vehicle_state(link, names: list[str], *, settle_s: float = 0.0, window_s: float = 1.0) -> dict:
+    """Parameters (native), mode, armed, thrust of the vehicle as ``link`` sees it now, and the
+    heading it holds: the circular mean yaw over ``window_s`` of vehicle time after ``settle_s``."""
     params = {name: link.get_param(name) for name in names}
     link.skip_to_now()  # snapshots queued during the blocking calls predate them
     for _ in range(3):  # a few samples: the thrust output follows its set-point within one step
         telemetry = link.next_telemetry(timeout_s=10.0)
-    return {"params": params, "mode": link.mode, "thrust": telemetry.thrust_ratio, "yaw": telemetry.yaw,
-            "armed": link.armed}
+    thrust, start = telemetry.thrust_ratio, telemetry.time_s
+    sines, cosines = [], []
+    for _ in range(int((settle_s + window_s) * 100)):  # bounded: 100 samples per second at most
+        if telemetry.time_s - start >= settle_s + window_s:
+            break
+        if telemetry.time_s - start >= settle_s and math.isfinite(telemetry.yaw):
+            sines.append(math.sin(telemetry.yaw))
+            cosines.append(math.cos(telemetry.yaw))
+        telemetry = link.next_telemetry(timeout_s=10.0)
+    heading = math.atan2(sum(sines), sum(cosines)) if sines else float("nan")
+    return {"params": params, "mode": link.mode, "thrust": thrust, "yaw": telemetry.yaw, "heading": heading,
+            "armed": link.armed, "thrust_late": telemetry.thrust_ratio}
 
 
 def _run_procedure(case: Case, link, store, abort) -> tuple[str, str | None, list[str], object, dict]:
@@ -297,22 +337,59 @@ def _run_procedure(case: Case, link, store, abort) -> tuple[str, str | None, lis
             getattr(out.outcome, "restore", None), {})
 
 
-def run_case(sim, case: Case, store_path: Path, *, connect_timeout_s: float = 20.0) -> CaseResult:
-    """Run ``case`` against the running simulator ``sim`` (``--lockstep``, TCP) and check it."""
+#: the last vehicle time (ms) a companion saw on each UDP lockstep simulator, by port (see
+#: :func:`_resume_udp_lockstep`)
+_UDP_LOCKSTEP_MS: dict[int, int] = {}
+
+
+def _resume_udp_lockstep(sim, link, seen_ms: int | None = None) -> None:
+    """A lockstep simulator over UDP does not notice a companion leaving (UDP has no disconnect): its
+    vehicle time waits at the last sample acknowledged, for an acknowledgement beyond it that a new
+    companion cannot give before it has received a sample. Acknowledge once the last vehicle time a
+    companion saw on this simulator, so the next sample comes (TCP needs none of this)."""
+    if sim.transport != "udp" or not sim.lockstep:
+        return
+    known = max(_UDP_LOCKSTEP_MS.get(sim.port, 0), seen_ms or 0)
+    if known > 0:
+        link.clock.acknowledge(known)
+
+
+def _note_udp_lockstep(sim, link) -> None:
+    if sim.transport == "udp" and link.clock.last_sample_ms is not None:
+        _UDP_LOCKSTEP_MS[sim.port] = max(_UDP_LOCKSTEP_MS.get(sim.port, 0), int(link.clock.last_sample_ms))
+
+
+def fault_link(sim, seed: int = 0, conditions: LinkConditions | dict | None = None) -> FaultProxy | UdpRelay:
+    """The fault tool in front of ``sim`` for its transport: the TCP proxy or the UDP relay (not started)."""
+    if sim.transport == "tcp":
+        return FaultProxy(sim.port, seed=seed, conditions=conditions)
+    return UdpRelay(sim.port, seed=seed, conditions=conditions)
+
+
+def run_case(sim, case: Case, store_path: Path, *, transport: str | None = None, connect_timeout_s: float = 20.0,
+             conditions: LinkConditions | dict | None = None) -> CaseResult:
+    """Run ``case`` against the running simulator ``sim`` (``--lockstep``) over ``transport``
+    ("tcp" through the proxy, "udp" through the relay; None: the simulator's) and check it.
+    ``conditions``: link conditions of the proxy or relay besides the case's faults (none: clean)."""
     from companion.link.vehicle import LinkTimeouts, VehicleLink
     from companion.procedures.app import AbortFlag
     from companion.records.store import Store
 
-    result = CaseResult(case)
-    names = _native_names()
+    transport = transport or sim.transport
+    if transport not in TRANSPORTS or transport != sim.transport:
+        raise ValueError(f"a {transport!r} case needs a simulator listening on {transport} (it listens on "
+                         f"{sim.transport}); transports: {', '.join(TRANSPORTS)}")
+    result = CaseResult(case, transport=transport)
+    names = native_names()
     started = time.monotonic()
-    with FaultProxy(sim.port, seed=case.seed) as proxy:
-        link = VehicleLink.connect(proxy.endpoint, lockstep=True, heartbeat_timeout_s=connect_timeout_s,
+    with fault_link(sim, case.seed, conditions) as proxy:
+        link = VehicleLink.connect(proxy.endpoint, lockstep=sim.lockstep, heartbeat_timeout_s=connect_timeout_s,
                                    timeouts=LinkTimeouts(lockstep_stall_s=CASE_STALL_S))
         try:
+            _resume_udp_lockstep(sim, link)
             link.set_mode("hold")
             link.arm(True)
-            before = _snapshot(link, names)
+            before = vehicle_state(link, names)
             abort = _AbortAfter(proxy, *case.abort_after) if case.abort_after else AbortFlag()
             proxy.arm(case.faults)
             with Store(store_path) as store:
@@ -323,9 +400,13 @@ def run_case(sim, case: Case, store_path: Path, *, connect_timeout_s: float = 20
                     result.crash = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}"
                     status, reason, restore_problems, restore, kept = None, None, [], None, {}
             proxy.disarm()
+            proxy.drain()  # what is still held or in flight reaches the vehicle, as on a real link
             result.wall_decisions = link.clock.wall_timeouts
-            result.status, result.reason, result.restore_problems = status, reason, restore_problems
+            result.status, result.reason, result.restore_problems = status, reason, list(restore_problems)
             result.faults = proxy.summary()
+            result.link = proxy.stats()
+            result.thrust_sent = [d.params[2] for d in proxy.history(MAV_CMD_DO_CHANGE_SPEED, sent=True)]
+            result.thrust_delivered = [d.params[2] for d in proxy.history(MAV_CMD_DO_CHANGE_SPEED)]
             if link.overrides.active:
                 result.problems.append(f"the companion still holds RC overrides {link.overrides.active}")
             held = proxy.held_overrides()
@@ -333,14 +414,22 @@ def run_case(sim, case: Case, store_path: Path, *, connect_timeout_s: float = 20
                 result.problems.append(f"the vehicle was last told to hold RC channels {held}")
             result.problems += _check_setpoints(proxy, restore)
         finally:
+            _note_udp_lockstep(sim, link)
             link.close()
-    result.problems += _check_vehicle(sim, before, names, status, reason, kept, connect_timeout_s)
+    after, result.state_problems = _check_vehicle(sim, before, names, status, reason, kept, connect_timeout_s,
+                                                  seen_ms=proxy.vehicle_time_ms)
+    result.before, result.after = _without_params(before), _without_params(after)
+    result.problems += result.state_problems
     result.problems += _check_store(store_path, counter.committed, case, status)
     result.wall_s = time.monotonic() - started
     return result
 
 
-def _check_setpoints(proxy: FaultProxy, restore) -> list[str]:
+def _without_params(snapshot: dict) -> dict:
+    return {k: v for k, v in snapshot.items() if k != "params"}
+
+
+def _check_setpoints(proxy: FaultProxy | UdpRelay, restore) -> list[str]:
     """The last heading and thrust set-points the vehicle received are the ones it was found with."""
     if restore is None:
         return []
@@ -355,18 +444,38 @@ def _check_setpoints(proxy: FaultProxy, restore) -> list[str]:
     return problems
 
 
-def _check_vehicle(sim, before: dict, names: list[str], status, reason, kept: dict, timeout_s: float) -> list[str]:
-    """Reconnect directly and compare with what was found."""
-    from companion.link.autopilots.sim import PROFILE
-    from companion.link.vehicle import VehicleLink
-
+def _check_outcome(status, reason) -> list[str]:
+    """The procedure ended with one of the outcome words, and with a reason unless it completed."""
     problems = []
     if status not in (None, "completed", "aborted", "failed"):
         problems.append(f"outcome status {status!r}")
     if status in ("aborted", "failed") and not reason:
         problems.append(f"{status} without a reason")
-    with VehicleLink.connect(sim.endpoint, lockstep=True, heartbeat_timeout_s=timeout_s) as check:
-        after = _snapshot(check, names)
+    return problems
+
+
+def _check_vehicle(sim, before: dict, names: list[str], status, reason, kept: dict, timeout_s: float,
+                   seen_ms: int | None = None) -> tuple[dict, list[str]]:
+    """Reconnect directly and compare the vehicle's state with what was found: (the state after, what
+    differs)."""
+    from companion.link.vehicle import VehicleLink
+
+    problems = _check_outcome(status, reason)
+    with VehicleLink.connect(sim.endpoint, lockstep=sim.lockstep, heartbeat_timeout_s=timeout_s) as check:
+        _resume_udp_lockstep(sim, check, seen_ms)
+        after = vehicle_state(check, names, settle_s=HEADING_SETTLE_S, window_s=HEADING_WINDOW_S)
+        _note_udp_lockstep(sim, check)
+    return after, problems + state_differences(before, after, names, reason, kept)
+
+
+def state_differences(before: dict, after: dict, names: list[str], reason: str | None, kept: dict) -> list[str]:
+    """What the vehicle holds ``after`` (:func:`vehicle_state`) that differs from ``before``: every
+    parameter (or the value ``kept`` on purpose, by profile name), the mode and armed state (unless
+    ``reason`` says the pilot took the vehicle), the thrust, and the heading it steers to (with
+    steerage, in the mode it was found in)."""
+    from companion.link.autopilots.sim import PROFILE
+
+    problems = []
     kept_native = {PROFILE.native_param(name): PROFILE.to_native_value(name, value) for name, value in kept.items()}
     for name in names:
         found, now = before["params"][name], after["params"][name]
@@ -376,8 +485,17 @@ def _check_vehicle(sim, before: dict, names: list[str], status, reason, kept: di
     pilot = reason is not None and ("someone else" in reason or "disarmed" in reason)
     if after["mode"] != before["mode"] and not pilot:
         problems.append(f"mode {after['mode']!r}, found {before['mode']!r}")
-    if not math.isfinite(after["thrust"]) or abs(after["thrust"] - before["thrust"]) > THRUST_TOLERANCE:
-        problems.append(f"thrust {after['thrust']:.3f}, found {before['thrust']:.3f}")
+    if after["armed"] != before["armed"] and not pilot:
+        problems.append(f"{'armed' if after['armed'] else 'disarmed'}, found {'armed' if before['armed'] else 'disarmed'}")
+    for key, when in (("thrust", ""), ("thrust_late", f" {HEADING_SETTLE_S + HEADING_WINDOW_S:g} s later")):
+        if not math.isfinite(after[key]) or abs(after[key] - before["thrust"]) > THRUST_TOLERANCE:
+            problems.append(f"thrust {after[key]:.3f}{when}, found {before['thrust']:.3f}")
+            break
+    if before["thrust"] >= STEERAGE_THRUST and after["mode"] == before["mode"]:
+        off = math.degrees((after["heading"] - before["heading"] + math.pi) % (2 * math.pi) - math.pi)
+        if not abs(off) <= HEADING_HELD_DEG:
+            problems.append(f"heading held {math.degrees(after['heading']) % 360:.1f} deg, found "
+                            f"{math.degrees(before['heading']) % 360:.1f} deg")
     return problems
 
 

@@ -3,17 +3,18 @@
 
 The proxy listens on a loopback port (bound to port 0: the OS picks it) and opens one upstream TCP
 connection to the vehicle (the simulator's ``tcpin`` port) for each companion that connects. It
-runs in its own thread, splits both byte streams into whole MAVLink frames (v2 on magic 0xFD, v1 on
-0xFE, the length byte and the signature flag; no full decode on the hot path) and forwards them,
-except where a :class:`Fault` is active:
+runs in its own thread, splits both byte streams into whole MAVLink frames
+(``harness.mavlink_frames``) and forwards them, except where a :class:`Fault` is active
+(``harness.fault_schedule``):
 
 ``drop``       the frame is not forwarded;
 ``delay``      the frame is held until ``hold_frames`` later frames of the same direction have
                passed (a delay in stream position, deterministic on a lockstep link), or at most
                ``max_hold_s`` of wall clock;
 ``duplicate``  the frame is forwarded twice;
-``reorder``    the frame swaps places with the next frame of the same direction (or goes after
-               ``max_hold_s`` if none follows);
+``reorder``    the frame swaps places with the next frame of the same direction (with a
+               ``partner``: goes right after the next frame the partner matches), or goes after
+               ``max_hold_s`` if none follows;
 ``corrupt``    one payload byte is flipped, so the receiver's CRC check discards the frame;
 ``cut``        the link goes down for ``cut_s`` wall seconds: with ``reconnect`` the connections are
                closed (the companion sees EOF, must reconnect, and is accepted again once the cut is
@@ -28,258 +29,56 @@ what it exercised and a bench can tabulate it. The schedule is a list given by t
 seeded :class:`random.Random` only picks the byte a ``corrupt`` flips, so a run is a function of
 its schedule and seed.
 
-The proxy also keeps what the vehicle was told: the last RC override value *delivered* on each
-channel (:meth:`FaultProxy.held_overrides`), and the vehicle time of the latest sample it saw.
-Everything stays on loopback; the proxy never decodes more than a few header and payload fields.
+Link conditions (``harness.link_conditions``) per direction: a **byte-rate cap** (a token bucket
+in front of a bounded queue: frames that do not fit are dropped, whole, as a radio modem drops what
+its buffer cannot hold; the proxy keeps reading, so the vehicle is not slowed by TCP flow control)
+and a fixed delay. Loss, jitter, reordering and duplication are datagram conditions: the UDP relay
+(``harness.udp_relay``) has them.
+
+The proxy also keeps what the vehicle was told, at the moment each frame left it
+(``harness.delivery_log``): the last RC override value on each channel
+(:meth:`FaultProxy.held_overrides`), the last parameters of each COMMAND_LONG, and the vehicle time
+of the latest sample it saw. Everything stays on loopback.
 """
 from __future__ import annotations
 
+import collections
 import logging
 import random
 import selectors
 import socket
-import struct
 import threading
 import time
 from dataclasses import dataclass, field
 from typing import Iterable
 
+from harness.delivery_log import DeliveryLog
+from harness.fault_schedule import (BOTH, FAULT_KINDS, TO_COMPANION, TO_VEHICLE, Fault, FaultEvent, FaultSchedule,
+                                    Trigger, overtaken, timed_delay)
+from harness.link_conditions import LinkConditions, TokenBucket
+from harness.mavlink_frames import MESSAGE_IDS, Frame, split_frames
+
 log = logging.getLogger(__name__)
 
-__all__ = ["FAULT_KINDS", "Fault", "FaultEvent", "FaultProxy", "Frame", "Trigger", "split_frames"]
+__all__ = ["BOTH", "FAULT_KINDS", "MESSAGE_IDS", "TO_COMPANION", "TO_VEHICLE", "Fault", "FaultEvent", "FaultProxy",
+           "Frame", "LinkConditions", "Trigger", "overtaken", "per_direction", "split_frames", "timed_delay"]
 
-FAULT_KINDS = ("drop", "delay", "duplicate", "reorder", "corrupt", "cut")
-TO_VEHICLE = "to_vehicle"
-TO_COMPANION = "to_companion"
-BOTH = "both"
-
-MAGIC_V2, MAGIC_V1 = 0xFD, 0xFE
-V2_OVERHEAD, V1_OVERHEAD, SIGNATURE_LEN = 12, 8, 13
-INCOMPAT_SIGNED = 0x01
-
-#: message ids the proxy looks into (common dialect numbers)
-MESSAGE_IDS = {"HEARTBEAT": 0, "SYSTEM_TIME": 2, "SET_MODE": 11, "PARAM_REQUEST_READ": 20, "PARAM_VALUE": 22,
-               "PARAM_SET": 23, "ATTITUDE": 30, "SERVO_OUTPUT_RAW": 36, "RC_CHANNELS_OVERRIDE": 70,
-               "COMMAND_LONG": 76, "COMMAND_ACK": 77, "SET_ATTITUDE_TARGET": 82, "STATUSTEXT": 253}
-MESSAGE_NAMES = {number: name for name, number in MESSAGE_IDS.items()}
-#: full (untruncated) payload lengths of the messages whose fields are read
-PAYLOAD_LENGTHS = {"COMMAND_LONG": 33, "PARAM_SET": 23, "RC_CHANNELS_OVERRIDE": 38, "STATUSTEXT": 54,
-                   "ATTITUDE": 28, "SYSTEM_TIME": 12}
-RC_RELEASE_LOW, RC_IGNORE_LOW, RC_RELEASE_HIGH = 0, 65535, 65534
 #: bytes queued for one side before the proxy stops reading the other (back-pressure: the vehicle's
 #: own flow control then holds it back, so a slow companion lags no more than on a direct link)
 HIGH_WATER = 16 * 1024
 TICK_S = 0.005  # the loop's housekeeping period (held frames, cut ends), wall clock
 
 
-# ====================================================================== frames
-@dataclass(frozen=True)
-class Frame:
-    """One whole MAVLink frame as it travels, with the few header fields the proxy needs."""
-
-    raw: bytes
-    msgid: int
-    header_len: int  # bytes before the payload
-    payload_len: int
-
-    @property
-    def name(self) -> str:
-        return MESSAGE_NAMES.get(self.msgid, f"MSG_{self.msgid}")
-
-    def payload(self) -> bytes:
-        """The payload, zero-padded to its full length (MAVLink 2 truncates trailing zeros)."""
-        body = self.raw[self.header_len:self.header_len + self.payload_len]
-        full = PAYLOAD_LENGTHS.get(self.name, len(body))
-        return body + bytes(max(0, full - len(body)))
-
-    def command(self) -> int | None:
-        """COMMAND_LONG's command id (None for other messages)."""
-        return struct.unpack_from("<H", self.payload(), 28)[0] if self.name == "COMMAND_LONG" else None
-
-    def param_id(self) -> str | None:
-        """PARAM_SET's parameter name (None for other messages)."""
-        if self.name != "PARAM_SET":
-            return None
-        return self.payload()[6:22].split(b"\x00", 1)[0].decode("ascii", "replace")
-
-    def text(self) -> str | None:
-        """STATUSTEXT's text (None for other messages)."""
-        if self.name != "STATUSTEXT":
-            return None
-        return self.payload()[1:51].split(b"\x00", 1)[0].decode("ascii", "replace")
-
-    def time_boot_ms(self) -> int | None:
-        """The vehicle time of an ATTITUDE or SYSTEM_TIME frame (None for others)."""
-        if self.name == "ATTITUDE":
-            return struct.unpack_from("<I", self.payload(), 0)[0]
-        if self.name == "SYSTEM_TIME":
-            return struct.unpack_from("<I", self.payload(), 8)[0]
-        return None
-
-    def rc_channels(self) -> list[int] | None:
-        """RC_CHANNELS_OVERRIDE's 18 channel values, channel 1 first (None for other messages)."""
-        if self.name != "RC_CHANNELS_OVERRIDE":
-            return None
-        values = struct.unpack("<8HBB10H", self.payload())
-        return list(values[:8]) + list(values[10:])
-
-    def signature(self) -> tuple[str, object, bytes] | None:
-        """What makes a PARAM_SET or COMMAND_LONG the same request again (a retry): its name or
-        command and its values (a COMMAND_LONG's confirmation counter left out); None for others."""
-        if self.name == "PARAM_SET":
-            return self.name, self.param_id(), self.payload()
-        if self.name == "COMMAND_LONG":
-            return self.name, self.command(), self.payload()[:30]
-        return None
-
-    def corrupted(self, rng: random.Random) -> bytes:
-        """The frame with one payload (or checksum) byte flipped: its CRC no longer matches."""
-        raw = bytearray(self.raw)
-        end = self.header_len + self.payload_len + 2  # payload and checksum, never the header
-        raw[rng.randrange(self.header_len, end)] ^= 0xFF
-        return bytes(raw)
-
-
-def split_frames(buffer: bytearray) -> tuple[list[Frame | bytes], bytearray]:
-    """Whole frames (and runs of bytes that start no frame) from ``buffer``, and what is left (an
-    incomplete frame). Garbage between frames is passed on as bytes, untouched."""
-    out: list[Frame | bytes] = []
-    pos = 0
-    size = len(buffer)
-    while pos < size:
-        start = _next_magic(buffer, pos)
-        if start < 0:
-            out.append(bytes(buffer[pos:]))
-            return out, bytearray()
-        if start > pos:
-            out.append(bytes(buffer[pos:start]))
-        frame_len = _frame_length(buffer, start)
-        if frame_len is None or start + frame_len > size:
-            return out, bytearray(buffer[start:])
-        header = 10 if buffer[start] == MAGIC_V2 else 6
-        msgid = (int.from_bytes(buffer[start + 7:start + 10], "little") if buffer[start] == MAGIC_V2
-                 else buffer[start + 5])
-        out.append(Frame(bytes(buffer[start:start + frame_len]), msgid, header, buffer[start + 1]))
-        pos = start + frame_len
-    return out, bytearray()
-
-
-def _next_magic(buffer: bytearray, pos: int) -> int:
-    v2, v1 = buffer.find(MAGIC_V2, pos), buffer.find(MAGIC_V1, pos)
-    candidates = [i for i in (v2, v1) if i >= 0]
-    return min(candidates) if candidates else -1
-
-
-def _frame_length(buffer: bytearray, start: int) -> int | None:
-    """Length of the frame starting at ``start`` (None until enough of its header arrived)."""
-    if buffer[start] == MAGIC_V2:
-        if len(buffer) - start < 3:
-            return None
-        signed = buffer[start + 2] & INCOMPAT_SIGNED
-        return V2_OVERHEAD + buffer[start + 1] + (SIGNATURE_LEN if signed else 0)
-    if len(buffer) - start < 2:
-        return None
-    return V1_OVERHEAD + buffer[start + 1]
-
-
-# ====================================================================== schedule
-@dataclass(frozen=True)
-class Trigger:
-    """When a fault starts: at the ``nth`` frame the companion sent (``direction`` to_vehicle) or
-    the vehicle sent (to_companion) that is a ``message`` (None: any frame; nth 0: at once when the
-    proxy is armed), narrowed to one COMMAND_LONG ``command``, one PARAM_SET ``param`` or a
-    STATUSTEXT containing ``text``; the fault then starts ``after`` frames (of either direction)
-    later. With ``distinct`` a frame that repeats the previous one of its kind (a PARAM_SET of the
-    same name and value, a COMMAND_LONG with the same command and parameters: a retry or a
-    set-point sent twice) is not counted, so a phase is found even after earlier faults caused
-    retries. Counted from :meth:`FaultProxy.arm`."""
-
-    message: str | None = None
-    nth: int = 1
-    command: int | None = None
-    param: str | None = None
-    text: str | None = None
-    direction: str = TO_VEHICLE
-    after: int = 0
-    distinct: bool = False
-
-    def matches(self, frame: Frame) -> bool:
-        if self.message is not None and frame.name != self.message:
-            return False
-        if self.command is not None and frame.command() != self.command:
-            return False
-        if self.param is not None and frame.param_id() != self.param:
-            return False
-        return self.text is None or self.text in (frame.text() or "")
-
-    def describe(self) -> str:
-        if self.nth == 0:
-            return "at once"
-        what = ("distinct " if self.distinct else "") + (self.message or "frame")
-        detail = (f" {self.command}" if self.command is not None else f" {self.param}" if self.param
-                  else f" '{self.text}'" if self.text else "")
-        return (f"{_ordinal(self.nth)} {what}{detail}" + (" from the vehicle" if self.direction == TO_COMPANION else "")
-                + (f" +{self.after} frames" if self.after else ""))
-
-
-@dataclass(frozen=True)
-class Fault:
-    """One fault: ``kind`` (:data:`FAULT_KINDS`) from ``trigger`` on, applied to frames travelling
-    ``direction`` (to_vehicle, to_companion or both) whose message is in ``messages`` (empty: any),
-    to at most ``frames`` frames within ``window_s`` wall seconds of the trigger."""
-
-    kind: str
-    trigger: Trigger = Trigger(nth=0)
-    direction: str = BOTH
-    messages: tuple[str, ...] = ()
-    frames: int = 5
-    window_s: float = 2.0
-    hold_frames: int = 20  # delay: later frames of the same direction that pass first
-    max_hold_s: float = 0.5  # delay, reorder: wall-clock bound of a hold
-    cut_s: float = 1.0  # cut: how long the link is down
-    reconnect: bool = True  # cut: close the connections (True) or drop everything while open (False)
-
-    def __post_init__(self) -> None:
-        if self.kind not in FAULT_KINDS:
-            raise ValueError(f"unknown fault kind {self.kind!r} ({', '.join(FAULT_KINDS)})")
-        if self.direction not in (TO_VEHICLE, TO_COMPANION, BOTH):
-            raise ValueError(f"unknown direction {self.direction!r}")
-        if self.frames < 1 or self.window_s <= 0 or self.cut_s < 0:
-            raise ValueError("a fault is bounded: frames >= 1, window_s > 0, cut_s >= 0")
-
-    def applies_to(self, frame: Frame, direction: str) -> bool:
-        return (self.direction in (BOTH, direction)) and (not self.messages or frame.name in self.messages)
-
-    def describe(self) -> str:
-        if self.kind == "cut":
-            how = "closed, reconnect" if self.reconnect else "silent"
-            return f"cut {self.cut_s:g} s ({how}) at {self.trigger.describe()}"
-        which = "/".join(self.messages) or "any frame"
-        return f"{self.kind} {self.frames} x {which} ({self.direction}) from {self.trigger.describe()}"
-
-
-@dataclass
-class FaultEvent:
-    """What a fault did to one frame (or, for a cut, to the link)."""
-
-    fault: int  # index in the schedule
-    kind: str
-    direction: str
-    message: str
-    wall_s: float  # since the proxy was armed
-
-
-@dataclass
-class _Active:
-    index: int
-    fault: Fault
-    started: float
-    affected: int = 0
-
-    def open(self, now: float) -> bool:
-        if self.fault.kind == "cut":
-            return now - self.started < self.fault.cut_s
-        return self.affected < self.fault.frames and now - self.started < self.fault.window_s
+def per_direction(conditions: LinkConditions | dict[str, LinkConditions] | None) -> dict[str, LinkConditions]:
+    """``conditions`` for each direction: one for both, a dict by direction, or None (clean)."""
+    if conditions is None:
+        return {TO_VEHICLE: LinkConditions(), TO_COMPANION: LinkConditions()}
+    if isinstance(conditions, LinkConditions):
+        return {TO_VEHICLE: conditions, TO_COMPANION: conditions}
+    unknown = set(conditions) - {TO_VEHICLE, TO_COMPANION}
+    if unknown:
+        raise ValueError(f"link conditions by direction: {TO_VEHICLE} and/or {TO_COMPANION}, not {sorted(unknown)}")
+    return {d: conditions.get(d, LinkConditions()) for d in (TO_VEHICLE, TO_COMPANION)}
 
 
 @dataclass(eq=False)
@@ -289,12 +88,25 @@ class _Pipe:
     source: socket.socket
     sink: socket.socket
     direction: str
+    conditions: LinkConditions = field(default_factory=LinkConditions)
     pending: bytearray = field(default_factory=bytearray)  # bytes read, not yet a whole frame
     out: bytearray = field(default_factory=bytearray)  # bytes to write to ``sink``
     held: list = field(default_factory=list)  # [release_at_count, release_at_wall, bytes] (delay)
     swap: Frame | None = None  # reorder: the frame that goes after the next one
     swap_until: float = 0.0  # ... or goes anyway at this wall time (nothing followed it)
+    swap_partner: Trigger | None = None  # ... the next one this matches (None: any)
     forwarded: int = 0  # frames forwarded in this direction
+    paced: collections.deque = field(default_factory=collections.deque)  # (release wall, raw, frame | None)
+    bucket: TokenBucket | None = None
+
+    def __post_init__(self) -> None:
+        c = self.conditions
+        if c.rate_bytes_s is not None:
+            self.bucket = TokenBucket(c.rate_bytes_s, c.burst_bytes, c.queue_bytes)
+
+    @property
+    def conditioned(self) -> bool:
+        return self.bucket is not None or self.conditions.delay_s > 0
 
 
 @dataclass(eq=False)
@@ -303,24 +115,34 @@ class _Session:
 
     companion: socket.socket
     vehicle: socket.socket
+    conditions: dict[str, LinkConditions]
     events: dict = field(default_factory=dict)  # role -> selector events registered (0: none)
     up: _Pipe = field(init=False)
     down: _Pipe = field(init=False)
 
     def __post_init__(self) -> None:
-        self.up = _Pipe(self.companion, self.vehicle, TO_VEHICLE)
-        self.down = _Pipe(self.vehicle, self.companion, TO_COMPANION)
+        self.up = _Pipe(self.companion, self.vehicle, TO_VEHICLE, self.conditions[TO_VEHICLE])
+        self.down = _Pipe(self.vehicle, self.companion, TO_COMPANION, self.conditions[TO_COMPANION])
 
 
 # ====================================================================== the proxy
 class FaultProxy:
     """The proxy (module docstring). ``with FaultProxy(vehicle_port, seed=3) as proxy:`` …
     ``proxy.endpoint`` is what the companion connects to; :meth:`arm` starts counting triggers
-    with a schedule of faults; :meth:`summary` says what fired."""
+    with a schedule of faults; :meth:`summary` says what fired. ``conditions``: a rate cap and a
+    fixed delay, for both directions or by direction (:func:`per_direction`)."""
 
-    def __init__(self, vehicle_port: int, *, seed: int = 0, host: str = "127.0.0.1",
-                 max_faults: int = 64) -> None:
+    transport = "tcp"
+
+    def __init__(self, vehicle_port: int, *, seed: int = 0, host: str = "127.0.0.1", max_faults: int = 64,
+                 conditions: LinkConditions | dict[str, LinkConditions] | None = None) -> None:
         self.vehicle_address = (host, vehicle_port)
+        self.conditions = per_direction(conditions)
+        for direction, condition in self.conditions.items():
+            if condition.random:
+                raise ValueError(f"the TCP proxy applies a rate cap and a fixed delay only ({direction}: "
+                                 f"{condition.describe()}): loss, jitter, reordering and duplication are the "
+                                 "UDP relay's (harness.udp_relay), or a fault schedule's")
         self.rng = random.Random(seed)
         self.max_faults = max_faults
         self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -335,25 +157,13 @@ class FaultProxy:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="fault-proxy", daemon=True)
         self._sessions: list[_Session] = []
-        self._schedule: list[Fault] = []
-        self._waiting: list[int] = []  # indices of faults not triggered yet
-        self._active: list[_Active] = []
-        self._counts: dict[tuple[int, str], int] = {}  # (fault index, direction) -> matching frames seen
-        self._deferred: dict[int, int] = {}  # fault index -> frame number (both directions) it starts at
-        self._last_request: dict[tuple[str, object], bytes] = {}  # (message, name/command) -> last values
-        self._armed_at: float | None = None
-        self._cut_until = 0.0  # no connection is accepted before this (wall clock)
-        self._silent_until = 0.0  # every frame is dropped before this
+        self._faults = FaultSchedule(max_faults, on_closing_cut=self._close_all)
         self._listening = True  # the listener is registered (not during a closing cut)
-        self._start_now: list[int] = []  # faults to trigger at the next tick (nth 0)
-        self.events: list[FaultEvent] = []
-        self.triggered: dict[int, float] = {}  # fault index -> wall seconds after arm
-        self.frames_seen = {TO_VEHICLE: 0, TO_COMPANION: 0}
-        self.message_counts: dict[tuple[str, str], int] = {}  # (direction, message) -> frames seen since arm
         self.connections = 0
         self.vehicle_time_ms: int | None = None
-        self.delivered_commands: dict[int, tuple[float, ...]] = {}  # COMMAND_LONG id -> params last delivered
-        self._overrides: dict[int, int] = {}  # channel -> last delivered value (release removes it)
+        self.delivered = DeliveryLog()  # what left the proxy
+        self.received = DeliveryLog()  # what came in, before any fault (what was sent)
+        self.rate_dropped = {TO_VEHICLE: 0, TO_COMPANION: 0}  # frames the rate cap's full queue dropped
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -385,52 +195,81 @@ class FaultProxy:
     # ------------------------------------------------------------------ schedule
     def arm(self, faults: Iterable[Fault]) -> None:
         """Replace the schedule and start counting triggers from now (at most ``max_faults``)."""
-        faults = list(faults)
-        if len(faults) > self.max_faults:
-            raise ValueError(f"at most {self.max_faults} faults per schedule (bounded), not {len(faults)}")
         with self._lock:
-            self._schedule = faults
-            self._waiting = list(range(len(faults)))
-            self._active = []
-            self._counts = {}
-            self._deferred = {}
-            self.events = []
-            self.triggered = {}
-            self.message_counts = {}
-            self._armed_at = time.monotonic()
-            self._start_now = [i for i in self._waiting if faults[i].trigger.nth == 0]
+            self._faults.arm(faults)
 
     def disarm(self) -> None:
         """No further fault starts; active ones end; held frames go out at the next chance."""
         with self._lock:
-            self._waiting = []
-            self._active = []
-            self._deferred = {}
-            self._start_now = []
-            self._silent_until = 0.0
-            self._cut_until = 0.0
+            self._faults.disarm()
 
     @property
     def schedule(self) -> list[Fault]:
-        return list(self._schedule)
+        return list(self._faults.faults)
+
+    @property
+    def events(self) -> list[FaultEvent]:
+        return self._faults.events
+
+    @property
+    def triggered(self) -> dict[int, float]:
+        return self._faults.triggered
+
+    @property
+    def frames_seen(self) -> dict[str, int]:
+        return self._faults.frames_seen
+
+    @property
+    def message_counts(self) -> dict[tuple[str, str], int]:
+        return self._faults.message_counts
+
+    @property
+    def delivered_commands(self) -> dict[int, tuple[float, ...]]:
+        """COMMAND_LONG id -> the parameters last delivered to the vehicle."""
+        return self.delivered.commands
 
     def fired(self, index: int) -> int:
         """Frames (or link cuts) fault ``index`` affected."""
-        return sum(1 for event in self.events if event.fault == index)
+        return self._faults.fired(index)
 
     def summary(self) -> list[dict]:
         """Per scheduled fault: its description, whether it triggered and how many frames it hit."""
-        return [{"fault": fault.describe(), "kind": fault.kind, "triggered": index in self.triggered,
-                 "affected": self.fired(index)} for index, fault in enumerate(self._schedule)]
+        with self._lock:
+            return self._faults.summary()
 
     def count(self, message: str, direction: str = TO_VEHICLE) -> int:
         """Frames of ``message`` seen travelling ``direction`` since :meth:`arm`."""
-        return self.message_counts.get((direction, message), 0)
+        return self._faults.count(message, direction)
 
     def held_overrides(self) -> dict[int, int]:
         """Channels whose last RC override delivered to the vehicle holds a value (not a release)."""
         with self._lock:
-            return dict(self._overrides)
+            return self.delivered.held_overrides()
+
+    def history(self, command: int, *, sent: bool = False) -> list:
+        """The COMMAND_LONGs ``command`` delivered to the vehicle, in the order it received them
+        (``sent``: in the order the companion sent them)."""
+        with self._lock:
+            return (self.received if sent else self.delivered).history(command)
+
+    def pending(self) -> int:
+        """Frames still held, paced or waiting to be written."""
+        with self._lock:
+            return sum(len(p.held) + (p.swap is not None) + len(p.paced) + bool(p.out)
+                       for s in self._sessions for p in (s.up, s.down))
+
+    def drain(self, timeout_s: float = 1.0) -> bool:
+        """Wait (at most ``timeout_s``) until nothing is held or in flight; True when so."""
+        deadline = time.monotonic() + timeout_s
+        while self.pending() and time.monotonic() < deadline and self._thread.is_alive():
+            time.sleep(TICK_S)
+        return not self.pending()
+
+    def stats(self) -> dict[str, dict]:
+        """Per direction: frames delivered and dropped by the rate cap's full queue."""
+        with self._lock:
+            return {d: {"delivered": self.delivered.frames[d], "rate_dropped": self.rate_dropped[d]}
+                    for d in (TO_VEHICLE, TO_COMPANION)}
 
     # ------------------------------------------------------------------ the loop
     def _loop(self) -> None:
@@ -457,7 +296,7 @@ class FaultProxy:
         for sock in (companion, vehicle):
             sock.setblocking(False)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        session = _Session(companion, vehicle)
+        session = _Session(companion, vehicle, self.conditions)
         with self._lock:
             self._sessions.append(session)
             self.connections += 1
@@ -512,33 +351,24 @@ class FaultProxy:
             if isinstance(item, Frame):
                 self._frame(pipe, item, now)
             else:
-                pipe.out += item
+                self._egress(pipe, item, None, now)
 
     # ------------------------------------------------------------------ one frame
     def _frame(self, pipe: _Pipe, frame: Frame, now: float) -> None:
         direction = pipe.direction
-        self.frames_seen[direction] += 1
-        total = self.frames_seen[TO_VEHICLE] + self.frames_seen[TO_COMPANION]
-        for index, start in list(self._deferred.items()):
-            if total >= start:
-                del self._deferred[index]
-                self._trigger(index, now)
-        key = (direction, frame.name)
-        self.message_counts[key] = self.message_counts.get(key, 0) + 1
+        self.received.note(frame, direction, now)
+        self._faults.see(frame, direction, now)
         if direction == TO_COMPANION:
             stamp = frame.time_boot_ms()
             if stamp is not None:
                 self.vehicle_time_ms = stamp
-        self._check_triggers(frame, direction, now)
-        if now < self._silent_until:
-            self._record(self._cut_index(), "cut", direction, frame.name, now)
+        if self._faults.silenced(now):
+            self._faults.record(self._faults.cut_index(), "cut", direction, frame.name, now)
             return
-        fault = self._fault_for(frame, direction, now)
+        fault = self._faults.fault_for(frame, direction, now)
         if fault is None:
             self._forward(pipe, frame.raw, frame)
             return
-        self._record(fault.index, fault.fault.kind, direction, frame.name, now)
-        fault.affected += 1
         kind = fault.fault.kind
         if kind == "drop":
             return
@@ -553,108 +383,66 @@ class FaultProxy:
             if pipe.swap is not None:  # two in a row: the earlier one goes now, after this one
                 self._forward(pipe, frame.raw, frame)
                 return
-            pipe.swap, pipe.swap_until = frame, now + fault.fault.max_hold_s
+            pipe.swap, pipe.swap_until, pipe.swap_partner = frame, now + fault.fault.max_hold_s, fault.fault.partner
 
     def _forward(self, pipe: _Pipe, raw: bytes, frame: Frame | None) -> None:
-        pipe.out += raw
+        now = time.monotonic()
+        self._egress(pipe, raw, frame, now)
         pipe.forwarded += 1
-        if frame is not None and pipe.direction == TO_VEHICLE and frame.name == "RC_CHANNELS_OVERRIDE":
-            self._note_override(frame)
-        if frame is not None and pipe.direction == TO_VEHICLE and frame.name == "COMMAND_LONG":
-            self.delivered_commands[frame.command()] = struct.unpack_from("<7f", frame.payload(), 0)
-        if pipe.swap is not None and frame is not pipe.swap:
+        if pipe.swap is not None and frame is not pipe.swap and (
+                pipe.swap_partner is None or (frame is not None and pipe.swap_partner.matches(frame))):
             swapped, pipe.swap = pipe.swap, None
             self._forward(pipe, swapped.raw, swapped)
-        self._release_held(pipe, time.monotonic())
+        self._release_held(pipe, now)
+
+    def _egress(self, pipe: _Pipe, raw: bytes, frame: Frame | None, now: float) -> None:
+        """Past the faults: onto the socket, or through the rate cap and the delay first."""
+        if not pipe.conditioned:
+            self._deliver(pipe, raw, frame, now)
+            return
+        departure = now if pipe.bucket is None else pipe.bucket.admit(len(raw), now)
+        if departure is None:
+            self.rate_dropped[pipe.direction] += 1
+            return
+        pipe.paced.append((departure + pipe.conditions.delay_s, raw, frame))
+
+    def _deliver(self, pipe: _Pipe, raw: bytes, frame: Frame | None, now: float) -> None:
+        pipe.out += raw
+        if frame is not None:
+            self.delivered.note(frame, pipe.direction, now)
 
     def _release_held(self, pipe: _Pipe, now: float) -> None:
         while pipe.held and (pipe.forwarded >= pipe.held[0][0] or now >= pipe.held[0][1]):
             _count, _wall, frame = pipe.held.pop(0)
             self._forward(pipe, frame.raw, frame)
 
-    def _note_override(self, frame: Frame) -> None:
-        for channel, value in enumerate(frame.rc_channels() or [], start=1):
-            ignore = value == RC_IGNORE_LOW if channel <= 8 else value in (0, RC_IGNORE_LOW)
-            release = value == RC_RELEASE_LOW if channel <= 8 else value == RC_RELEASE_HIGH
-            if release:
-                self._overrides.pop(channel, None)
-            elif not ignore:
-                self._overrides[channel] = value
+    def _release_paced(self, pipe: _Pipe, now: float) -> None:
+        while pipe.paced and pipe.paced[0][0] <= now:
+            _at, raw, frame = pipe.paced.popleft()
+            self._deliver(pipe, raw, frame, now)
 
-    # ------------------------------------------------------------------ triggers
-    def _check_triggers(self, frame: Frame, direction: str, now: float) -> None:
-        signature = frame.signature() if direction == TO_VEHICLE else None
-        repeat = False
-        if signature is not None:
-            repeat = self._last_request.get(signature[:2]) == signature[2]
-            self._last_request[signature[:2]] = signature[2]
-        for index in list(self._waiting):
-            trigger = self._schedule[index].trigger
-            if trigger.nth == 0 or trigger.direction != direction or not trigger.matches(frame):
-                continue
-            if trigger.distinct and repeat:
-                continue
-            key = (index, direction)
-            self._counts[key] = self._counts.get(key, 0) + 1
-            if self._counts[key] >= trigger.nth:
-                if trigger.after:
-                    self._waiting.remove(index)
-                    self._deferred[index] = (self.frames_seen[TO_VEHICLE] + self.frames_seen[TO_COMPANION]
-                                             + trigger.after)
-                else:
-                    self._trigger(index, now)
-
-    def _trigger(self, index: int, now: float) -> None:
-        if index in self._waiting:
-            self._waiting.remove(index)
-        elif index in self.triggered:
-            return
-        fault = self._schedule[index]
-        self.triggered[index] = now - (self._armed_at or now)
-        log.info("fault proxy: %s", fault.describe())
-        if fault.kind != "cut":
-            self._active.append(_Active(index, fault, now))
-            return
-        if fault.reconnect:
-            self._cut_until = now + fault.cut_s
-            self._record(index, "cut", BOTH, "link closed", now)
-            for session in list(self._sessions):
-                self._close_session(session)
-            if self._listening:  # connections wait in the backlog until the cut ends
-                self._selector.unregister(self._listener)
-                self._listening = False
-        else:
-            self._silent_until = now + fault.cut_s
-            self._active.append(_Active(index, fault, now))
-
-    def _cut_index(self) -> int:
-        active = [a.index for a in self._active if a.fault.kind == "cut"]
-        return active[0] if active else -1
-
-    def _fault_for(self, frame: Frame, direction: str, now: float) -> _Active | None:
-        for active in self._active:
-            if active.fault.kind != "cut" and active.open(now) and active.fault.applies_to(frame, direction):
-                return active
-        return None
-
-    def _record(self, index: int, kind: str, direction: str, message: str, now: float) -> None:
-        self.events.append(FaultEvent(index, kind, direction, message, now - (self._armed_at or now)))
+    # ------------------------------------------------------------------ cuts
+    def _close_all(self, _now: float) -> None:
+        """A closing cut: every connection closes; new ones wait in the backlog until it ends."""
+        for session in list(self._sessions):
+            self._close_session(session)
+        if self._listening:
+            self._selector.unregister(self._listener)
+            self._listening = False
 
     # ------------------------------------------------------------------ housekeeping
     def _tick(self, now: float) -> None:
-        for index in self._start_now:
-            self._trigger(index, now)
-        self._start_now = []
-        if not self._listening and now >= self._cut_until:
+        self._faults.tick(now)
+        if not self._listening and now >= self._faults.cut_until:
             self._selector.register(self._listener, selectors.EVENT_READ, None)
             self._listening = True
-        self._active = [a for a in self._active if a.open(now)]
         for session in self._sessions:
             for pipe in (session.up, session.down):
                 self._release_held(pipe, now)
                 if pipe.swap is not None and now >= pipe.swap_until:
                     swapped, pipe.swap = pipe.swap, None  # nothing came after it in time: let it go
                     self._forward(pipe, swapped.raw, swapped)
+                self._release_paced(pipe, now)
         for session in list(self._sessions):
             self._flush(session)
 
@@ -685,8 +473,3 @@ class FaultProxy:
                 sock.close()
             except OSError:
                 pass
-
-
-def _ordinal(n: int) -> str:
-    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
-    return f"{n}{suffix}"

@@ -8,8 +8,10 @@ The e2e cases share one ``--lockstep`` simulator (the vehicle is put back after 
 what they check). Their schedules are grouped to stay fast: each frame fault kind one after the
 other at every phase of a procedure in one run, a short silent cut at every phase in another, the
 restore hit in its own runs, and the connection closed (the companion must reconnect to restore)
-at one phase of each procedure and in a restore. ``bench/bench_faults.py`` runs the full matrix,
-one fault per case, and prints the table.
+at one phase of each procedure and in a restore. One case runs over UDP through the relay
+(``harness/udp_relay.py``; the relay itself is tested in ``tests/test_udp_relay.py``).
+``bench/bench_faults.py`` runs the full matrix, one fault per case, over TCP and UDP, and prints the
+tables.
 
 The unit tests at the end pin the product bugs the suite found, each without a simulator.
 """
@@ -22,7 +24,7 @@ from types import SimpleNamespace
 import pytest
 
 from harness.fault_cases import (CASE_PROCEDURES, PHASES, closed_cut_case, mixed_case, restore_case, run_case,
-                                 silent_cut_case)
+                                 silent_cut_case, single_case)
 from harness.fault_proxy import FAULT_KINDS, Fault, FaultProxy, Frame, Trigger, split_frames
 
 CASES = ([mixed_case(procedure) for procedure in CASE_PROCEDURES]
@@ -55,6 +57,25 @@ def test_the_vehicle_is_restored_whatever_the_link_does(lockstep_sim, case, tmp_
     assert result.untriggered == [], "faults that never met their phase (the run ended first)"
     if case.abort_after is not None:
         assert result.status == "aborted" and "operator abort" in result.reason
+
+
+@pytest.mark.e2e
+def test_a_frame_lost_over_udp_in_a_restore_still_restores_the_vehicle(module_sim_factory, tmp_path):
+    """The same case over UDP, through the relay: an abort in the roll procedure's closed loop, a
+    frame of its restore dropped; the vehicle is found restored by its state."""
+    sim = module_sim_factory(transport="udp", speedup=50.0, seed=5, lockstep=True)
+    case = single_case(PHASES["roll/restore"], "drop")
+    result = run_case(sim, case, tmp_path / "store.sqlite", transport="udp")
+    assert result.crash is None, result.crash
+    assert result.problems == [], f"{case.label}: {result.status} ({result.reason}): {result.problems}"
+    assert result.status == "aborted" and "operator abort" in result.reason
+    assert result.restored_by_state and result.restore_claimed and result.untriggered == []
+    assert result.transport == "udp" and result.link["to_vehicle"]["delivered"] > 0
+
+
+def test_a_case_needs_a_simulator_of_its_transport():
+    with pytest.raises(ValueError):
+        run_case(SimpleNamespace(transport="tcp", port=1, lockstep=True), mixed_case("roll"), None, transport="udp")
 
 
 # ---------------------------------------------------------------------------- the proxy itself
