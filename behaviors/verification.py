@@ -1,4 +1,4 @@
-"""One heading step that decides whether designed gains may stay on the vehicle (SPEC C5: "every
+"""One heading step that decides whether designed gains may stay on the vehicle (eq. A.3; SPEC C5: "every
 design is checked by heading steps through the autopilot before it is kept").
 
 The gains go on the vehicle as a trial, the thrust is set, and the vehicle settles on its course

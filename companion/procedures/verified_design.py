@@ -78,7 +78,7 @@ def predicted_step(controller: str, model, gains: dict[str, float], limits: Head
 
 @dataclass(frozen=True)
 class KeepRule:
-    """When verified gains stay on the vehicle (module docstring)."""
+    """When verified gains stay on the vehicle (eq. A.3; module docstring)."""
 
     max_overshoot_pct: float = 10.0
     max_oscillations: int = 1
