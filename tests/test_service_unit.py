@@ -26,8 +26,7 @@ from pathlib import Path
 import pytest
 
 from behaviors.schedules import schedule_kind
-from companion.link.autopilots import MODULES
-from companion.link.profiles import get_profile
+from companion.link.autopilots import registered_profiles
 from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
 from companion.procedures.resident import ServeConfig
 from companion.records.store import Store
@@ -77,8 +76,7 @@ def test_the_unit_passes_systemd_analyze_verify(tmp_path):
 def _largest_stop() -> tuple[int, int]:
     """(native parameters of the largest campaign footprint, scheduled natives) over the autopilots."""
     largest = (0, 0)
-    for name in MODULES:
-        profile = get_profile(name)
+    for profile in registered_profiles():
         campaign = IdentificationCampaign(CampaignConfig(schedules=("heading", "pitch")).resolved_for(profile))
         natives = profile.natives_touched([n for n in campaign.footprint.parameters if n in profile.params])
         heading = getattr(profile, "heading_schedule", "heading")
