@@ -35,6 +35,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from companion.cli.commands._campaign_text import verification_lines
 from companion.link.profiles import get_profile
 from companion.procedures.campaign import CampaignConfig
 from companion.rehearsal.rehearsal import RehearsalConfig, preset_defaults, rehearse
@@ -76,6 +77,9 @@ def main() -> int:
                              "the frame's, 3 m/s)")
     parser.add_argument("--procedure", choices=("quick", "thesis"), default="quick",
                         help="the campaign procedure (default: quick, what identify --connect flies)")
+    parser.add_argument("--full-comparison", action="store_true",
+                        help="fly the defaults, QuickTune's rule and the design at every speed (identify "
+                             "--full-comparison) instead of verifying the design with two steps")
     args = parser.parse_args()
     if not args.ardupilot_bin:
         print("no ArduPilot SITL: pass --ardupilot-bin DIR or set ARDUPILOT_SITL_BIN", file=sys.stderr)
@@ -94,7 +98,11 @@ def campaign_of(args) -> CampaignConfig:
     """The campaign ``identify --connect`` flies on this autopilot (its profile's thrusts, axes, doublets),
     with heading steps of ``--step-deg``."""
     campaign = CampaignConfig().with_profile_defaults(get_profile(args.autopilot)).for_procedure(args.procedure)
-    campaign = replace(campaign, step_test=replace(campaign.step_test, step=math.radians(args.step_deg)))
+    step = math.radians(args.step_deg)
+    campaign = replace(campaign, step_test=replace(campaign.step_test, step=step),
+                       verification=replace(campaign.verification, step=step))
+    if args.full_comparison:
+        campaign = replace(campaign, checks="compare")
     if args.thrusts:
         campaign = replace(campaign, thrusts=tuple(float(t) for t in args.thrusts.split(",")),
                            user_set=("thrusts",))
@@ -121,6 +129,10 @@ def ours(args, preset: str) -> int:
     identification_table(summaries)
     law_table(summaries)
     heading_table(summaries)
+    for index, s in enumerate(summaries):
+        lines = verification_lines(s.get("verified"))
+        if lines:
+            print(f"\nrun {index + 1}: " + "\n".join(lines))
     speed_table(summaries)
     times = [s.get("vehicle_time_s") for s in summaries]
     phases = {}
