@@ -223,10 +223,10 @@ class TelemetryAssembler:
         actuators: dict[str, float] = {}
         outputs = self.profile.servo_outputs
         actuation = self.profile.actuation
-        if actuation is not None:  # read from the vehicle: steering and throttle (un-mixed for a pair)
-            steering, throttle = actuation.demands(self.servo_pwm)
-            self._fields["rudder"] = steering * self.profile.angle_full_scale_rad
-            self._fields["thrust_ratio"] = throttle
+        if actuation is not None:  # read from the vehicle: steering and throttle (un-mixed for a pair),
+            steering, throttle = actuation.demands(self.servo_pwm)  # paired with their attitude like any output
+            actuators["rudder"] = steering * self.profile.angle_full_scale_rad
+            actuators["thrust_ratio"] = throttle
         for actuator, telemetry_field in (("rudder", "rudder"), ("elevator", "elevator"), ("thrust", "thrust_ratio")):
             output = outputs.get(actuator)
             if output is None or (actuation is not None and actuator != "elevator"):

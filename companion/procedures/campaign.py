@@ -166,8 +166,8 @@ class IdentificationCampaign(Behaviour):
                                       self._heading_gains))
         items.append(Deferred(self._design_step))
         if self.verifier_wanted:
-            last = cfg.thrusts[-1]  # where the identification ends, steady after its validation record
-            for slot in (lambda: self._verifier().scheduled_step(self.heading_design, "highest", here=last),
+            # the highest first: where the identification ends, so no thrust change before it
+            for slot in (lambda: self._verifier().scheduled_step(self.heading_design, "highest"),
                          lambda: self._verifier().scheduled_step(self.heading_design, "lowest"),
                          lambda: self._verifier().original_step(self._original_heading(), "highest", self.heading_design),
                          lambda: self._verifier().original_step(self._original_heading(), "lowest", self.heading_design)):

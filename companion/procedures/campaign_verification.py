@@ -50,9 +50,9 @@ class CampaignVerification:
         duration = duration_s if duration_s and math.isfinite(duration_s) and duration_s > 1.0 else self.config.max_s
         return predicted_step(self.controller, model, gains, self.limits, self.config.step, duration)
 
-    def _step(self, thrust: float, gains: dict[str, float], label: str, *, steady_now: bool = False) -> VerificationStep:
+    def _step(self, thrust: float, gains: dict[str, float], label: str) -> VerificationStep:
         step = VerificationStep(thrust, gains, self.config, sign=self._sign, rudder_max=self.limits.rudder_max,
-                                label=label, steady_now=steady_now)
+                                label=label)
         self._sign = -self._sign  # alternate, so the campaign stays near its course
         return step
 
@@ -68,17 +68,16 @@ class CampaignVerification:
         except ValueError as exc:  # no design at this speed: the schedule is flown there later
             log.info("no own design at thrust %.2f: %s", thrust, exc)
             return None
-        return self._step(thrust, gains, "own", steady_now=True)  # right after the validation record
+        return self._step(thrust, gains, "own")  # right after the validation record, at its speed
 
     def ends(self, design: GainDesign) -> tuple[float, float] | None:
         """The lowest and highest identified thrusts of the design (None without points)."""
         thrusts = sorted(point.thrust for point in design.points if point.thrust is not None)
         return (thrusts[0], thrusts[-1]) if thrusts else None
 
-    def scheduled_step(self, design: GainDesign | None, end: str, *, here: float | None = None) -> VerificationStep | None:
+    def scheduled_step(self, design: GainDesign | None, end: str) -> VerificationStep | None:
         """The schedule at the ``"highest"`` or ``"lowest"`` identified speed, unless already flown
-        there (the schedule itself, or an own design the schedule agrees with). ``here``: the thrust
-        whose validation record the campaign has just ended, steady (a step there starts at once)."""
+        there (the schedule itself, or an own design the schedule agrees with)."""
         ends = self.ends(design) if design is not None else None
         if ends is None:
             return None
@@ -88,7 +87,7 @@ class CampaignVerification:
         if self.coverage.get(thrust) == "covered":
             return None
         point = next(p for p in design.points if p.thrust == thrust)
-        return self._step(thrust, dict(point.scheduled), "scheduled", steady_now=thrust == here)
+        return self._step(thrust, dict(point.scheduled), "scheduled")
 
     def original_step(self, original: dict[str, float], end: str, design: GainDesign | None) -> VerificationStep | None:
         """The original gains at a verified speed whose flown step its model did not predict (the
