@@ -52,15 +52,17 @@ def test_yaw_identified_at_three_speeds_within_5_percent_of_the_truth(rehearsal)
         assert run["b2"] == pytest.approx(run["true_b2"], rel=0.05), run
 
 
-def test_native_gains_kept_after_heading_steps_pass_the_check(rehearsal):
+def test_native_gains_kept_after_the_verification_steps_pass(rehearsal):
     _, summary = rehearsal
     assert summary["status"] == "completed", summary.get("reason")
-    assert summary["verification"] == "passed"
-    steps = {(s["thrust"], s["label"]): s for s in summary["heading_steps"]}
-    for thrust in (0.45, 0.55, 0.65):
-        scheduled, original = steps[(thrust, "scheduled")], steps[(thrust, "original")]
-        assert scheduled["max_overshoot_pct"] <= 10.0 and scheduled["oscillations"] <= 1
-        assert scheduled["iae_s"] < original["iae_s"]
+    assert summary["verification"] == "passed" and summary["checks"] == "verify"
+    flown = summary["verified"]["flown"]
+    assert {(s["thrust"], s["label"]) for s in flown} >= {(0.45, "own"), (0.65, "scheduled")}
+    for step in flown:
+        assert step["decided"] and step["max_overshoot_pct"] <= 10.0 and step["oscillations"] <= 1
+    predicted = {(s["thrust"], s["label"]): s for s in summary["verified"]["predicted"]}
+    for thrust in (0.45, 0.55, 0.65):  # the schedule predicted better than the vehicle's own gains everywhere
+        assert predicted[(thrust, "scheduled")]["iae_s"] < predicted[(thrust, "original")]["iae_s"]
     gains = summary["final_gains"]
     assert set(gains) == {"heading_angle_p", "heading_rate_p", "heading_rate_i", "heading_rate_ff"}
     assert gains["heading_rate_ff"] == 0.0  # ArduSub never applies ATC_RAT_YAW_FF
