@@ -90,6 +90,16 @@ def found_state(link) -> Found:
     return Found(link.get_params(HEADING_GAINS[link.profile.name]), link.mode, strategy.manual_control_present)
 
 
+def settled_state(link, settle_s: float = 12.0) -> Found:
+    """:func:`found_state` after ``settle_s`` of vehicle time: PX4 forgets a MAVLink stick source only
+    COM_RC_LOSS_T (5 s here) after its last stick, so a state read sooner after a companion stopped
+    streaming still shows the companion's sticks (as :func:`as_found_problems` waits)."""
+    start = link.vehicle_time_s
+    while link.vehicle_time_s - start < settle_s:
+        link.next_telemetry()
+    return found_state(link)
+
+
 def as_found_problems(link, found: Found, *, mode: bool = True, settle_s: float = 12.0) -> list[str]:
     """What is not as found, after ``settle_s`` of vehicle time (longer than the simulated vehicle's
     COM_RC_LOSS_T of 5 s plus what a companion lagging the stream may take to see it, so a
