@@ -207,6 +207,16 @@ def test_a_late_echo_of_an_earlier_write_of_ours_is_not_someone_elses_change(fak
     assert link.parameters.foreign["HDG_P"].value == pytest.approx(0.95)
 
 
+def test_a_trigger_the_vehicle_resets_itself_is_not_someone_elses_change(fake_link):
+    """The simulator applies a roll kick and sets SIM_ROLL_KICK back to 0 (a one-shot trigger)."""
+    fake, link = fake_link
+    link.parameters.watch(["HDG_P", "SIM_ROLL_KICK"])
+    assert link.parameters.watched == {"HDG_P"}
+    fake.emit(mavlink.MAVLink_param_value_message(b"SIM_ROLL_KICK", 0.0, pc.REAL32, 3, 0))
+    link.next_telemetry()
+    assert not link.parameters.foreign
+
+
 @pytest.mark.parametrize("now_on_vehicle, kept", [(0.95, True), (0.8, False)])
 def test_a_foreign_change_is_kept_only_while_the_vehicle_still_holds_it(fake_link, now_on_vehicle, kept):
     """The restore reads the parameter again: someone else's value still there is kept; one since

@@ -84,7 +84,8 @@ class ParameterChannel:
     def watch(self, names) -> None:
         """Watch these parameters for changes by anyone else (from now on; earlier changes and
         the values our writes asked for forgotten)."""
-        self.watched = set(names)
+        resetting = {self.profile.params.get(n, n) for n in getattr(self.profile, "self_resetting", ())}
+        self.watched = set(names) - resetting
         self.foreign = {}
         self._asked.clear()
 

@@ -116,6 +116,9 @@ class AutopilotProfile:
     campaign_defaults: CampaignDefaults = field(default_factory=CampaignDefaults)
     # what a thrust level (SetThrust, 0..1) is on this autopilot: the one statement of its unit
     thrust_meaning: str = "the thruster's thrust ratio"
+    # parameters the vehicle puts back by itself once it acted on them (one-shot triggers, neutral
+    # names): not watched for other people's changes, whose reset would otherwise look like one
+    self_resetting: tuple[str, ...] = ()
     # what drives the boat, read from the vehicle at connect (its SERVOn_FUNCTION): a steering servo
     # and a throttle, or a skid-steered pair un-mixed into steering and throttle; None: the fixed
     # ``servo_outputs`` above (companion.link.actuation)

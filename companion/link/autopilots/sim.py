@@ -35,6 +35,7 @@ PROFILE = AutopilotProfile(
         "roll_disturbance": "SIM_ROLL_DIST", "roll_kick": "SIM_ROLL_KICK",  # test hooks of the simulator
     },
     marker_param="HDG_P",
+    self_resetting=("roll_kick",),  # the simulator applies the impulse and sets it back to 0
     angle_full_scale_rad=0.5236,
     thrust_pwm_zero=1000,
     thrust_pwm_full=2000,
