@@ -50,10 +50,9 @@ import socket
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Iterable
 
 from harness.delivery_log import DeliveryLog
-from harness.fault_schedule import (BOTH, FAULT_KINDS, TO_COMPANION, TO_VEHICLE, Fault, FaultEvent, FaultSchedule,
+from harness.fault_schedule import (BOTH, FAULT_KINDS, TO_COMPANION, TO_VEHICLE, Fault, FaultEvent, FaultSchedule, ScheduledFaults,
                                     Trigger, overtaken, timed_delay)
 from harness.link_conditions import LinkConditions, TokenBucket
 from harness.mavlink_frames import MESSAGE_IDS, Frame, split_frames
@@ -126,7 +125,7 @@ class _Session:
 
 
 # ====================================================================== the proxy
-class FaultProxy:
+class FaultProxy(ScheduledFaults):
     """The proxy (module docstring). ``with FaultProxy(vehicle_port, seed=3) as proxy:`` …
     ``proxy.endpoint`` is what the companion connects to; :meth:`arm` starts counting triggers
     with a schedule of faults; :meth:`summary` says what fired. ``conditions``: a rate cap and a
@@ -192,29 +191,7 @@ class FaultProxy:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    # ------------------------------------------------------------------ schedule
-    def arm(self, faults: Iterable[Fault]) -> None:
-        """Replace the schedule and start counting triggers from now (at most ``max_faults``)."""
-        with self._lock:
-            self._faults.arm(faults)
-
-    def disarm(self) -> None:
-        """No further fault starts; active ones end; held frames go out at the next chance."""
-        with self._lock:
-            self._faults.disarm()
-
-    @property
-    def schedule(self) -> list[Fault]:
-        return list(self._faults.faults)
-
-    @property
-    def events(self) -> list[FaultEvent]:
-        return self._faults.events
-
-    @property
-    def triggered(self) -> dict[int, float]:
-        return self._faults.triggered
-
+    # ------------------------------------------------------------------ schedule (ScheduledFaults)
     @property
     def frames_seen(self) -> dict[str, int]:
         return self._faults.frames_seen
@@ -222,11 +199,6 @@ class FaultProxy:
     @property
     def message_counts(self) -> dict[tuple[str, str], int]:
         return self._faults.message_counts
-
-    @property
-    def delivered_commands(self) -> dict[int, tuple[float, ...]]:
-        """COMMAND_LONG id -> the parameters last delivered to the vehicle."""
-        return self.delivered.commands
 
     def fired(self, index: int) -> int:
         """Frames (or link cuts) fault ``index`` affected."""

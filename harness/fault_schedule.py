@@ -312,3 +312,36 @@ class FaultSchedule:
 def _ordinal(n: int) -> str:
     suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
     return f"{n}{suffix}"
+
+
+class ScheduledFaults:
+    """What a link in the middle (the TCP proxy, the UDP relay) says of its triggered faults: the
+    schedule armed, what happened, and the commands it delivered. A mixin: the class holds
+    ``_lock``, ``_faults`` (a :class:`FaultSchedule`) and ``delivered`` (its delivery record)."""
+
+    def arm(self, faults: Iterable[Fault]) -> None:
+        """Replace the schedule and start counting triggers from now (at most ``max_faults``)."""
+        with self._lock:
+            self._faults.arm(faults)
+
+    def disarm(self) -> None:
+        """No further fault starts; active ones end; held frames go out at the next chance."""
+        with self._lock:
+            self._faults.disarm()
+
+    @property
+    def schedule(self) -> list[Fault]:
+        return list(self._faults.faults)
+
+    @property
+    def events(self) -> list[FaultEvent]:
+        return self._faults.events
+
+    @property
+    def triggered(self) -> dict[int, float]:
+        return self._faults.triggered
+
+    @property
+    def delivered_commands(self) -> dict[int, tuple[float, ...]]:
+        """COMMAND_LONG id -> the parameters last delivered to the vehicle."""
+        return self.delivered.commands

@@ -57,11 +57,10 @@ import struct
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Iterable
 
 from harness.delivery_log import DeliveryLog
 from harness.fault_proxy import per_direction
-from harness.fault_schedule import TO_COMPANION, TO_VEHICLE, Fault, FaultEvent, FaultSchedule, Trigger
+from harness.fault_schedule import TO_COMPANION, TO_VEHICLE, FaultSchedule, ScheduledFaults, Trigger
 from harness.link_conditions import FateDraws, LinkConditions, TokenBucket
 from harness.mavlink_frames import Frame, split_datagram
 
@@ -118,7 +117,7 @@ class _Direction:
             self.bucket = TokenBucket(c.rate_bytes_s, c.burst_bytes, c.queue_bytes)
 
 
-class UdpRelay:
+class UdpRelay(ScheduledFaults):
     """The relay (module docstring). ``with UdpRelay(sim.port, seed=3, conditions=LinkConditions(
     loss=0.02)) as relay:`` … the companion connects to ``relay.endpoint``; :meth:`arm` starts a
     schedule of triggered faults as on the TCP proxy; :meth:`stats` says what the link did."""
@@ -203,34 +202,7 @@ class UdpRelay:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    # ------------------------------------------------------------------ schedule (as FaultProxy)
-    def arm(self, faults: Iterable[Fault]) -> None:
-        """Replace the schedule of triggered faults and start counting triggers from now."""
-        with self._lock:
-            self._faults.arm(faults)
-
-    def disarm(self) -> None:
-        """No further fault starts; active ones end; held frames go out at the next chance."""
-        with self._lock:
-            self._faults.disarm()
-
-    @property
-    def schedule(self) -> list[Fault]:
-        return list(self._faults.faults)
-
-    @property
-    def events(self) -> list[FaultEvent]:
-        return self._faults.events
-
-    @property
-    def triggered(self) -> dict[int, float]:
-        return self._faults.triggered
-
-    @property
-    def delivered_commands(self) -> dict[int, tuple[float, ...]]:
-        """COMMAND_LONG id -> the parameters last delivered to the vehicle."""
-        return self.delivered.commands
-
+    # ------------------------------------------------------------------ schedule (ScheduledFaults)
     def fired(self, index: int) -> int:
         return self._faults.fired(index)
 
