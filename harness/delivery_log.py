@@ -47,8 +47,11 @@ class DeliveryLog:
         self._overrides: dict[int, int] = {}  # channel -> last delivered value (a release removes it)
 
     def note(self, frame: Frame, direction: str, wall_s: float | None = None) -> None:
-        """``frame`` was delivered travelling ``direction``."""
+        """``frame`` was delivered travelling ``direction`` (one whose checksum fails is discarded by
+        its receiver: counted, not read)."""
         self.frames[direction] += 1
+        if not frame.crc_ok():
+            return
         name = frame.name
         if direction == TO_VEHICLE:
             if name == "RC_CHANNELS_OVERRIDE":

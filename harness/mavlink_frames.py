@@ -91,6 +91,20 @@ class Frame:
             return self.name, self.command(), self.payload()[:30]
         return None
 
+    def crc_ok(self) -> bool:
+        """The frame's checksum matches (X.25 over header and payload with the message's CRC_EXTRA,
+        pymavlink's tables): what a receiver keeps. False for a message this dialect does not know."""
+        from pymavlink.dialects.v20 import ardupilotmega as dialect  # only where a delivery is judged
+        from pymavlink.mavutil import x25crc
+
+        entry = dialect.mavlink_map.get(self.msgid)
+        if entry is None:
+            return False
+        end = self.header_len + self.payload_len
+        crc = x25crc(self.raw[1:end])
+        crc.accumulate(bytes([entry.crc_extra]))
+        return crc.crc == int.from_bytes(self.raw[end:end + 2], "little")
+
     def corrupted(self, rng: random.Random) -> bytes:
         """The frame with one payload (or checksum) byte flipped: its CRC no longer matches."""
         raw = bytearray(self.raw)

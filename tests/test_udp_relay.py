@@ -390,3 +390,23 @@ def test_the_tcp_proxy_caps_the_byte_rate_and_refuses_datagram_conditions():
         assert proxy.delivered.attitude_delivered == 600 and proxy.rate_dropped[TO_COMPANION] == 0
     finally:
         server.close()
+
+
+def test_a_corrupted_frame_is_delivered_but_not_read_as_what_the_vehicle_was_told():
+    """The vehicle's CRC check discards a corrupted frame: the delivery record must not count an
+    RC override in it as held (the UDP fault matrix reported a channel 'held at 65280')."""
+    import random
+
+    from pymavlink.dialects.v20 import ardupilotmega as dialect
+
+    from harness.delivery_log import DeliveryLog
+    from harness.fault_schedule import TO_VEHICLE
+    from harness.mavlink_frames import split_datagram
+
+    mav = dialect.MAVLink(None, srcSystem=255)
+    held = split_datagram(dialect.MAVLink_rc_channels_override_message(1, 1, 1700, 0, 0, 0, 0, 0, 0, 0).pack(mav))[0]
+    log = DeliveryLog()
+    log.note(split_datagram(held.corrupted(random.Random(3)))[0], TO_VEHICLE)
+    assert log.frames[TO_VEHICLE] == 1 and log.held_overrides() == {}
+    log.note(held, TO_VEHICLE)
+    assert log.held_overrides() == {1: 1700}
