@@ -12,7 +12,7 @@ pytestmark = pytest.mark.e2e
 
 
 def test_run_behavior_prints_its_summary_and_exits_by_its_status(sim_factory, mav_client, tmp_path):
-    sim = sim_factory(transport="tcp", speedup=10, seed=3)
+    sim = sim_factory(transport="tcp", speedup=50, seed=3)
     gcs = mav_client(sim.endpoint)
     gcs.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # armed, as a user leaves it
     done = subprocess.run([sys.executable, "-m", "companion", "run-behavior", "roll", "--connect", sim.endpoint,

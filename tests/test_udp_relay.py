@@ -30,8 +30,14 @@ WAIT_S = 3.0  # the longest any test waits for datagrams that do not come
 
 
 def _frame(msgid: int, payload: bytes) -> bytes:
-    """A MAVLink 2 frame (the relay does not check the CRC)."""
-    return bytes([0xFD, len(payload), 0, 0, 7, 1, 1]) + msgid.to_bytes(3, "little") + payload + b"\x12\x34"
+    """A MAVLink 2 frame with its checksum (the delivery record reads only frames a receiver keeps)."""
+    from pymavlink.dialects.v20 import ardupilotmega as dialect
+    from pymavlink.mavutil import x25crc
+
+    head = bytes([0xFD, len(payload), 0, 0, 7, 1, 1]) + msgid.to_bytes(3, "little")
+    crc = x25crc(head[1:] + payload)
+    crc.accumulate(bytes([dialect.mavlink_map[msgid].crc_extra]))
+    return head + payload + crc.crc.to_bytes(2, "little")
 
 
 def _attitude(number: int) -> bytes:
