@@ -33,6 +33,10 @@ class CommandDelivery:
     confirmation: int
 
 
+#: the messages a delivery record reads
+_READ = frozenset({"RC_CHANNELS_OVERRIDE", "COMMAND_LONG", "COMMAND_ACK", "ATTITUDE"})
+
+
 class DeliveryLog:
     """Frames delivered, per direction (module docstring). Not thread-safe: the owner's lock."""
 
@@ -50,9 +54,9 @@ class DeliveryLog:
         """``frame`` was delivered travelling ``direction`` (one whose checksum fails is discarded by
         its receiver: counted, not read)."""
         self.frames[direction] += 1
-        if not frame.crc_ok():
-            return
         name = frame.name
+        if name in _READ and not frame.crc_ok():  # checked only where a frame is read (the hot path)
+            return
         if direction == TO_VEHICLE:
             if name == "RC_CHANNELS_OVERRIDE":
                 self._note_override(frame)

@@ -200,30 +200,6 @@ class FaultProxy(ScheduledFaults):
     def message_counts(self) -> dict[tuple[str, str], int]:
         return self._faults.message_counts
 
-    def fired(self, index: int) -> int:
-        """Frames (or link cuts) fault ``index`` affected."""
-        return self._faults.fired(index)
-
-    def summary(self) -> list[dict]:
-        """Per scheduled fault: its description, whether it triggered and how many frames it hit."""
-        with self._lock:
-            return self._faults.summary()
-
-    def count(self, message: str, direction: str = TO_VEHICLE) -> int:
-        """Frames of ``message`` seen travelling ``direction`` since :meth:`arm`."""
-        return self._faults.count(message, direction)
-
-    def held_overrides(self) -> dict[int, int]:
-        """Channels whose last RC override delivered to the vehicle holds a value (not a release)."""
-        with self._lock:
-            return self.delivered.held_overrides()
-
-    def history(self, command: int, *, sent: bool = False) -> list:
-        """The COMMAND_LONGs ``command`` delivered to the vehicle, in the order it received them
-        (``sent``: in the order the companion sent them)."""
-        with self._lock:
-            return (self.received if sent else self.delivered).history(command)
-
     def pending(self) -> int:
         """Frames still held, paced or waiting to be written."""
         with self._lock:

@@ -317,7 +317,8 @@ def _ordinal(n: int) -> str:
 class ScheduledFaults:
     """What a link in the middle (the TCP proxy, the UDP relay) says of its triggered faults: the
     schedule armed, what happened, and the commands it delivered. A mixin: the class holds
-    ``_lock``, ``_faults`` (a :class:`FaultSchedule`) and ``delivered`` (its delivery record)."""
+    ``_lock``, ``_faults`` (a :class:`FaultSchedule`), ``received`` and ``delivered`` (its
+    delivery records: what the companion sent, what reached the vehicle)."""
 
     def arm(self, faults: Iterable[Fault]) -> None:
         """Replace the schedule and start counting triggers from now (at most ``max_faults``)."""
@@ -345,3 +346,27 @@ class ScheduledFaults:
     def delivered_commands(self) -> dict[int, tuple[float, ...]]:
         """COMMAND_LONG id -> the parameters last delivered to the vehicle."""
         return self.delivered.commands
+
+    def fired(self, index: int) -> int:
+        """Frames (or link cuts) fault ``index`` affected."""
+        return self._faults.fired(index)
+
+    def summary(self) -> list[dict]:
+        """Per scheduled fault: its description, whether it triggered and how many frames it hit."""
+        with self._lock:
+            return self._faults.summary()
+
+    def count(self, message: str, direction: str = TO_VEHICLE) -> int:
+        """Frames of ``message`` seen travelling ``direction`` since :meth:`arm`."""
+        return self._faults.count(message, direction)
+
+    def held_overrides(self) -> dict[int, int]:
+        """Channels whose last RC override delivered to the vehicle holds a value (not a release)."""
+        with self._lock:
+            return self.delivered.held_overrides()
+
+    def history(self, command: int, *, sent: bool = False) -> list:
+        """The COMMAND_LONGs ``command`` delivered to the vehicle, in the order it received them
+        (``sent``: in the order the companion sent them, before any fault or condition)."""
+        with self._lock:
+            return (self.received if sent else self.delivered).history(command)

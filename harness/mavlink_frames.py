@@ -11,6 +11,9 @@ import random
 import struct
 from dataclasses import dataclass
 
+from pymavlink.dialects.v20 import ardupilotmega as dialect
+from pymavlink.mavutil import x25crc
+
 __all__ = ["MESSAGE_IDS", "MESSAGE_NAMES", "Frame", "split_datagram", "split_frames"]
 
 MAGIC_V2, MAGIC_V1 = 0xFD, 0xFE
@@ -94,9 +97,6 @@ class Frame:
     def crc_ok(self) -> bool:
         """The frame's checksum matches (X.25 over header and payload with the message's CRC_EXTRA,
         pymavlink's tables): what a receiver keeps. False for a message this dialect does not know."""
-        from pymavlink.dialects.v20 import ardupilotmega as dialect  # only where a delivery is judged
-        from pymavlink.mavutil import x25crc
-
         entry = dialect.mavlink_map.get(self.msgid)
         if entry is None:
             return False

@@ -203,28 +203,6 @@ class UdpRelay(ScheduledFaults):
         self.close()
 
     # ------------------------------------------------------------------ schedule (ScheduledFaults)
-    def fired(self, index: int) -> int:
-        return self._faults.fired(index)
-
-    def summary(self) -> list[dict]:
-        """Per scheduled fault: its description, whether it triggered and how many frames it hit."""
-        with self._lock:
-            return self._faults.summary()
-
-    def count(self, message: str, direction: str = TO_VEHICLE) -> int:
-        """Frames of ``message`` seen travelling ``direction`` since :meth:`arm`."""
-        return self._faults.count(message, direction)
-
-    def held_overrides(self) -> dict[int, int]:
-        with self._lock:
-            return self.delivered.held_overrides()
-
-    def history(self, command: int, *, sent: bool = False) -> list:
-        """The COMMAND_LONGs ``command`` delivered to the vehicle, in the order it received them
-        (``sent``: in the order the companion sent them, before any fault or condition)."""
-        with self._lock:
-            return (self.received if sent else self.delivered).history(command)
-
     def acks(self) -> list[tuple[float, int, int]]:
         """The COMMAND_ACKs delivered to the companion: (wall, command, result)."""
         with self._lock:
