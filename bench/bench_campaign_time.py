@@ -80,9 +80,9 @@ def after_campaign(seed: int) -> dict:
     rows: list[dict] = []
     if outcome.status != "completed" or verifier is None or design is None:
         return {"status": outcome.status, "rows": rows, "flown_in_campaign": []}
-    original = campaign._original_heading()
+    original = campaign.original_heading()
     for point in design.points:
-        model = verifier._model_at(campaign.accepted, point.thrust)
+        model = verifier.model_at(campaign.accepted, point.thrust)
         for label, gains in (("scheduled", dict(point.scheduled)), ("original", original)):
             step = VerificationStep(point.thrust, gains, verifier.config, rudder_max=verifier.limits.rudder_max,
                                     label=label)
@@ -90,7 +90,7 @@ def after_campaign(seed: int) -> dict:
             if not step.decided:
                 rows.append({"thrust": point.thrust, "label": label, "decided": False})
                 continue
-            predicted = verifier._predict(model, gains, step.metrics["duration_s"])
+            predicted = verifier.step_prediction(model, gains, step.metrics["duration_s"])
             rows.append({"thrust": point.thrust, "label": label, "decided": True,
                          "overshoot": step.metrics["overshoot_pct"], "predicted_overshoot": predicted["overshoot_pct"],
                          "iae": step.metrics["iae_s"], "predicted_iae": predicted["iae_s"]})

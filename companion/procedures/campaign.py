@@ -169,8 +169,8 @@ class IdentificationCampaign(Behaviour):
             # the highest first: where the identification ends, so no thrust change before it
             for slot in (lambda: self._verifier().scheduled_step(self.heading_design, "highest"),
                          lambda: self._verifier().scheduled_step(self.heading_design, "lowest"),
-                         lambda: self._verifier().original_step(self._original_heading(), "highest", self.heading_design),
-                         lambda: self._verifier().original_step(self._original_heading(), "lowest", self.heading_design)):
+                         lambda: self._verifier().original_step(self.original_heading(), "highest", self.heading_design),
+                         lambda: self._verifier().original_step(self.original_heading(), "lowest", self.heading_design)):
                 items.append(Deferred(slot, self._heading_gains))
         elif self.checks == "compare":
             for thrust in cfg.thrusts:
@@ -194,7 +194,7 @@ class IdentificationCampaign(Behaviour):
     def _heading_gains(self) -> Footprint:
         return Footprint.of(self.heading_kind.parameters if self.heading_kind else (), ("mode", "thrust", "heading"))
 
-    def _original_heading(self) -> dict[str, float]:
+    def original_heading(self) -> dict[str, float]:
         names = self.heading_kind.parameters if self.heading_kind else ()
         return {k: v for k, v in self.original_gains.items() if k in names}
 
@@ -222,7 +222,7 @@ class IdentificationCampaign(Behaviour):
             self.events.append(DesignMade(design))
             texts.append(StatusText(f"{kind.name} schedule designed at {len(design.points)} speeds"))
             if self.verifier_wanted and kind is self.heading_kind:
-                self._verifier().predict(design, self.accepted, self._original_heading())
+                self._verifier().predict(design, self.accepted, self.original_heading())
         return Instant(*texts, name="design")
 
     def _gains_for(self, label: str, thrust: float) -> dict[str, float] | None:

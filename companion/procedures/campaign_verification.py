@@ -41,11 +41,11 @@ class CampaignVerification:
     def _yaw(attempts: Sequence) -> list:
         return sorted((a for a in attempts if a.axis == "yaw" and a.accepted), key=lambda a: a.thrust)
 
-    def _model_at(self, attempts: Sequence, thrust: float):
+    def model_at(self, attempts: Sequence, thrust: float):
         models = self._yaw(attempts)
         return min(models, key=lambda a: abs(a.thrust - thrust)).model if models else None
 
-    def _predict(self, model, gains: dict[str, float], duration_s: float | None = None) -> dict:
+    def step_prediction(self, model, gains: dict[str, float], duration_s: float | None = None) -> dict:
         """The model's step with ``gains``, over ``duration_s`` (default: the longest a flown step lasts)."""
         duration = duration_s if duration_s and math.isfinite(duration_s) and duration_s > 1.0 else self.config.max_s
         return predicted_step(self.controller, model, gains, self.limits, self.config.step, duration)
@@ -109,9 +109,9 @@ class CampaignVerification:
     def record(self, step: VerificationStep, attempts: Sequence) -> dict:
         """A flown step's result with the model's prediction for its gains."""
         result = step.result()
-        model = self._model_at(attempts, step.thrust)
+        model = self.model_at(attempts, step.thrust)
         flown_s = step.metrics.get("duration_s")
-        result["predicted"] = self._predict(model, step.gains, flown_s) if model is not None else None
+        result["predicted"] = self.step_prediction(model, step.gains, flown_s) if model is not None else None
         self.flown.append(result)
         return result
 
@@ -120,14 +120,14 @@ class CampaignVerification:
         whether the lowest speed's own-design flight stands for the schedule there."""
         self.predicted = []
         for point in design.points:
-            model = self._model_at(attempts, point.thrust)
+            model = self.model_at(attempts, point.thrust)
             if model is None:
                 continue
-            scheduled = self._predict(model, point.scheduled)
+            scheduled = self.step_prediction(model, point.scheduled)
             self.predicted.append({"thrust": point.thrust, "speed": point.speed, "label": "scheduled", **scheduled})
             if original:
                 self.predicted.append({"thrust": point.thrust, "speed": point.speed, "label": "original",
-                                       **self._predict(model, original)})
+                                       **self.step_prediction(model, original)})
             own = next((s for s in self.flown if s["thrust"] == point.thrust and s["label"] == "own"), None)
             if own is not None and own.get("predicted") is not None:
                 self.coverage[point.thrust] = "covered" if self.rule.covers(own["predicted"], scheduled) else \
