@@ -97,6 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--truth-log", metavar="CSV", default=None,
                      help="with --autopilot ardurover/ardusub/px4-*: write the physics' own speed every 0.1 s of "
                           "vehicle time (the autopilot's estimate of it is not the truth)")
+    run.add_argument("--workdir", metavar="DIR", default=None,
+                     help="with --autopilot ardurover/ardusub: SITL's working folder, kept after the run (its "
+                          "DataFlash logs are in DIR/logs); default a temporary folder, deleted")
     run.set_defaults(func=_run)
 
     lin = sub.add_parser("linearize", help="the preset's linearised yaw parameters (truth; Nomoto's K, T1, T2, T3 "
@@ -187,7 +190,8 @@ def _run_ardupilot(args: argparse.Namespace) -> int:
     config = SitlConfig(autopilot=args.autopilot, bin_dir=Path(bin_dir), preset=preset,
                         speedup=args.speedup if args.speedup > 0 else 1.0, seed=args.seed, current=args.current,
                         depth=0.0 if args.autopilot == "ardurover" else args.depth, params=params,
-                        truth_log=Path(args.truth_log) if args.truth_log else None, faults=tuple(args.fault))
+                        truth_log=Path(args.truth_log) if args.truth_log else None, faults=tuple(args.fault),
+                        workdir=Path(args.workdir) if args.workdir else None)
     try:
         sitl = ArduPilotSitl(config, on_ready=lambda endpoint: print(f"READY {endpoint}", flush=True))
     except (ValueError, RuntimeError) as exc:

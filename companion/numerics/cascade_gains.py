@@ -15,6 +15,11 @@ The plant is the identified ṙ = a22·r + b2·δ = a22·r + b·s with b = b2·�
   a plant faster than ωr): the rule above gave P = 0 and heading steps overshot 78–124 %.
 * **I = ωr_a/(N·b)** with N = 10: the integrator alone would close a loop a decade slower than the
   achieved bandwidth ωr_a = −a22 + b·P; it removes the trim δ0 and any model error.
+* **The output's speed scaling**: ArduRover multiplies a rudder's steering output by k = base/|U|
+  above MOT_SPD_SCA_BASE (``AP_MotorsUGV::output_regular``; not for skid steering or vectored
+  thrust), so the plant the gains see is b = k·b2·δfs (``CascadeRules.output_scale_base``, eq. A.2).
+  Measured on ArduRover SITL before this was modelled: at 1.9 m/s (k = 0.53) the rate loop was half
+  as fast as designed and the designed ±20° steps overshot 11 % against 3.3 % predicted.
 * **ANG_P = ωr_a/2**: with the rate loop as a first-order lag 1/(1 + s/ωr_a), the heading loop
   s² + ωr_a·s + ωr_a·ANG_P has ζ = 0.7071 at ANG_P = ωr_a/2 (a 4.3 % step overshoot).
 
@@ -43,11 +48,27 @@ class CascadeRules:
     rate_p_range: tuple[float, float] = (0.0, 2.0)
     rate_i_range: tuple[float, float] = (0.0, 2.0)
     rate_ff_range: tuple[float, float] = (0.0, 3.0)
+    #: the speed (m/s) above which the autopilot scales the steering output by base/|U| (ArduRover's
+    #: MOT_SPD_SCA_BASE for a rudder); None: the output is not scaled
+    output_scale_base: float | None = None
 
     def __post_init__(self) -> None:
         require_positive(self, "full_scale", "rate_bandwidth", "integral_ratio")
         for name in ("angle_p_range", "rate_p_range", "rate_i_range", "rate_ff_range"):
             require_interval(self, name)
+
+    def output_scale(self, speed: float | None) -> float:
+        """k at ``speed`` (:func:`output_speed_scale`)."""
+        return output_speed_scale(self.output_scale_base, speed)
+
+
+def output_speed_scale(base: float | None, speed: float | None) -> float:
+    """k of eq. A.2: ArduRover multiplies a rudder's steering output by base/|U| above the base speed
+    (``AP_MotorsUGV::output_regular``, MOT_SPD_SCA_BASE); 1 at or below it, without a base (None,
+    ≤ 0) or without a speed."""
+    if base is None or not base > 0.0 or speed is None or not math.isfinite(speed) or abs(speed) <= base:
+        return 1.0
+    return base / abs(speed)
 
 
 @dataclass
@@ -80,7 +101,7 @@ def design_cascade_gains(model: YawModel, rules: CascadeRules = CascadeRules(), 
     a22, b2 = float(model.a22), float(model.b2)
     if not (math.isfinite(a22) and math.isfinite(b2)) or a22 >= 0.0 or b2 <= 0.0:
         raise ValueError(f"the model needs finite a22 < 0 and b2 > 0, got a22={a22}, b2={b2}")
-    b = b2 * rules.full_scale
+    b = b2 * rules.full_scale * rules.output_scale(speed)
     clamped: list[str] = []
     rate_ff = _clamp("rate_ff", -a22 / b, rules.rate_ff_range, clamped)
     rate_p = max(0.0, (rules.rate_bandwidth + a22) / b)

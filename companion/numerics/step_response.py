@@ -7,8 +7,9 @@ rudder's limit and slew rate), under the autopilot's own heading controller:
 
 * the heading PI of our simulator (eq. A.1): δ = trim + Kp·e + I, İ = Ki·e with
   |I| ≤ imax and conditional integration while the rudder is saturated;
-* ArduPilot's cascade (eq. A.2): desired turn rate r_d = ANG_P·e (limited), steering
-  s = FF·r_d + P·(r_d − r) + I∫(r_d − r) (|I| ≤ IMAX), |s| ≤ 1, δ = s·δfs.
+* ArduPilot's cascade (eq. A.2): desired turn rate r_d = ANG_P·e (limited in size, in slew and by
+  the distance left to stop), steering s = FF·r_d + P·(r_d − r) + I∫(r_d − r) (|I| ≤ IMAX),
+  δ = δfs·sat(k·s) with k the output's speed scaling (``companion.numerics.cascade_gains.output_speed_scale``).
 
 Before the step the vehicle is on course with the rudder at its trim δ0, the integrator holding what
 the trim feed-forward does not. Pure: Euler integration at ``dt`` (10 ms against yaw time constants
@@ -104,11 +105,15 @@ def _slew(current: float, demand: float, limit: float, max_step: float) -> float
 
 def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], step: float, duration_s: float,
                   *, full_scale: float = 0.5236, rate_max: float = math.inf, imax: float = 0.15,
+                  rate_accel_max: float = math.inf, output_scale: float = 1.0,
                   dt: float = 0.01) -> tuple[np.ndarray, np.ndarray, float]:
     """Heading over time after a step of ``step`` rad from 0 (module docstring); also the largest
     rudder deflection reached. ``controller``: ``"pi"`` (gains ``heading_p``, ``heading_i``,
     ``rudder_trim``) or ``"cascade"`` (``heading_angle_p``, ``heading_rate_p``, ``heading_rate_i``,
-    ``heading_rate_ff``; ``heading_rate_imax`` as a fraction of the output, default 1)."""
+    ``heading_rate_ff``; ``heading_rate_imax`` as a fraction of the output, default 1), with the
+    desired turn rate limited to ``rate_max`` (rad/s), its change to ``rate_accel_max`` (rad/s²,
+    which also caps it at √(2·|e|·accel) so the turn can stop on target, as ArduPilot's
+    ``get_turn_rate_from_heading``), and the output scaled by ``output_scale`` (k of eq. A.2)."""
     steps = int(round(duration_s / dt))
     times = np.arange(steps + 1) * dt
     heading = np.zeros(steps + 1)
@@ -121,7 +126,9 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
         angle_p = gains.get("heading_angle_p", 0.0)
         rate_p, rate_i = gains.get("heading_rate_p", 0.0), gains.get("heading_rate_i", 0.0)
         rate_ff, rate_imax = gains.get("heading_rate_ff", 0.0), gains.get("heading_rate_imax", 1.0)
-        integral = min(max(plant.delta0 / full_scale, -rate_imax), rate_imax)
+        integral = min(max(plant.delta0 / (full_scale * output_scale), -rate_imax), rate_imax)
+        accel_step = rate_accel_max * dt
+        previous_demand = 0.0
     else:
         raise ValueError(f"unknown heading controller {controller!r} (pi, cascade)")
     peak = abs(delta)
@@ -135,12 +142,19 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
             demand = min(max(trim + kp * error + integral, -plant.rudder_max), plant.rudder_max)
         else:
             rate_demand = min(max(angle_p * error, -rate_max), rate_max)
+            if math.isfinite(rate_accel_max):
+                stop_limit = math.sqrt(2.0 * abs(error) * rate_accel_max)
+                rate_demand = min(max(rate_demand, -stop_limit), stop_limit)
+                rate_demand = min(max(rate_demand, previous_demand - accel_step), previous_demand + accel_step)
+                previous_demand = rate_demand
             rate_error = rate_demand - r
-            output = rate_ff * rate_demand + rate_p * rate_error + integral
+            # the speed scaling comes before the output's limit (AP_MotorsUGV::output_regular), and
+            # the integrator stops growing while the scaled output is at it
+            output = output_scale * (rate_ff * rate_demand + rate_p * rate_error + integral)
             if abs(output) < 1.0 or (rate_i * rate_error) * output <= 0.0:
                 integral = min(max(integral + rate_i * rate_error * dt, -rate_imax), rate_imax)
-            steering = min(max(rate_ff * rate_demand + rate_p * rate_error + integral, -1.0), 1.0)
-            demand = steering * full_scale
+            output = output_scale * (rate_ff * rate_demand + rate_p * rate_error + integral)
+            demand = min(max(output, -1.0), 1.0) * full_scale
         delta = _slew(delta, demand, plant.rudder_max, max_step)
         peak = max(peak, abs(delta))
         r += (plant.a22 * r + plant.b2 * (delta - plant.delta0)) * dt

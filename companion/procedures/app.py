@@ -228,7 +228,11 @@ def run_campaign(
         if gcs is not None:
             gcs.finish(outcome)
         return campaign, outcome, campaign_id
-    campaign.original_gains = dict(original.parameters)
+    if campaign.adopt_original(original.parameters):
+        try:
+            store.update_campaign_config(campaign_id, campaign.config.to_dict())
+        except StoreError as exc:  # the design still uses it; only an export's rebuild would miss it
+            log.warning("the resolved campaign configuration could not be stored: %s", exc)
     log.info("campaign %d started; original gains %s, mode %s", campaign_id, original.parameters, original.mode)
     try:
         trail_id = store.save_restore_point(campaign_id, original.as_json(), vehicle_identity(link))

@@ -128,7 +128,26 @@ class IdentificationCampaign(Behaviour):
         self.verifier: CampaignVerification | None = None  # the short campaign's ("verify")
         if self.checks == "verify" and self.heading_kind is not None:
             parameters |= set(LIMIT_PARAMETERS)  # read for the predictions (restored unchanged)
+        if config.cascade.output_scale_base is not None:
+            parameters.add("steering_scale_speed")  # read for the design (restored unchanged)
         self.footprint = Footprint.of(parameters, ("mode", "thrust", "heading", "depth", "rudder", "elevator"))
+
+    def adopt_original(self, parameters: dict[str, float]) -> bool:
+        """The vehicle's parameters as found (the step checks' original gains and the predictions'
+        limits). A heading design on an autopilot that scales its steering output with speed
+        (``CascadeRules.output_scale_base``) takes the vehicle's own base speed: returns True when
+        that changed the configuration (the caller stores the resolved one)."""
+        self.original_gains = dict(parameters)
+        base = parameters.get("steering_scale_speed")
+        cascade = self.config.cascade
+        if cascade.output_scale_base is None or base is None or not math.isfinite(base) \
+                or base == cascade.output_scale_base:
+            return False
+        self.config = replace(self.config, cascade=replace(cascade, output_scale_base=float(base)))
+        self.kinds = self.config.kinds()
+        self.heading_kind = next((k for k in self.kinds if k.axis == "yaw"), None)
+        log.info("heading design for a steering output scaled by base/U above base = %.2f m/s", base)
+        return True
 
     @property
     def heading_design(self) -> GainDesign | None:
@@ -202,7 +221,9 @@ class IdentificationCampaign(Behaviour):
         """The verification's bookkeeping, made once the original gains (and limits) are known."""
         if self.verifier is None:
             limits = HeadingLimits.from_vehicle(self.original_gains, full_scale=self.config.cascade.full_scale,
-                                                rudder_rate=self.config.rudder_rate)
+                                                rudder_rate=self.config.rudder_rate,
+                                                output_scale_base=self.config.cascade.output_scale_base
+                                                if self.heading_kind.name == "cascade" else None)
             self.verifier = CampaignVerification(self.heading_kind, self.config.verification, self.config.keep, limits)
         return self.verifier
 

@@ -185,14 +185,18 @@ class CampaignConfig:
         config = self.with_profile_defaults(profile)
         heading = getattr(profile, "heading_schedule", "heading")
         schedules = tuple(heading if name == "heading" else name for name in config.schedules)
+        actuation = getattr(profile, "actuation", None)
+        # a rudder's steering output scaled down with speed (ArduRover): the design starts from the
+        # autopilot's default base speed, replaced by the vehicle's own (IdentificationCampaign.adopt_original)
+        scaled = "steering_scale_speed" in getattr(profile, "params", {}) and not (actuation is not None and actuation.skid)
         config = replace(config, schedules=schedules,
                          cascade=replace(config.cascade, full_scale=profile.angle_full_scale_rad,
+                                         output_scale_base=1.0 if scaled else None,  # ArduPilot's default
                                          **getattr(profile, "gain_ranges", {})))
         if not getattr(profile, "depth_setpoint", True):
             config = replace(config, depth=None)
         if config.speed.enabled is None:  # tuned where the autopilot has a speed loop
             config = replace(config, speed=replace(config.speed, enabled="speed_p" in getattr(profile, "params", {})))
-        actuation = getattr(profile, "actuation", None)
         if actuation is not None and config.speed_law is None:
             config = replace(config, speed_law="u" if actuation.skid else "u2")
         # a modelled servo deflection is continuous (first-order hold); a raw loop output is held (zero-order)

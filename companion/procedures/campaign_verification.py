@@ -41,14 +41,21 @@ class CampaignVerification:
     def _yaw(attempts: Sequence) -> list:
         return sorted((a for a in attempts if a.axis == "yaw" and a.accepted), key=lambda a: a.thrust)
 
-    def model_at(self, attempts: Sequence, thrust: float):
+    def attempt_at(self, attempts: Sequence, thrust: float):
+        """The accepted yaw identification nearest ``thrust`` (its model and speed), None without one."""
         models = self._yaw(attempts)
-        return min(models, key=lambda a: abs(a.thrust - thrust)).model if models else None
+        return min(models, key=lambda a: abs(a.thrust - thrust)) if models else None
 
-    def step_prediction(self, model, gains: dict[str, float], duration_s: float | None = None) -> dict:
-        """The model's step with ``gains``, over ``duration_s`` (default: the longest a flown step lasts)."""
+    def model_at(self, attempts: Sequence, thrust: float):
+        attempt = self.attempt_at(attempts, thrust)
+        return attempt.model if attempt is not None else None
+
+    def step_prediction(self, model, gains: dict[str, float], duration_s: float | None = None,
+                        speed: float | None = None) -> dict:
+        """The model's step with ``gains`` at ``speed``, over ``duration_s`` (default: the longest a
+        flown step lasts)."""
         duration = duration_s if duration_s and math.isfinite(duration_s) and duration_s > 1.0 else self.config.max_s
-        return predicted_step(self.controller, model, gains, self.limits, self.config.step, duration)
+        return predicted_step(self.controller, model, gains, self.limits, self.config.step, duration, speed)
 
     def _step(self, thrust: float, gains: dict[str, float], label: str) -> VerificationStep:
         step = VerificationStep(thrust, gains, self.config, sign=self._sign, rudder_max=self.limits.rudder_max,
@@ -109,9 +116,10 @@ class CampaignVerification:
     def record(self, step: VerificationStep, attempts: Sequence) -> dict:
         """A flown step's result with the model's prediction for its gains."""
         result = step.result()
-        model = self.model_at(attempts, step.thrust)
+        attempt = self.attempt_at(attempts, step.thrust)
         flown_s = step.metrics.get("duration_s")
-        result["predicted"] = self.step_prediction(model, step.gains, flown_s) if model is not None else None
+        result["predicted"] = self.step_prediction(attempt.model, step.gains, flown_s, attempt.speed) \
+            if attempt is not None else None
         self.flown.append(result)
         return result
 
@@ -123,11 +131,11 @@ class CampaignVerification:
             model = self.model_at(attempts, point.thrust)
             if model is None:
                 continue
-            scheduled = self.step_prediction(model, point.scheduled)
+            scheduled = self.step_prediction(model, point.scheduled, speed=point.speed)
             self.predicted.append({"thrust": point.thrust, "speed": point.speed, "label": "scheduled", **scheduled})
             if original:
                 self.predicted.append({"thrust": point.thrust, "speed": point.speed, "label": "original",
-                                       **self.step_prediction(model, original)})
+                                       **self.step_prediction(model, original, speed=point.speed)})
             own = next((s for s in self.flown if s["thrust"] == point.thrust and s["label"] == "own"), None)
             if own is not None and own.get("predicted") is not None:
                 self.coverage[point.thrust] = "covered" if self.rule.covers(own["predicted"], scheduled) else \

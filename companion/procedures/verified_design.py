@@ -34,45 +34,57 @@ from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 from companion.checks import require_non_negative, require_positive
+from companion.numerics.cascade_gains import output_speed_scale
 from companion.numerics.step_response import RudderPlant, predict_step
 
 #: the autopilot's heading controller each schedule kind is the gains of (eq. A.1, eq. A.2)
 CONTROLLERS = {"heading": "pi", "cascade": "cascade"}
 #: read with the original gains (never written: a restore finds them unchanged), for the predictions
-LIMIT_PARAMETERS = ("rudder_max", "rudder_rate", "heading_imax", "turn_rate_max", "heading_rate_imax")
+LIMIT_PARAMETERS = ("rudder_max", "rudder_rate", "heading_imax", "turn_rate_max", "heading_rate_imax",
+                    "turn_accel_max", "steering_scale_speed")
 
 
 @dataclass(frozen=True)
 class HeadingLimits:
     """What bounds a heading step besides the gains: the rudder's limit and slew rate (rad, rad/s),
-    the PI's integrator clamp (rad), the cascade's full scale (rad per unit output) and turn-rate
-    limit (rad/s)."""
+    the PI's integrator clamp (rad), the cascade's full scale (rad per unit output), turn-rate
+    limit (rad/s), turn-acceleration limit (rad/s²) and the speed above which its output is scaled
+    down (m/s, eq. A.2; None: never)."""
 
     rudder_max: float
     rudder_rate: float = math.inf
     imax: float = 0.15
     full_scale: float = 0.5236
     rate_max: float = math.inf
+    rate_accel_max: float = math.inf
+    output_scale_base: float | None = None
 
     @classmethod
-    def from_vehicle(cls, values: dict[str, float], *, full_scale: float, rudder_rate: float | None) -> "HeadingLimits":
-        """From the parameters read with the original gains (:data:`LIMIT_PARAMETERS`) and the
-        profile's rudder full scale and servo rate; what the vehicle does not say takes the profile's."""
+    def from_vehicle(cls, values: dict[str, float], *, full_scale: float, rudder_rate: float | None,
+                     output_scale_base: float | None = None) -> "HeadingLimits":
+        """From the parameters read with the original gains (:data:`LIMIT_PARAMETERS`; ArduPilot's
+        turn limits in degrees) and the profile's rudder full scale and servo rate; what the vehicle
+        does not say takes the profile's. ``output_scale_base``: the design's (CascadeRules), which
+        knows whether this frame's output is scaled at all."""
         rate = values.get("rudder_rate", rudder_rate if rudder_rate else math.inf)
         turn = values.get("turn_rate_max", 0.0)
+        accel = values.get("turn_accel_max", 0.0)
         return cls(rudder_max=values.get("rudder_max", full_scale), rudder_rate=rate if rate and rate > 0 else math.inf,
                    imax=values.get("heading_imax", 0.15), full_scale=full_scale,
-                   rate_max=math.radians(turn) if turn and turn > 0 else math.inf)
+                   rate_max=math.radians(turn) if turn and turn > 0 else math.inf,
+                   rate_accel_max=math.radians(accel) if accel and accel > 0 else math.inf,
+                   output_scale_base=output_scale_base)
 
 
 def predicted_step(controller: str, model, gains: dict[str, float], limits: HeadingLimits, step: float,
-                   duration_s: float) -> dict:
-    """One heading step of ``step`` rad flown on the yaw ``model`` (a22, b2, δ0) with ``gains``,
-    scored over ``duration_s`` (a flown step's own length when compared with it: the step error
-    integrates to the end of the record)."""
+                   duration_s: float, speed: float | None = None) -> dict:
+    """One heading step of ``step`` rad flown on the yaw ``model`` (a22, b2, δ0) with ``gains`` at
+    ``speed`` (m/s: the output's speed scaling), scored over ``duration_s`` (a flown step's own
+    length when compared with it: the step error integrates to the end of the record)."""
     plant = RudderPlant(model.a22, model.b2, model.delta0, limits.rudder_max, limits.rudder_rate)
-    options = {"imax": limits.imax} if controller == "pi" else {"full_scale": limits.full_scale,
-                                                                "rate_max": limits.rate_max}
+    options = {"imax": limits.imax} if controller == "pi" else {
+        "full_scale": limits.full_scale, "rate_max": limits.rate_max, "rate_accel_max": limits.rate_accel_max,
+        "output_scale": output_speed_scale(limits.output_scale_base, speed)}
     return predict_step(plant, controller, gains, abs(step), duration_s, **options)
 
 

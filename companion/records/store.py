@@ -406,6 +406,12 @@ class Store:
             "INSERT INTO trails(campaign_id, owner_pid, owner_host, owner_boot, owner_started, opened_utc)"
             " VALUES (?,?,?,?,?,?)", (campaign_id, owner.pid, owner.host, owner.boot_id, owner.started, _now())).lastrowid)
 
+    def update_campaign_config(self, campaign_id: int, config: dict) -> None:
+        """The campaign's configuration as resolved on the vehicle (what it read there, e.g. the
+        output scaling its heading design accounts for), replacing the one it started with."""
+        with self._transaction():
+            self._db.execute("UPDATE campaigns SET config_json=? WHERE id=?", (_json(config), campaign_id))
+
     def finish_campaign(self, campaign_id: int, status: str, reason: str | None = None) -> None:
         with self._transaction():
             self._db.execute("UPDATE campaigns SET status=?, reason=?, finished_utc=? WHERE id=?",

@@ -56,6 +56,8 @@ PROFILE = AutopilotProfile(
         "speed_default": "WP_SPEED", "gcs_sysid": "MAV_GCS_SYSID", "override_timeout": "RC_OVERRIDE_TIME",
         "speed_p": "ATC_SPEED_P", "speed_i": "ATC_SPEED_I", "accel_max": "ATC_ACCEL_MAX",
         "system_id": "MAV_SYSID",
+        # read, never written: the heading design and its predicted steps (eq. A.2)
+        "turn_accel_max": "ATC_STR_ACC_MAX", "steering_scale_speed": "MOT_SPD_SCA_BASE",
     },
     aliases={"gcs_sysid": ("SYSID_MYGCS",), "system_id": ("SYSID_THISMAV",)},
     native_scales={"cruise_thrust": NativeScale(scale=100.0)},  # CRUISE_THROTTLE is percent
