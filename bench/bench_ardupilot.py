@@ -213,10 +213,22 @@ def speed_table(summaries) -> None:
             print(f"  design: CRUISE_SPEED {gains['cruise_speed']:.2f}, CRUISE_THROTTLE {100 * gains['cruise_thrust']:.1f},"
                   f" ATC_SPEED_P {gains['speed_p']:.3f}, ATC_SPEED_I {gains['speed_i']:.3f} (original "
                   + ", ".join(f"{k} {v:.3g}" for k, v in (loop.get("original") or {}).items()) + ")")
+        predicted = (design or {}).get("predicted") or {}
         for label, steps in (loop.get("steps") or {}).items():
             detail = "; ".join(f"{x['start']:.2f}→{x['target']:.2f} m/s: {fmt(x['overshoot_pct'])} %, "
                                f"{fmt(x['settling_time_s'])} s" for x in steps["steps"])
+            forecast = [predicted.get(label), predicted.get(f"{label}_back")]
+            if all(forecast):
+                detail += " (predicted " + "; ".join(f"{fmt(p['overshoot_pct'])} %, {fmt(p['settling_time_s'])} s"
+                                                     for p in forecast) + ")"
             print(f"  {label:>8}: {detail}")
+        if "original" not in (loop.get("steps") or {}) and predicted.get("original"):
+            print("  original: predicted " + "; ".join(f"{fmt(predicted[k]['overshoot_pct'])} %, "
+                                                      f"{fmt(predicted[k]['settling_time_s'])} s"
+                                                      for k in ("original", "original_back"))
+                  + " (not flown: the design's flight agreed with its prediction)")
+        elif loop.get("original_flown_because"):
+            print(f"  original flown: {loop['original_flown_because']}")
 
 
 # ---------------------------------------------------------------------------- ArduPilot's own boat

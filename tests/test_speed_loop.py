@@ -153,9 +153,9 @@ def _fly(tuning: SpeedTuning, vehicle: SpeedLoopVehicle) -> None:
     raise AssertionError("the speed tuning did not finish")
 
 
-def test_the_tuning_flies_both_gain_sets_and_keeps_the_design_that_settles_sooner():
+def test_the_full_comparison_flies_both_gain_sets_and_keeps_the_design_that_settles_sooner():
     original = {**DEFAULTS.params(), "speed_default": 2.5, "accel_max": 1.0}
-    tuning = SpeedTuning(_record_of(SKID), original, SpeedLoopConfig(enabled=True))
+    tuning = SpeedTuning(_record_of(SKID), original, SpeedLoopConfig(enabled=True), fly_original=True)
     vehicle = SpeedLoopVehicle(SKID, DEFAULTS, wp_speed=2.5)
     _fly(tuning, vehicle)
     assert tuning.verdict is None and tuning.kept == tuning.design.gains.params()
@@ -165,6 +165,30 @@ def test_the_tuning_flies_both_gain_sets_and_keeps_the_design_that_settles_soone
     assert flown["design"]["settling_time_s"] < flown["original"]["settling_time_s"]
     assert vehicle.gains == tuning.design.gains  # the design was on the vehicle for its own steps
     assert set(tuning.result()) >= {"surge", "design", "steps", "verdict", "kept", "record"}
+
+
+def test_the_short_check_flies_the_design_only_and_compares_it_with_the_original_gains_predicted():
+    original = {**DEFAULTS.params(), "speed_default": 2.5, "accel_max": 1.0}
+    tuning = SpeedTuning(_record_of(SKID), original, SpeedLoopConfig(enabled=True))
+    vehicle = SpeedLoopVehicle(SKID, DEFAULTS, wp_speed=2.5)
+    _fly(tuning, vehicle)
+    assert set(tuning.step_results) == {"design"}  # the model predicted the design's flight
+    assert tuning.verdict is None and tuning.kept == tuning.design.gains.params()
+    compared = tuning.result()["original_steps"]
+    assert compared["predicted"] is True
+    assert compared["settling_time_s"] > tuning.step_results["design"]["settling_time_s"]
+    assert compared["max_overshoot_pct"] > 15.0  # the defaults' wind-up, predicted
+
+
+def test_a_design_flight_its_model_did_not_predict_has_the_original_gains_flown_too():
+    original = {**DEFAULTS.params(), "speed_default": 2.5, "accel_max": 1.0}
+    tuning = SpeedTuning(_record_of(SKID), original, SpeedLoopConfig(enabled=True))
+    # the boat on the water surges much more slowly than the record it was designed on
+    vehicle = SpeedLoopVehicle(replace(SKID, gamma=SKID.gamma / 4.0, lag=1.5), DEFAULTS, wp_speed=2.5)
+    _fly(tuning, vehicle)
+    assert set(tuning.step_results) == {"design", "original"}
+    assert tuning.original_flown_because is not None and "predicted" in tuning.original_flown_because
+    assert tuning.result()["original_steps"] is tuning.step_results["original"]  # compared as flown
 
 
 def test_a_design_that_is_not_better_is_not_kept():

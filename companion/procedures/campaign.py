@@ -196,7 +196,8 @@ class IdentificationCampaign(Behaviour):
                 for label in cfg.step_labels:
                     items.append(Deferred(self._step_test_factory(thrust, label), self._heading_gains))
         if cfg.speed.enabled:
-            items.append(Deferred(lambda: SpeedTuning(self.surge.record, self.original_gains, cfg.speed),
+            items.append(Deferred(lambda: SpeedTuning(self.surge.record, self.original_gains, cfg.speed,
+                                                          fly_original=self.checks == "compare"),
                                   Footprint.of(SPEED_GAINS, ("mode", "thrust", "heading"))))
         items.append(Deferred(self._final_gains_step, self.footprint))
         # progress counts the manoeuvres and the checks (the design and the final write are instants)

@@ -412,7 +412,11 @@ def speed_loop_summary(tuning) -> dict | None:
                                                    "time_constant_s": design.time_constant_s,
                                                    "step": list(design.step), "predicted": design.predicted,
                                                    "clamped": list(design.clamped)},
-            "original": tuning.original, "steps": steps}
+            "original": tuning.original, "steps": steps,
+            # what the design was compared with: the original gains' steps flown, or predicted
+            "original_compared": "flown" if "original" in tuning.step_results else
+            "predicted" if tuning.original_figures is not None else None,
+            "original_flown_because": tuning.original_flown_because}
 
 
 def _run_steady_state(link, store, config: RehearsalConfig, campaign_id: int, abort: AbortFlag, summary: dict) -> dict:
