@@ -9,7 +9,10 @@ Stages, all timed on vehicle time:
    (or depth) loop re-engages; training stops 10.5 s after the excitation, or earlier once the
    estimate has converged (eq. 3.39) *after the excitation has ended* (a convergence detected before
    the doublet only means nothing has been excited yet);
-3. **resettle** — the autopilot brings the vehicle back on course;
+3. **resettle** — the autopilot brings the vehicle back to rest. Where it held the vehicle since the
+   doublet was released (in the mode it settled in), that recovery already counts towards the
+   steadiness rule's window; where the excitation needed another mode (ArduPilot's MANUAL), the
+   vehicle holds the heading the record left it on rather than turning back first;
 4. **validate** — a fresh doublet of 0.15 rad, no estimation; the identified model is simulated on
    the recorded actuator input and scored by R² (eq. 3.35–3.37). Accepted at R² ≥ threshold,
    otherwise the manoeuvre is repeated from stage 2 (at most ``max_attempts`` times).
@@ -210,6 +213,9 @@ class IdentificationManoeuvre(Behaviour):
         self._overriding = False
         self._training_time_s = math.nan
         self._steadiness: SteadinessDetector | None = None
+        self._holding_mode = ""
+        self._recovery: SteadinessDetector | None = None  # fed while the autopilot recovers from the doublet
+        self._recovery_lost = False
         self.stage_times: dict[str, float] = {}  # vehicle seconds spent per stage (the campaign's cost)
         self.outcome: str | None = None  # "accepted", "rejected", "aborted"
 
@@ -294,11 +300,30 @@ class IdentificationManoeuvre(Behaviour):
         actuator = self._actuator(telemetry)
         self._trim = actuator if math.isfinite(actuator) else 0.0
         self._course = telemetry.yaw
+        self._holding_mode = telemetry.mode  # the mode the vehicle settled in
+        self._recovery, self._recovery_lost = None, False
         self._identifier = self._new_identifier()
         self._training = _Record()
         self._speeds = []
         self._enter(TRAIN, telemetry.time_s)
         return [self._status(f"training, attempt {self.attempt}: {self.config.training_amplitude:.2f} rad doublet")]
+
+    def _watch_recovery(self, telemetry: Telemetry, t_rel: float) -> None:
+        """After the training doublet, while the autopilot holds the vehicle in the mode it settled
+        in (our simulator and PX4 release the actuator back to it; ArduPilot's open-loop excitation
+        stays in MANUAL until the record ends), its recovery feeds a steadiness detector the resettle
+        then continues."""
+        if self.config.steadiness is None or self._overriding or t_rel < self.config.excitation_end_s:
+            return
+        if not telemetry.mode or telemetry.mode != self._holding_mode:
+            self._recovery, self._recovery_lost = None, True
+            return
+        if self._recovery_lost:
+            return
+        if self._recovery is None:
+            self._recovery = SteadinessDetector(self.config.steadiness, self.config.axis, self._course)
+        self._recovery.add(telemetry.time_s, telemetry.speed_water, telemetry.yaw_rate, telemetry.pitch_rate,
+                           telemetry.yaw, telemetry.thrust_ratio)
 
     def _reengage(self) -> list[Command]:
         """The holding mode and the course again once a record ends: on autopilots whose open-loop
@@ -329,6 +354,7 @@ class IdentificationManoeuvre(Behaviour):
 
     def _step_train(self, telemetry: Telemetry, t_rel: float) -> list[Command]:
         commands = self._excitation(t_rel, self.config.training_amplitude)
+        self._watch_recovery(telemetry, t_rel)
         signal, actuator = self._signal(telemetry), self._actuator(telemetry)
         if math.isfinite(signal) and math.isfinite(actuator):
             self._identifier.update(telemetry.time_s, signal, actuator)
@@ -343,7 +369,17 @@ class IdentificationManoeuvre(Behaviour):
                 self._overriding = False
                 commands.append(ReleaseActuator(self.config.actuator))
             self._training_time_s = t_rel
+            recovery = self._recovery
+            if recovery is None and math.isfinite(telemetry.yaw):
+                # the validation needs the vehicle at rest, not back on its course: holding the
+                # heading the open-loop record left it on spares the resettle the turn back (the next
+                # thrust's settle brings the campaign's course back, while the speed changes anyway)
+                self._course = telemetry.yaw
             self._enter(RESETTLE, telemetry.time_s)
+            if recovery is not None:
+                # the autopilot has held the vehicle since the doublet was released: what the
+                # resettle waits for may already have been seen (it still needs a full window)
+                self._steadiness = recovery
             commands += self._reengage()
             model = self._identifier.model()
             commands.append(self._status(f"trained in {t_rel:.1f} s: {self._describe(model)}"))

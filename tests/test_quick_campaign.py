@@ -75,3 +75,38 @@ def test_the_quick_procedure_is_the_default_and_the_thesis_one_is_the_configurat
         assert parser.parse_args([command]).procedure == "quick"
         assert parser.parse_args([command, "--procedure", "thesis"]).procedure == "thesis"
         assert parser.parse_args([command, "--quick"]).procedure == "quick"  # the older spelling
+
+
+def _resettle_after_training(mode_after_doublet: str) -> tuple[float, list]:
+    """A manoeuvre on a vehicle that stays at rest; returns how long its resettle lasted and the
+    commands that started it (the vehicle's mode after the doublet is ``mode_after_doublet``)."""
+    from behaviors.identification import RESETTLE, VALIDATE, IdentificationManoeuvre
+    from companion.interface import Telemetry
+    from companion.procedures.campaign import CampaignConfig
+
+    manoeuvre = IdentificationManoeuvre(CampaignConfig().quick().yaw, thrust=0.6)
+    t, started, at_resettle = 0.0, None, []
+    while t < 120.0 and manoeuvre.stage != VALIDATE:
+        overriding = manoeuvre.stage not in ("settle",) and manoeuvre._overriding
+        mode = "hold" if manoeuvre.stage == "settle" or overriding else mode_after_doublet
+        # held, the autopilot keeps the course; open loop, the doublet left the vehicle 4° off it
+        heading = 0.0 if manoeuvre.stage == "settle" or mode == "hold" else math.radians(4.0)
+        commands = manoeuvre.tick(Telemetry(time_s=t, yaw=heading, yaw_rate=0.0, pitch_rate=0.0, rudder=0.0,
+                                            speed_water=1.5, thrust_ratio=0.6, mode=mode))
+        if manoeuvre.stage == RESETTLE and started is None:
+            started, at_resettle = t, list(commands)
+        t += 0.05
+    assert manoeuvre.stage == VALIDATE
+    return t - 0.05 - started, at_resettle
+
+
+def test_a_resettle_counts_the_recovery_the_autopilot_held_and_otherwise_holds_the_new_heading():
+    from companion.interface import SetHeading
+
+    watched, commands = _resettle_after_training("hold")
+    # the vehicle was seen at rest, held, since the doublet was released: that part of the window counts
+    assert watched < SteadinessRule().window_s - 1.0
+    assert [c.heading for c in commands if isinstance(c, SetHeading)] == [0.0]  # the course kept
+    unwatched, commands = _resettle_after_training("manual")
+    assert unwatched >= SteadinessRule().window_s  # open loop until the record ended: a full window
+    assert [c.heading for c in commands if isinstance(c, SetHeading)] == [pytest.approx(math.radians(4.0))]
