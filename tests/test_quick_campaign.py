@@ -90,7 +90,8 @@ def _resettle_after_training(mode_after_doublet: str) -> tuple[float, list]:
         overriding = manoeuvre.stage not in ("settle",) and manoeuvre._overriding
         mode = "hold" if manoeuvre.stage == "settle" or overriding else mode_after_doublet
         # held, the autopilot keeps the course; open loop, the doublet left the vehicle 4° off it
-        heading = 0.0 if manoeuvre.stage == "settle" or mode == "hold" else math.radians(4.0)
+        # until the resettle turns it back
+        heading = 0.0 if manoeuvre.stage in ("settle", RESETTLE) or mode == "hold" else math.radians(4.0)
         commands = manoeuvre.tick(Telemetry(time_s=t, yaw=heading, yaw_rate=0.0, pitch_rate=0.0, rudder=0.0,
                                             speed_water=1.5, thrust_ratio=0.6, mode=mode))
         if manoeuvre.stage == RESETTLE and started is None:
@@ -100,7 +101,7 @@ def _resettle_after_training(mode_after_doublet: str) -> tuple[float, list]:
     return t - 0.05 - started, at_resettle
 
 
-def test_a_resettle_counts_the_recovery_the_autopilot_held_and_otherwise_holds_the_new_heading():
+def test_a_resettle_counts_the_recovery_the_autopilot_held_and_otherwise_waits_a_full_window():
     from companion.interface import SetHeading
 
     watched, commands = _resettle_after_training("hold")
@@ -109,4 +110,4 @@ def test_a_resettle_counts_the_recovery_the_autopilot_held_and_otherwise_holds_t
     assert [c.heading for c in commands if isinstance(c, SetHeading)] == [0.0]  # the course kept
     unwatched, commands = _resettle_after_training("manual")
     assert unwatched >= SteadinessRule().window_s  # open loop until the record ended: a full window
-    assert [c.heading for c in commands if isinstance(c, SetHeading)] == [pytest.approx(math.radians(4.0))]
+    assert [c.heading for c in commands if isinstance(c, SetHeading)] == [0.0]  # back on course
