@@ -56,6 +56,7 @@ from behaviors.schedules import schedule_kind
 from companion.procedures.registry import ABORT_COMMAND, COMMANDS, IDENTIFICATION_COMMAND, ProcedureContext
 from companion.procedures.roll import RollProcedureConfig
 from companion.procedures.runner import RestorePoint
+from companion.records.gain_export import rebuilt_kind
 from companion.records.store import Store
 
 log = logging.getLogger(__name__)
@@ -79,14 +80,10 @@ def schedule_from_store(store: Store) -> YawSchedule | None:
     return found[1].schedule if found is not None else None
 
 
-def designs_from_store(store: Store, names) -> list[GainDesign]:
-    """The latest stored design of each named schedule kind (those never designed are skipped)."""
-    designs = []
-    for name in names:
-        found = store.latest_design(name)
-        if found is not None:
-            designs.append(found[1])
-    return designs
+def latest_designs(store: Store, names) -> list[tuple[int, GainDesign]]:
+    """(campaign id, design): the latest stored design of each named schedule kind (those never
+    designed are skipped)."""
+    return [found for name in names if (found := store.latest_design(name)) is not None]
 
 
 @dataclass
@@ -172,10 +169,11 @@ class Companion:
         exactly as written (``schedule_from_store``), writing their scheduled gains in one set."""
         if not self.config.schedule_gains:
             return
-        kinds = [schedule_kind(d.kind, self.config.bounds if d.kind == "heading" else None)
-                 for d in designs_from_store(self.store, self.config.schedules)]
-        designs = {d.kind: d for d in designs_from_store(self.store, self.config.schedules)}
-        known = getattr(getattr(self.link, "profile", None), "params", None)
+        profile = getattr(self.link, "profile", None)
+        found = latest_designs(self.store, self.config.schedules)
+        kinds = [self._kind_of(design, campaign_id, profile) for campaign_id, design in found]
+        designs = {design.kind: design for _, design in found}
+        known = getattr(profile, "params", None)
         kinds = [k for k in kinds if known is None or all(name in known for name in k.scheduled)]
         if not kinds:
             self.scheduler = None
@@ -193,6 +191,20 @@ class Companion:
         self.scheduler = GainScheduler(gains_at, self.config.scheduling, parameters=parameters,
                                        live_value=kinds[0].live_value)
         log.info("gain scheduling on: %s", "; ".join(f"{k.name}: {designs[k.name].schedule.describe()}" for k in kinds))
+
+    def _kind_of(self, design: GainDesign, campaign_id: int, profile):
+        """The kind whose design rules gave the stored design (its campaign's resolved configuration:
+        e.g. the cascade's full scale and output scaling on ArduRover), else this service's default."""
+        try:
+            config = self.store.campaign(campaign_id).get("config") or {}
+        except KeyError:
+            config = {}
+        rebuilt = rebuilt_kind(design, config, profile)
+        if rebuilt is not None:
+            return rebuilt
+        log.warning("the %s schedule of campaign %d is scheduled with the default design rules (its own could "
+                    "not be rebuilt from the stored configuration)", design.kind, campaign_id)
+        return schedule_kind(design.kind, self.config.bounds if design.kind == "heading" else None)
 
     def run(self) -> list[dict]:
         """Serve until stopped; then the gains in place before scheduling started are written back."""
