@@ -164,9 +164,11 @@ class KeepRule:
         by_thrust: dict[float, dict[str, dict]] = {}
         for step in predicted:
             by_thrust.setdefault(step["thrust"], {})[step["label"]] = step
+        # where the schedule itself was flown, its flight (checked above) decides, not its prediction
+        flown_schedule = {s["thrust"] for s in designed if s["label"] == "scheduled"}
         for thrust, steps in sorted(by_thrust.items()):
             scheduled = steps.get("scheduled")
-            if scheduled is None:
+            if scheduled is None or thrust in flown_schedule:
                 continue
             failure = self.step_fails(scheduled)
             if failure:
