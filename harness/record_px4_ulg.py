@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 from harness.missions import SurveyPlan, fly_plan
+from harness.recording import keep_largest_log, stop_child
 
 log = logging.getLogger(__name__)
 
@@ -92,16 +93,8 @@ def record_px4_ulg(out: str | Path, autopilot: str = "px4-rover", *, bin_dir: st
             finally:
                 link.close()
         finally:
-            child.terminate()
-            try:
-                child.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                child.kill()
-        logs = sorted((Path(workdir) / "log").glob("*/*.ulg"), key=lambda p: p.stat().st_size)
-        if not logs:
-            raise RuntimeError(f"PX4 wrote no .ulg in {workdir}/log")
-        out.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy(logs[-1], out)
+            stop_child(child, 20.0)
+        keep_largest_log(Path(workdir) / "log", "*/*.ulg", out, "PX4 wrote no .ulg")
         shutil.copy(Path(workdir) / "truth.csv", out.with_suffix(".truth.csv"))
     log.info("recorded %s (%d bytes)", out, out.stat().st_size)
     return out

@@ -14,7 +14,6 @@ import argparse
 import logging
 import os
 import select
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -22,6 +21,7 @@ import time
 from pathlib import Path
 
 from harness.missions import SurveyPlan, fly_plan
+from harness.recording import keep_largest_log, stop_child
 
 log = logging.getLogger(__name__)
 
@@ -73,16 +73,8 @@ def record_sitl_bin(out: str | Path, plan: SurveyPlan = BOAT_PLAN, *, bin_dir: s
             finally:
                 link.close()
         finally:
-            child.terminate()
-            try:
-                child.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                child.kill()
-        logs = sorted((Path(workdir) / "logs").glob("*.BIN"), key=lambda p: p.stat().st_size)
-        if not logs:
-            raise RuntimeError(f"SITL wrote no DataFlash log in {workdir}/logs")
-        out.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy(logs[-1], out)
+            stop_child(child, 10.0)
+        keep_largest_log(Path(workdir) / "logs", "*.BIN", out, "SITL wrote no DataFlash log")
     log.info("recorded %s (%d bytes)", out, out.stat().st_size)
     return out
 
