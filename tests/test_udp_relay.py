@@ -79,13 +79,17 @@ class _Ends:
         self.companion.sendto(_frame(0, bytes(9)), ("127.0.0.1", relay.port))
         self.upstream = self.receive(self.vehicle, 1)[0][2]
 
+    # The send time is read *before* the send: read after it, a thread descheduled between the two
+    # would record a time later than the datagram left, and a delay could look early by that much.
     def to_companion(self, data: bytes) -> float:
+        sent_at = time.monotonic()
         self.vehicle.sendto(data, self.upstream)
-        return time.monotonic()
+        return sent_at
 
     def to_vehicle(self, relay: UdpRelay, data: bytes) -> float:
+        sent_at = time.monotonic()
         self.companion.sendto(data, ("127.0.0.1", relay.port))
-        return time.monotonic()
+        return sent_at
 
     @staticmethod
     def receive(sock: socket.socket, count: int, quiet_s: float = 1.0,
