@@ -2,10 +2,12 @@
 simulator (physics + autopilot, no MAVLink). Prints final TR/speed vs the analytic TR*/Vmin, settle
 time, depth errors and thrust reversals (limit-cycle indicator) for: the seeking period Ts study,
 a fin-budget δFB sweep, and δmax 0.26 / 0.35 / 0.40 (ELEV_MAX and the seeker's δmax together);
-these rows are the thesis law (``hold_after_change_s = 0``).
+these rows are the thesis law (``hold_after_change_s = 0``, θe crossover 0.01).
 
 ``--hold``: the thesis law against the hold after every change (SeekerConfig.hold_after_change_s,
-the default) at Ts = 1 s and 0.5 s, seeds 1-6, on two harnesses: the closed loop of
+the default), both at the thesis' θe crossover 0.01, and the product's rules (the hold and the
+crossover raised for the autopilot's pitch loop, eq. M.1: "hold 4 s, M.1") at Ts = 1 s and 0.5 s,
+seeds 1-6, on two harnesses: the closed loop of
 harness.inprocess.ClosedLoop and the product procedure (companion.procedures.min_speed.min_speed_procedure
 over harness.inprocess.InProcessLink, 100 s settling at 0.70 first). Per seed: final TR after 200 s,
 settle time, max |depth error| after 5 s, reversals in the last 30 s; and in a separate 300 s run
@@ -14,15 +16,17 @@ last change before 15 s without one) and the TR at 300 s. No asserts.
 
 ``--predicted``: in one run, per seed 1-6 and as a summary beside the goal, the procedure from
 TR 0.70 (the thesis' start), the 0.005/s ramp to the analytic TR* + 0.04, the governed move to
-TR* + 0.008 (MinSpeedProcedureConfig.governed(), the default) and the levelled move there
-(MinSpeedProcedureConfig.levelled(): the level-flight pitch fed forward through the depth set-point):
+TR* + 0.008 (MinSpeedProcedureConfig.governed()) and the levelled move there
+(MinSpeedProcedureConfig.levelled(), the default: the level-flight pitch fed forward through the depth
+set-point), all with the product's seeker (the hold and the θe crossover for the pitch loop, eq. M.1):
 settle time, final TR and its % over TR*, max |depth error|, reversals in the last 30 s,
 re-convergence after a kick to 0.60, and the levelled move's largest depth set-point offset.
 
 ``--cause``: what bounds the settle time once the depth integrator no longer does (the levelled
-move), per seed 1-6: (1) the thrust held at TR* + 0.008 after the levelled move with no seeking
+move), at the thesis' θe crossover 0.01 unless said, per seed 1-6: (1) the thrust held at TR* + 0.008 after the levelled move with no seeking
 move (a hold longer than the run), and the first time from which the seeker's own decisions on the
-recorded inputs would have kept for 15 s; (2) diagnostics that change what the product may not: the
+recorded inputs would have kept for 15 s, at 0.01 and at the crossover for the pitch loop (eq. M.1);
+(2) diagnostics that change what the product may not: the
 simulated autopilot's pitch integral PIT_I 5x (the levelled and the governed move) and the seeker's
 θe crossover at 0.02 (SPEC C7's value at sea; the levelled move and the start from 0.70), each
 also kicked to 0.60 at 150 s (re-convergence and the TR at 300 s).
@@ -56,7 +60,8 @@ def seek(seed: int, seconds: float = 200.0, elev_max: float = 0.26, noise_scale:
     loop.vehicle._noise_sigma = loop.vehicle._noise_sigma * noise_scale
     loop.advance(100.0)
     config = MinSpeedConfig(seeker=SeekerConfig(delta_max=elev_max, **seeker), depth_setpoint=2.0,
-                            depth_p=loop.param("DPT_P"), depth_i=loop.param("DPT_I"), pitch_max=loop.param("PIT_MAX"))
+                            depth_p=loop.param("DPT_P"), depth_i=loop.param("DPT_I"), pitch_max=loop.param("PIT_MAX"),
+                            pitch_p=None)  # the thesis' θe crossover as configured (0.01)
     behaviour = MinSpeedSeeking(config)
     loop.run(behaviour, seconds)
     result = behaviour.result()
@@ -110,7 +115,8 @@ def reconvergence(behaviour: KickedSeeker, end_s: float, window_s: float = 15.0)
     return None
 
 
-def hold_run(harness: str, seed: int, period: float, hold: float, seconds: float, kick: bool) -> KickedSeeker:
+def hold_run(harness: str, seed: int, period: float, hold: float, seconds: float, kick: bool,
+             thesis_crossover: bool = True) -> KickedSeeker:
     seeker = SeekerConfig(period_s=period, hold_after_change_s=hold)
 
     def make(config: MinSpeedConfig) -> KickedSeeker:
@@ -124,10 +130,12 @@ def hold_run(harness: str, seed: int, period: float, hold: float, seconds: float
         loop = ClosedLoop(seed=seed, depth=2.0)
         loop.advance(100.0)
         loop.run(make(MinSpeedConfig(seeker=seeker, depth_setpoint=2.0, depth_p=loop.param("DPT_P"),
-                                     depth_i=loop.param("DPT_I"), pitch_max=loop.param("PIT_MAX"))), seconds)
+                                     depth_i=loop.param("DPT_I"), pitch_max=loop.param("PIT_MAX"),
+                                     pitch_p=None if thesis_crossover else loop.param("PIT_P"))), seconds)
     else:  # the product procedure; only the seeker's configuration and the kick are the bench's
         def product(config: MinSpeedConfig) -> KickedSeeker:
-            return make(replace(config, seeker=replace(config.seeker, hold_after_change_s=hold)))
+            seeker_config = replace(config.seeker, hold_after_change_s=hold)
+            return make(replace(config, seeker=seeker_config, pitch_p=None if thesis_crossover else config.pitch_p))
 
         with mock.patch.object(procedure, "MinSpeedSeeking", product):
             result = procedure.min_speed_procedure(
@@ -144,11 +152,12 @@ def hold_table() -> None:
           f"re-convergence s | TR at {KICK_RUN_S:.0f} s")
     for period in (1.0, 0.5):
         for harness in ("loop", "procedure"):
-            for hold in (0.0, 4.0):
-                plain = [hold_run(harness, s, period, hold, 200.0, False) for s in HOLD_SEEDS]
-                kicked = [hold_run(harness, s, period, hold, KICK_RUN_S, True) for s in HOLD_SEEDS]
+            for hold, thesis_crossover in ((0.0, True), (4.0, True), (4.0, False)):
+                plain = [hold_run(harness, s, period, hold, 200.0, False, thesis_crossover) for s in HOLD_SEEDS]
+                kicked = [hold_run(harness, s, period, hold, KICK_RUN_S, True, thesis_crossover) for s in HOLD_SEEDS]
                 results = [b.result() for b in plain]
-                label = "thesis law" if hold == 0.0 else f"hold {hold:.0f} s"
+                label = ("thesis law" if hold == 0.0 else f"hold {hold:.0f} s"
+                         if thesis_crossover else f"hold {hold:.0f} s, M.1")
                 finals = " ".join(f"{r['thrust_ratio_final']:.2f}" for r in results)
                 settles = " ".join(_seconds(r["settle_time_s"]) for r in results)
                 depths = " ".join(f"{r['max_depth_error_m']:.2f}" for r in results)
@@ -166,7 +175,8 @@ LEVELLED = ("levelled TR*+0.008", procedure.MinSpeedProcedureConfig.levelled())
 
 
 def predicted_run(seed: int, config: procedure.MinSpeedProcedureConfig, seconds: float, kick: bool, *,
-                  params: dict[str, float] | None = None, seeker: dict | None = None) -> KickedSeeker:
+                  params: dict[str, float] | None = None, seeker: dict | None = None,
+                  thesis_crossover: bool = False) -> KickedSeeker:
     """The product procedure (100 s at 0.70 first, then ``seconds`` of seeking) with ``config``;
     ``params`` (native names) are set on the simulated autopilot first and ``seeker`` replaces fields
     of the seeker's configuration (diagnostics only, ``--cause``)."""
@@ -175,6 +185,8 @@ def predicted_run(seed: int, config: procedure.MinSpeedProcedureConfig, seconds:
     def product(seeker_config: MinSpeedConfig) -> KickedSeeker:
         if seeker:
             seeker_config = replace(seeker_config, seeker=replace(seeker_config.seeker, **seeker))
+        if thesis_crossover:  # θe_TS as configured (0.01), not raised for the pitch loop (eq. M.1)
+            seeker_config = replace(seeker_config, pitch_p=None)
         behaviour = KickedSeeker(seeker_config)
         behaviour.kick_at_s = KICK_AT_S if kick else None
         made.append(behaviour)
@@ -232,7 +244,7 @@ def first_quiet_keeps(behaviour: MinSpeedSeeking, window_s: float = 15.0) -> flo
     inputs, taken every Ts without the hold, keep for ``window_s``: when the vehicle as it flew would
     have let the seeker settle."""
     series = behaviour.series
-    config = behaviour.config.seeker
+    config = behaviour.seeker_config
     decisions: list[tuple[float, int]] = []
     due = config.period_s
     for time_s, theta_e, delta in zip(series["time"], series["pitch_error_filtered"], series["elevator_filtered"]):
@@ -252,18 +264,21 @@ def cause_table() -> None:
     """What bounds the levelled move's settle time (module docstring), per seed and as a range."""
     held = {"hold_after_change_s": 1e6}  # after the move, every seeking move is held: the thrust stays
     print("per seed 1-6, product procedure over InProcessLink, 100 s at 0.70 first, 200 s of seeking")
-    runs = [predicted_run(s, LEVELLED[1], 200.0, False, seeker=held) for s in HOLD_SEEDS]
-    quiet = [first_quiet_keeps(b) for b in runs]
-    print(f"levelled move, then TR held at TR*+0.008: the seeker's decisions would keep for 15 s from "
-          f"{_join(quiet, _seconds)} s (range {_range(quiet)}); max dz "
-          f"{_join([b.max_depth_error() for b in runs], '{:.2f}'.format)} m")
+    for thesis, label in ((True, "θe_TS 0.01"), (False, "θe_TS for the pitch loop (eq. M.1)")):
+        runs = [predicted_run(s, LEVELLED[1], 200.0, False, seeker=held, thesis_crossover=thesis) for s in HOLD_SEEDS]
+        quiet = [first_quiet_keeps(b) for b in runs]
+        print(f"levelled move, then TR held at TR*+0.008, {label}: the seeker's decisions would keep for 15 s "
+              f"from {_join(quiet, _seconds)} s (range {_range(quiet)}); max dz "
+              f"{_join([b.max_depth_error() for b in runs], '{:.2f}'.format)} m")
     diagnostics = (("PIT_I x5, levelled", LEVELLED[1], {"PIT_I": 5 * -0.1}, None),
                    ("PIT_I x5, governed", GOVERNED[1], {"PIT_I": 5 * -0.1}, None),
                    ("θe_TS 0.02, levelled", LEVELLED[1], None, {"theta_e_threshold": 0.02}),
                    ("θe_TS 0.02, from 0.70", FROM_070[1], None, {"theta_e_threshold": 0.02}))
     for label, config, params, seeker in diagnostics:
-        results = [predicted_run(s, config, 200.0, False, params=params, seeker=seeker).result() for s in HOLD_SEEDS]
-        kicked = [predicted_run(s, config, KICK_RUN_S, True, params=params, seeker=seeker) for s in HOLD_SEEDS]
+        results = [predicted_run(s, config, 200.0, False, params=params, seeker=seeker,
+                                 thesis_crossover=True).result() for s in HOLD_SEEDS]
+        kicked = [predicted_run(s, config, KICK_RUN_S, True, params=params, seeker=seeker, thesis_crossover=True)
+                  for s in HOLD_SEEDS]
         print(f"{label:<22}: settle {_join([r['settle_time_s'] for r in results], _seconds)} s | final TR "
               f"{_join([r['thrust_ratio_final'] for r in results], '{:.2f}'.format)} | dz "
               f"{_join([r['max_depth_error_m'] for r in results], '{:.2f}'.format)} m | rev "

@@ -3,6 +3,7 @@ behaviour in closed loop on the simulator physics and autopilot (no MAVLink)."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 import math
 import subprocess
 import sys
@@ -23,6 +24,7 @@ from companion.numerics.fuzzy_seeker import (
     filter_coefficient,
     hold_decision,
     next_thrust,
+    pitch_error_crossover,
     rule_strengths,
 )
 from companion.numerics.minspeed import (
@@ -161,6 +163,35 @@ def test_default_is_the_hold_and_the_thesis_law_stays_available():
     assert SeekerConfig().period_s == 1.0  # decisions still every Ts = 1 s (SPEC C7)
 
 
+def test_pitch_error_crossover_follows_the_autopilots_pitch_gain():
+    """eq. M.1: the proportional error that holds the crossover elevator counts as fully Small."""
+    config = SeekerConfig()
+    assert pitch_error_crossover(config, -20.0) == pytest.approx(0.21 / 20.0 + 0.005)  # Table 5.1: 0.0155
+    assert pitch_error_crossover(config, -10.0) == pytest.approx(0.026)  # a softer loop, a larger error
+    assert pitch_error_crossover(config, -100.0) == config.theta_e_threshold  # never below the configured one
+    for unknown in (None, 0.0, float("nan")):
+        assert pitch_error_crossover(config, unknown) == config.theta_e_threshold
+    crossover = pitch_error_crossover(config, -20.0)
+    proportional = 0.21 / 20.0  # the pitch loop holding δmax − δFB on its P term alone
+    assert decide(proportional, 0.25, replace(config, theta_e_threshold=crossover)) == KEEP
+    assert decide(proportional, 0.25, config) == INCREASE  # on the thesis' 0.01 it asks for more thrust
+    assert decide(crossover + 0.006, 0.25, replace(config, theta_e_threshold=crossover)) == INCREASE
+
+
+def test_the_procedure_reads_the_pitch_gain_and_fails_a_run_too_short_to_settle():
+    """The seeker decides with the crossover for the autopilot's PIT_P, read over the link; 20 s of
+    seeking from the nominal thrust cannot settle (15 s without a change), so the run fails and says why."""
+    from companion.procedures.min_speed import MinSpeedProcedureConfig, min_speed_procedure
+    from harness.inprocess import InProcessLink
+
+    link = InProcessLink(seed=1)
+    link.set_param("PIT_P", -10.0)
+    result = min_speed_procedure(link, lambda: None, MinSpeedProcedureConfig(settle_s=2.0, duration_s=20.0)).to_json()
+    assert result["theta_e_crossover"] == pytest.approx(0.026)
+    assert result["status"] == "failed" and result["settle_time_s"] is None
+    assert "not settled in 20 s" in result["abort_reason"] and result["thrust_ratio_final"] < 0.70
+
+
 def test_thrust_step_and_clamp():
     assert next_thrust(0.70, DECREASE, CONFIG, floor=0.28) == pytest.approx(0.69)
     assert next_thrust(0.28, DECREASE, CONFIG, floor=0.28) == 0.28
@@ -192,11 +223,14 @@ def test_behaviour_moves_once_per_hold(hold_s, spacing):
 
 def _seek(seed: int, period_s: float, seconds: float, current_north: float = 0.0, hold_s: float = 0.0,
           kick_at_s: float | None = None) -> dict:
-    """Closed loop; ``hold_s = 0`` is the thesis law; ``kick_at_s`` kicks the set-point to 0.60 then."""
+    """Closed loop; ``hold_s = 0`` is the thesis law (its θe crossover 0.01 too), otherwise the product's
+    rules (the hold and the crossover for the pitch loop, eq. M.1); ``kick_at_s`` kicks the set-point to
+    0.60 then."""
     loop = ClosedLoop(seed=seed, depth=2.0, params={"SIM_CUR_VN": current_north} if current_north else {})
     loop.advance(100.0)  # the depth loop reaches steady state at the cruise thrust first (as in §5.4)
     config = MinSpeedConfig(seeker=SeekerConfig(period_s=period_s, hold_after_change_s=hold_s), depth_setpoint=2.0,
-                            depth_p=loop.param("DPT_P"), depth_i=loop.param("DPT_I"), pitch_max=loop.param("PIT_MAX"))
+                            depth_p=loop.param("DPT_P"), depth_i=loop.param("DPT_I"), pitch_max=loop.param("PIT_MAX"),
+                            pitch_p=None if hold_s == 0.0 else loop.param("PIT_P"))
     behaviour = MinSpeedSeeking(config)
     if kick_at_s is None:
         loop.run(behaviour, seconds)
@@ -348,9 +382,9 @@ def test_a_stalled_governed_move_continues_as_the_ramp():
 
 
 def test_governed_start_settles_within_two_percent_of_the_analytic_minimum():
-    """The governed start, product procedure, seed 2 (bench/bench_min_speed.py --predicted): the governed move
-    reaches TR* + 0.008 in about 44 s with the depth within 0.3 m, settled (15 s without a change)
-    within 75 s, no limit cycle."""
+    """The governed start (an option; the levelled start is the default), product procedure, seed 2
+    (bench/bench_min_speed.py --predicted): the governed move reaches TR* + 0.008 in about 44 s with the
+    depth within 0.3 m, settled (15 s without a change) no later than 85 s, no limit cycle."""
     from companion.procedures import min_speed as procedure
     from harness.inprocess import InProcessLink
 
@@ -358,26 +392,28 @@ def test_governed_start_settles_within_two_percent_of_the_analytic_minimum():
     tr_star = analytic["thrust_ratio_star"]
     result = procedure.min_speed_procedure(
         InProcessLink(seed=2), lambda: None,
-        procedure.MinSpeedProcedureConfig.governed(duration_s=90.0, settle_s=30.0), analytic=analytic).to_json()
+        procedure.MinSpeedProcedureConfig.governed(duration_s=110.0, settle_s=30.0), analytic=analytic).to_json()
     assert result["status"] == "completed", result.get("abort_reason")
     series = result["series"]
     decided = [t for t, d in zip(series["time"], series["decision"]) if d is not None and d == d]
     assert 35.0 <= min(decided) <= 50.0  # the move took ~44 s (today's ramp to TR* + 0.04: 46 s)
     assert tr_star <= result["thrust_ratio_final"] <= 1.02 * tr_star
     assert result["max_depth_error_m"] <= 0.3
-    # 71.6 s here (30 s of settling first); the 0.22 m budget trades ~5 s for the depth bound (the
-    # earlier TR* + 0.018 / 0.25 m start settled sooner but lost 0.309 m on seed 5)
-    assert result["settle_time_s"] is not None and result["settle_time_s"] <= 75.0
+    # 79.6 s here (30 s of settling first; 68-80 s on seeds 1-6 with the seeker's crossover for the
+    # pitch loop (eq. M.1); 65-72 s at the thesis' 0.01): the move ends with 0.28 m of depth error to
+    # recover at a nearly saturated elevator, the bound the levelled start removes
+    assert result["settle_time_s"] is not None and result["settle_time_s"] <= 85.0
     assert result["reversals_last_30s"] <= 1
 
 
 def test_run_behavior_start_options_choose_the_move_and_refuse_what_cannot_work():
-    """``companion run-behavior min-speed --start/--start-margin``: governed by default when the vehicle
+    """``companion run-behavior min-speed --start/--start-margin``: levelled by default when the vehicle
     data give TR* (--preset), nominal (the thesis) without; a margin alone selects the ramp."""
     from companion.cli.commands.run_behavior import min_speed_start
     from companion.procedures import min_speed as procedure
 
-    governed = min_speed_start(None, None, analytic=True)
+    assert min_speed_start(None, None, analytic=True) == procedure.MinSpeedProcedureConfig.levelled()
+    governed = min_speed_start("governed", None, analytic=True)
     assert (governed.start_margin, governed.start_depth_budget_m) == (0.008, 0.22)
     assert min_speed_start(None, None, analytic=False) == procedure.MinSpeedProcedureConfig()
     ramp = min_speed_start(None, 0.03, analytic=True)
@@ -439,9 +475,10 @@ def test_levelled_move_offsets_the_depth_setpoint_and_always_puts_it_back():
     assert SetDepth(2.0) in stopped and SetThrust(0.70) in stopped
 
 
-def test_levelled_move_fades_back_to_the_depth_setpoint_and_hands_over_to_the_seeker():
-    """The product procedure, seed 2 (bench/bench_min_speed.py --predicted): at TR* + 0.008 after 14 s,
-    the depth within 0.2 m (the governed move: 0.29 m), the offset back at exactly 0 later."""
+def test_levelled_start_settles_within_a_minute_and_puts_the_depth_setpoint_back():
+    """The default start, product procedure, seed 2 (bench/bench_min_speed.py --predicted): at TR* + 0.008
+    after 14 s, the depth within 0.2 m (the governed move: 0.29 m), settled within 60 s of the start of
+    seeking (39 s here) within 2 % of TR*, the offset back at exactly 0 after it has faded (77 s)."""
     from companion.procedures import min_speed as procedure
     from harness.inprocess import InProcessLink
 
@@ -449,14 +486,15 @@ def test_levelled_move_fades_back_to_the_depth_setpoint_and_hands_over_to_the_se
     tr_star = analytic["thrust_ratio_star"]
     link = InProcessLink(seed=2)
     result = procedure.min_speed_procedure(
-        link, lambda: None, procedure.MinSpeedProcedureConfig.levelled(duration_s=70.0, settle_s=30.0),
+        link, lambda: None, procedure.MinSpeedProcedureConfig.levelled(duration_s=90.0, settle_s=30.0),
         analytic=analytic).to_json()
     assert result["status"] == "completed", result.get("abort_reason")
     assert result["start_reached_s"] == pytest.approx(14.0, abs=0.5)
     assert result["max_depth_error_m"] <= 0.2
     assert 0.3 <= result["depth_offset_max_m"] <= 0.7
-    assert result["depth_offset_faded_s"] is not None and result["depth_offset_faded_s"] <= 70.0
+    assert result["depth_offset_faded_s"] is not None and result["depth_offset_faded_s"] <= 90.0
+    assert result["settle_time_s"] is not None and result["settle_time_s"] <= 60.0
+    assert tr_star <= result["thrust_ratio_final"] <= 1.02 * tr_star and result["reversals_last_30s"] <= 1
     # back at the depth the seeker took as the set-point: the hold mode's, within the depth noise
     assert link.autopilot.depth_setpoint == result["depth_setpoint_m"] == pytest.approx(2.0, abs=0.005)
-    # the seeker took over there and is deciding near the optimum (it settles later: bench --predicted)
-    assert result["decisions"] >= 50 and tr_star <= result["thrust_ratio_final"] <= tr_star + 0.008 + 0.01 + 1e-9
+    assert result["decisions"] >= 50 and result["theta_e_crossover"] == pytest.approx(0.0155)

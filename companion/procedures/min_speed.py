@@ -1,8 +1,8 @@
 """Minimum-speed seeking as a procedure (SPEC C7; thesis ch. 5, Fig. 5.22).
 
-A sequence under one restore point: the holding mode at the nominal thrust for ``settle_s`` (the
-depth and pitch integrators must hold the trim before the first decision, as the thesis starts
-seeking at 100 s), then the fuzzy seeker for ``duration_s``. The figures are the final thrust
+A sequence under one restore point: the holding mode at the procedure's depth (2 m) and the nominal
+thrust for ``settle_s`` (the depth and pitch integrators must hold the trim before the first
+decision, as the thesis starts seeking at 100 s), then the fuzzy seeker for ``duration_s``. The figures are the final thrust
 ratio and speed, against the analytic TR* and Vmin (eq. 5.28–5.54) when the vehicle data are known.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking
 from behaviors.observe import Observe
 from behaviors.sequence import Instant, SequenceBehavior
 from companion.checks import require_positive, require_range
-from companion.interface import SetMode, SetThrust
+from companion.interface import SetDepth, SetMode, SetThrust
 from companion.procedures.results import ProcedureResult, figures_of
 from companion.procedures.runner import SafetyLimits, run_for_result
 
@@ -26,6 +26,10 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class MinSpeedProcedureConfig:
     nominal_thrust: float = 0.70
+    # m, the depth seeking holds (the thesis' 2 m, as the campaign's); the procedure commands it before
+    # settling, so a vehicle that floated to the surface dives first. None: the depth the hold mode
+    # keeps when entered (the vehicle must already be submerged)
+    depth: float | None = 2.0
     settle_s: float = 100.0
     duration_s: float = 200.0
     period_s: float | None = None  # None: the seeker's default Ts
@@ -42,6 +46,7 @@ class MinSpeedProcedureConfig:
     def __post_init__(self) -> None:
         require_range(self, "nominal_thrust", 0.0, 1.0)
         require_positive(self, "settle_s", "duration_s")
+        require_range(self, "depth", 0.1, 11000.0, optional=True)
         require_range(self, "period_s", 1e-3, 60.0, optional=True)
         require_range(self, "start_margin", -0.5, 0.5, optional=True)
         require_range(self, "start_depth_budget_m", 1e-3, 10.0, optional=True)
@@ -57,26 +62,32 @@ class MinSpeedProcedureConfig:
         within 0.27-0.29 m on seeds 1-6 (bench/bench_min_speed.py --predicted); measured and not taken:
         T_R* + 0.018 with 0.25 m (one seeker step after the move) settled 61-69 s on four seeds but lost
         0.309 m on one, T_R* + 0.008 with 0.25 m lost 0.30-0.32 m, T_R* + 0.01 with 0.23 m ends at +2.3 %,
-        0.28 m lost up to 0.325 m, 0.20 m settled after 68-98 s.
+        0.28 m lost up to 0.325 m, 0.20 m settled after 68-98 s (all at the thesis' θe crossover 0.01;
+        with the crossover for the pitch loop, eq. M.1: settled after 68-80 s, 0.27-0.29 m).
         """
         return cls(**({"start_margin": 0.008, "start_depth_budget_m": 0.22} | overrides))
 
     @classmethod
     def levelled(cls, **overrides) -> "MinSpeedProcedureConfig":
-        """The levelled start: to the analytic T_R* + 0.008 (as :meth:`governed`) at 0.02/s, the
-        level-flight pitch change fed forward through the depth set-point (behaviors.min_speed)."""
+        """The levelled start (the default): to the analytic T_R* + 0.008 (as :meth:`governed`) at 0.02/s,
+        the level-flight pitch change fed forward through the depth set-point (behaviors.min_speed).
+        Measured (bench/bench_min_speed.py --predicted, seeds 1-6): settled after 38-42 s at +1.9 % of
+        T_R*, depth within 0.12 m; the governed start 68-80 s, 0.29 m."""
         return cls(**({"start_margin": 0.008, "start_feedforward": True} | overrides))
 
 
 class MinSpeedProcedure(SequenceBehavior):
     def __init__(self, config: MinSpeedProcedureConfig = MinSpeedProcedureConfig(), *,
                  depth_gains: dict[str, float] | None = None, analytic: dict | None = None) -> None:
-        seeker_config = MinSpeedConfig(nominal_thrust=config.nominal_thrust, duration_s=config.duration_s)
+        seeker_config = MinSpeedConfig(nominal_thrust=config.nominal_thrust, duration_s=config.duration_s,
+                                       depth_setpoint=config.depth)
         self.depth_gains_source = "Table 5.1 (autopilot's not readable)"
         if depth_gains:  # the seeker re-computes the autopilot's desired pitch with its depth-loop gains
             seeker_config = replace(seeker_config, depth_p=depth_gains["depth_p"], depth_i=depth_gains["depth_i"],
                                     pitch_max=depth_gains["pitch_max"])
             self.depth_gains_source = "autopilot"
+            if "pitch_p" in depth_gains:  # the θe crossover follows the pitch loop's gain (eq. M.1)
+                seeker_config = replace(seeker_config, pitch_p=depth_gains["pitch_p"])
         if config.period_s is not None:
             seeker_config = replace(seeker_config, seeker=replace(seeker_config.seeker, period_s=config.period_s))
         predicted = (analytic or {}).get("thrust_ratio_star")
@@ -91,7 +102,8 @@ class MinSpeedProcedure(SequenceBehavior):
                                         start_pitch_curve=tuple((float(r), float(t)) for r, t in curve))
         self.analytic = analytic
         self.seeker = MinSpeedSeeking(seeker_config)
-        super().__init__([Instant(SetMode("hold"), SetThrust(config.nominal_thrust), name="prepare"),
+        depth = [SetDepth(config.depth)] if config.depth is not None else []
+        super().__init__([Instant(SetMode("hold"), *depth, SetThrust(config.nominal_thrust), name="prepare"),
                           Observe(config.settle_s, label="settle"), self.seeker],
                          name="min_speed", stop_on_failure=True)
 
@@ -107,12 +119,18 @@ class MinSpeedProcedure(SequenceBehavior):
 
 
 def read_depth_gains(link) -> dict[str, float] | None:
-    """The autopilot's depth-loop gains (None when its profile has none: the seeker then assumes Table 5.1's)."""
+    """The autopilot's depth-loop gains, and its pitch loop's proportional gain where the profile names
+    it (None when it has no depth gains: the seeker then assumes Table 5.1's, pitch gain included)."""
     try:
-        return link.get_params(["depth_p", "depth_i", "pitch_max"])
+        gains = link.get_params(["depth_p", "depth_i", "pitch_max"])
     except Exception as exc:  # noqa: BLE001 - e.g. a profile without these names
         log.warning("depth-loop gains not readable (%s): the seeker assumes Table 5.1's", exc)
         return None
+    try:
+        gains |= link.get_params(["pitch_p"])
+    except Exception as exc:  # noqa: BLE001 - the depth gains stand; the pitch gain stays Table 5.1's
+        log.warning("pitch gain not readable (%s): the seeker's θe crossover assumes Table 5.1's", exc)
+    return gains
 
 
 def analytic_minimum_speed(preset: str | None) -> dict | None:

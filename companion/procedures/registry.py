@@ -24,11 +24,12 @@ class ProcedureContext:
     """What a procedure is built with: its configuration, the simulator preset (vehicle data and
     test hooks, when rehearsing) and a duration asked for by the ground station (param1, seconds).
 
-    Minimum-speed seeking starts with the governed move to the predicted TR*, falling back to the
-    thesis' nominal start when the vehicle data give no TR* (``MinSpeedProcedure``)."""
+    Minimum-speed seeking starts with the levelled move to the predicted TR* (the level-flight pitch
+    fed forward through the depth set-point), falling back to the thesis' nominal start when the
+    vehicle data give no TR* (``MinSpeedProcedure``)."""
 
     roll: RollProcedureConfig = field(default_factory=RollProcedureConfig)
-    min_speed: MinSpeedProcedureConfig = field(default_factory=MinSpeedProcedureConfig.governed)
+    min_speed: MinSpeedProcedureConfig = field(default_factory=MinSpeedProcedureConfig.levelled)
     steady_state: SteadyStateConfig = field(default_factory=SteadyStateConfig)
     preset: str | None = None
     simulator: bool = False

@@ -101,7 +101,7 @@ class RunSettings:
         if self.schedules is not None:
             extra["schedules"] = self.schedules
         return ServeConfig(schedule_gains=self.schedule_gains, preset=self.preset, max_vehicle_s=self.max_vehicle_time,
-                           health=self.health, campaign=campaign, min_speed=MinSpeedProcedureConfig.governed(),
+                           health=self.health, campaign=campaign, min_speed=MinSpeedProcedureConfig.levelled(),
                            scheduling=scheduling, drift=drift, **extra)
 
 

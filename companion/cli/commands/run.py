@@ -62,7 +62,7 @@ def add_parser(subparsers) -> None:
                         help="do not watch the vehicle's health (passive identification against the stored models, "
                              "STATUSTEXT warning on a drift of a22 or b2)")
     parser.add_argument("--preset", default=None,
-                        help="simulator preset (analytic minimum speed: the governed start of minimum-speed seeking "
+                        help="simulator preset (analytic minimum speed: the levelled start of minimum-speed seeking "
                              "and the results)")
     add_procedure_argument(parser)
     parser.add_argument("--thrusts", type=thrust_list, default=None, metavar="LIST",

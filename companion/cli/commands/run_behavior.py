@@ -34,13 +34,14 @@ def add_parser(subparsers) -> None:
                              "the turns); on ArduRover a fraction of WP_SPEED")
     parser.add_argument("--period", type=float, default=None, help="min-speed: decision period Ts in s (default: 1)")
     parser.add_argument("--start", choices=("governed", "levelled", "ramp", "nominal"), default=None,
-                        help="min-speed: where seeking starts. governed (default with --preset): move to the analytic "
-                             "TR* + 0.008 as fast as the autopilot's depth integrator carries the pitch change (0.22 m "
-                             "depth budget); levelled: the same move with the level-flight pitch change fed forward on "
-                             "the depth set-point (about half the depth error, often a slower settle); ramp: move at 0.005/s to TR* + --start-margin; nominal: seek from the "
-                             "nominal thrust (the thesis). Without --preset there is no TR*: nominal")
+                        help="min-speed: where seeking starts. levelled (default with --preset): move to the analytic "
+                             "TR* + 0.008 at 0.02/s with the level-flight pitch change fed forward on the depth "
+                             "set-point; governed: the same move as fast as the autopilot's depth integrator carries "
+                             "the pitch change (0.22 m depth budget, a slower settle); ramp: move at 0.005/s to TR* + "
+                             "--start-margin; nominal: seek from the nominal thrust (the thesis). Without --preset "
+                             "there is no TR*: nominal")
     parser.add_argument("--start-margin", type=float, default=None, metavar="TR",
-                        help="min-speed: the margin over the analytic TR* the move aims at (default: governed 0.008, "
+                        help="min-speed: the margin over the analytic TR* the move aims at (default: levelled and governed 0.008, "
                              "ramp 0.04); given alone it selects the ramp")
     parser.add_argument("--preset", default=None,
                         help="min-speed: simulator preset whose vehicle data give the analytic TR* and Vmin")
@@ -57,10 +58,10 @@ def min_speed_start(start: str | None, margin: float | None, *, analytic: bool, 
     if margin is not None and not (math.isfinite(margin) and 0.0 <= margin < 0.5):
         raise ValueError(f"--start-margin must be in [0, 0.5), not {margin!r}")
     if start is None:
-        start = "ramp" if margin is not None else ("governed" if analytic else "nominal")
+        start = "ramp" if margin is not None else ("levelled" if analytic else "nominal")
     if start == "nominal":
         if margin is not None:
-            raise ValueError("--start-margin needs --start governed or ramp")
+            raise ValueError("--start-margin needs --start levelled, governed or ramp")
         return MinSpeedProcedureConfig(**fields)
     if not analytic:
         raise ValueError(f"--start {start} needs --preset (the vehicle data that give the analytic TR*)")
