@@ -46,9 +46,27 @@ def test_behaviours_ran_over_mavlink(rehearsal):
     _, summary = rehearsal
     roll, seek = summary["roll"], summary["min_speed"]
     assert roll["status"] == "completed" and roll["std_closed_deg"] < roll["std_open_deg"]
-    assert seek["status"] == "completed"
-    assert seek["thrust_ratio_final"] < 0.6  # it went down from 0.70 towards TR* ≈ 0.43
+    assert seek["status"] == "completed" and summary["status"] == summary["campaign_status"] == "completed"
+    # settled (the status says so) within a minute of seeking, within 2 % of TR* ≈ 0.432, depth held
+    assert seek["settle_time_s"] is not None and seek["settle_time_s"] <= 60.0
     assert seek["thrust_ratio_star"] == pytest.approx(0.432, abs=0.002)
+    assert seek["thrust_ratio_star"] <= seek["thrust_ratio_final"] <= 1.02 * seek["thrust_ratio_star"]
+    assert seek["max_depth_error_m"] <= 0.3
+
+
+def test_a_behaviour_that_missed_its_goal_fails_the_rehearsal():
+    """A seeker that did not settle has not found the minimum speed: the rehearsal says failed, with its
+    reason, and keeps the campaign's own outcome."""
+    from companion.rehearsal.rehearsal import _behaviours_decide
+
+    summary = {"status": "completed", "roll": {"status": "completed"},
+               "min_speed": {"status": "failed", "reason": "not settled in 200 s of seeking"}}
+    _behaviours_decide(summary, ("roll", "min_speed"))
+    assert summary["status"] == "failed" and summary["campaign_status"] == "completed"
+    assert summary["reason"] == "min-speed: not settled in 200 s of seeking"
+    fine = {"status": "completed", "roll": {"status": "completed"}, "min_speed": {"status": "completed"}}
+    _behaviours_decide(fine, ("roll", "min_speed"))
+    assert fine["status"] == "completed" and "reason" not in fine
 
 
 def test_report_and_store_are_written(rehearsal):

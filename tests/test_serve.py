@@ -123,7 +123,8 @@ def test_abort_with_nothing_running_and_second_start_are_rejected(tmp_path):
     link.inject_user_command(MAV_CMD_USER_3, at_s=2.0)
     link.inject_user_command(MAV_CMD_USER_1, at_s=10.0)  # while seeking
     with Store(tmp_path / "s.sqlite") as store:
-        config = ServeConfig(min_speed=MinSpeedProcedureConfig(settle_s=2.0, duration_s=20.0), max_vehicle_s=40.0)
+        config = ServeConfig(min_speed=MinSpeedProcedureConfig.levelled(settle_s=2.0, duration_s=60.0),
+                             preset="starfish", max_vehicle_s=80.0)
         Companion(link, store, store.add_vehicle("v"), config, AbortFlag()).run()
     assert (MAV_CMD_USER_4, MAV_RESULT_TEMPORARILY_REJECTED, 0) in link.acks
     assert (MAV_CMD_USER_1, MAV_RESULT_TEMPORARILY_REJECTED, 0) in link.acks

@@ -41,8 +41,13 @@ def finite_or_none(value: Any) -> float | None:
 
 
 def figures_of(result: dict, keys: tuple[str, ...]) -> dict:
-    """The named figures of a result, each finite or None, plus its status."""
-    return {key: finite_or_none(result.get(key)) for key in keys} | {"status": result.get("status")}
+    """The named figures of a result, each finite or None, plus its status (and its reason, when it
+    did not complete)."""
+    figures = {key: finite_or_none(result.get(key)) for key in keys} | {"status": result.get("status")}
+    reason = result.get("abort_reason") or result.get("reason")
+    if result.get("status") != "completed" and reason:
+        figures["reason"] = reason
+    return figures
 
 
 @dataclass(frozen=True)

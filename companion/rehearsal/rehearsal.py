@@ -339,6 +339,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
             extra: dict = {}
             if outcome.status == "completed":
                 extra = _run_behaviors(link, store, config, vehicle_id, campaign_id, abort, summary, sim_preset)
+                _behaviours_decide(summary, config.behaviors)
             if outcome.status == "completed" and config.steady_state:
                 extra["steady_state"] = _run_steady_state(link, store, config, campaign_id, abort, summary)
         finally:
@@ -428,6 +429,19 @@ def _run_steady_state(link, store, config: RehearsalConfig, campaign_id: int, ab
     stored = ran.result.to_json()
     summary["steady_state"] = steady_summary(stored, config.current)
     return stored
+
+
+def _behaviours_decide(summary: dict, behaviors: tuple[str, ...]) -> None:
+    """The rehearsal completes only if every behaviour it ran reached its goal (a seeker that did not
+    settle has not found the minimum speed); otherwise it fails with the first behaviour's reason.
+    The campaign's own outcome stays under ``campaign_status``."""
+    summary["campaign_status"] = summary.get("status")
+    for name in behaviors:
+        ran = summary.get(name) or {}
+        if ran.get("status") != "completed":
+            reason = ran.get("reason") or ran.get("abort_reason") or ran.get("status") or "did not run"
+            summary.update(status="failed", reason=f"{name.replace('_', '-')}: {reason}")
+            return
 
 
 def _run_behaviors(link, store, config: RehearsalConfig, vehicle_id: int, campaign_id: int, abort: AbortFlag,

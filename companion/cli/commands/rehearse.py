@@ -202,8 +202,10 @@ def print_summary(summary: dict) -> None:
     if seek:
         print(f"minimum-speed seeking: thrust ratio {_fmt(seek.get('thrust_ratio_final'), '.3f')} "
               f"(analytic TR* {_fmt(seek.get('thrust_ratio_star'), '.3f')}), speed {_fmt(seek.get('speed_final'), '.3f')} m/s "
-              f"(Vmin {_fmt(seek.get('v_min'), '.3f')}), settled after {_fmt(seek.get('settle_time_s'), '.0f')} s, "
-              f"max depth error {_fmt(seek.get('max_depth_error_m'), '.2f')} m")
+              f"(Vmin {_fmt(seek.get('v_min'), '.3f')}), "
+              + (f"settled after {_fmt(seek.get('settle_time_s'), '.0f')} s, " if seek.get("settle_time_s") is not None
+                 else "NOT settled, ")
+              + f"max depth error {_fmt(seek.get('max_depth_error_m'), '.2f')} m")
     steady = summary.get("steady_state")
     if steady and steady.get("squares"):
         sq = steady["squares"]
