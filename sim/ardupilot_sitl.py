@@ -8,7 +8,7 @@ on its serial0 TCP port, exactly as it would to a vehicle, while the physics kee
 linearised truth (``python -m sim linearize``) for scoring.
 
 Everything runs on loopback: SITL's MAVLink port is ``5760 + 10·instance`` on 127.0.0.1 (a free
-instance is chosen), its servo frames go to our UDP port (bound to port 0, passed with
+instance is claimed: :class:`InstanceClaim`), its servo frames go to our UDP port (bound to port 0, passed with
 ``--sim-port-out``). The parameter file written for SITL is this vehicle's configuration
 (``sim/ardupilot/*.parm``), plus any ``--param NAME=VALUE`` given.
 
@@ -17,6 +17,7 @@ A twin-thruster preset (``boat-skid``) flies ArduRover with skid steering: its o
 """
 from __future__ import annotations
 
+import fcntl
 import logging
 import math
 import socket
@@ -75,18 +76,58 @@ def find_binary(config: SitlConfig) -> Path:
     return binary
 
 
+def _ports_free(instance: int) -> bool:
+    """Whether SITL instance ``instance``'s MAVLink port (5760 + 10·i) and its neighbours are free."""
+    try:
+        for port in (MAVLINK_BASE_PORT + 10 * instance + k for k in (0, 2, 3)):
+            with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+                probe.bind(("127.0.0.1", port))
+    except OSError:
+        return False
+    return True
+
+
+#: one lock file per SITL instance, held (flock) by the process that claimed it
+INSTANCE_LOCK = str(Path(tempfile.gettempdir()) / "marine-companion-ardupilot-sitl-{instance}.lock")
+
+
+class InstanceClaim:
+    """A SITL instance reserved for this process until :meth:`release` (or its death).
+
+    Free ports alone are not a reservation: SITL binds them only after it has started, so two
+    simulators started together (parallel tests) both saw instance 0 free and the second SITL
+    exited. The claim holds an exclusive ``flock`` on the instance's lock file, which the
+    operating system releases with the process, so a killed run leaves no stale claim.
+    """
+
+    def __init__(self, limit: int = 50) -> None:
+        self._handle = None
+        for instance in range(limit):
+            handle = open(INSTANCE_LOCK.format(instance=instance), "a")  # noqa: SIM115 - held while claimed
+            try:
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                handle.close()
+                continue
+            if not _ports_free(instance):  # e.g. a SITL this project did not start
+                handle.close()  # closing releases the lock
+                continue
+            self.instance, self._handle = instance, handle
+            return
+        raise RuntimeError(f"no free SITL instance among the first {limit}")
+
+    def release(self) -> None:
+        if self._handle is not None:
+            self._handle.close()
+            self._handle = None
+
+
 def free_instance(limit: int = 50) -> int:
-    """The first SITL instance whose MAVLink port (5760 + 10·i) and neighbours are free on loopback."""
-    for instance in range(limit):
-        ports = [MAVLINK_BASE_PORT + 10 * instance + k for k in (0, 2, 3)]
-        try:
-            for port in ports:
-                with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
-                    probe.bind(("127.0.0.1", port))
-        except OSError:
-            continue
-        return instance
-    raise RuntimeError(f"no free SITL instance among the first {limit}")
+    """The first SITL instance whose ports are free and that no other process has claimed, without
+    claiming it (for a caller that starts SITL at once; :class:`InstanceClaim` reserves it)."""
+    claim = InstanceClaim(limit)
+    claim.release()
+    return claim.instance
 
 
 def preset_of(config: SitlConfig) -> Preset:
@@ -142,7 +183,8 @@ class ArduPilotSitl:
         decoder = factory.for_preset(preset) if hasattr(factory, "for_preset") else factory()
         self._truth_file = open(config.truth_log, "w", encoding="utf-8") if config.truth_log else None  # noqa: SIM115
         self.bridge = JsonBridge(JsonPhysics(self.vehicle, decoder, truth_log=self._truth_file))
-        self.instance = free_instance()
+        self._claim = InstanceClaim()
+        self.instance = self._claim.instance
         self.port = MAVLINK_BASE_PORT + 10 * self.instance
         self._tmp = None
         if config.workdir is None:
@@ -224,3 +266,4 @@ class ArduPilotSitl:
             self._truth_file.close()
         if self._tmp is not None:
             self._tmp.cleanup()
+        self._claim.release()
