@@ -259,9 +259,7 @@ class SpeedTuning(Behaviour):
             original = None
             if design is not None and self.original:
                 original = self._original_figures()
-                if original is None and "original" in self._requested:
-                    pass  # flown, and still nothing to compare: the verdict says so
-                elif original is None:  # flown after all
+                if original is None and "original" not in self._requested:  # not predictable: fly them
                     log.info("speed loop: %s; the original gains are flown", self.original_flown_because)
                     commands.append(StatusText("speed loop: original gains flown too"))
                     self._sequence = self._steps(("original",))
