@@ -161,7 +161,9 @@ def test_the_quick_campaign_flies_the_ends_predicts_the_middle_and_writes_what_i
     link, campaign, outcome, _ = _quick_campaign(3)
     assert outcome.status == "completed" and campaign.config.checked == "verify"
     flown = campaign.verifier.flown
-    assert [(s["thrust"], s["label"]) for s in flown] == [(0.7, "own"), (1.0, "scheduled")]
+    # an optimised design is chosen over every speed's model, so its schedule is flown at both ends
+    assert [(s["thrust"], s["label"]) for s in flown] == [(1.0, "scheduled"), (0.7, "scheduled")]
+    assert campaign.heading_choice is not None and not campaign.heading_choice.keeps_original
     assert all(s["decided"] and s["flights"] == 1 for s in flown)
     assert all(KeepRule().agree(s, s["predicted"]) is None for s in flown)
     assert {s["thrust"] for s in campaign.verifier.predicted} == {0.7, 0.85, 1.0}
@@ -170,6 +172,12 @@ def test_the_quick_campaign_flies_the_ends_predicts_the_middle_and_writes_what_i
     assert list(phases)[:3] == ["settle", "excitation", "validation"]
     written = {name: link.param(name) for name in campaign.final_gains}
     assert written == pytest.approx(campaign.final_gains, rel=1e-6)
+
+
+def test_the_rule_design_flies_the_lowest_speeds_own_design_right_after_its_model():
+    link, campaign, outcome, _ = _quick_campaign(3, design="rule")
+    assert outcome.status == "completed" and campaign.heading_choice is None
+    assert [(s["thrust"], s["label"]) for s in campaign.verifier.flown][0] == (0.7, "own")
 
 
 def test_a_verification_that_cannot_pass_leaves_the_original_gains():

@@ -111,6 +111,10 @@ class AutopilotProfile:
     # the autopilot's documented ranges of its native heading gains, as CascadeRules fields
     # (e.g. {"rate_ff_range": (0.0, 0.0)}); empty: ArduRover's ranges, the design's defaults
     gain_ranges: dict = field(default_factory=dict)
+    # points of step overshoot the designed gains may fly above their prediction on this autopilot
+    # (the spread of flown minus predicted, measured): the optimised design keeps this far below the
+    # keep rule's limit (companion.numerics.step_design, eq. D.1); None: the design's default
+    prediction_margin_pct: float | None = None
     # what a campaign on this autopilot flies unless the user says otherwise: e.g. ArduSub's thrusts
     # that keep its vectored motors out of saturation; applied once, by CampaignConfig.resolved_for
     campaign_defaults: CampaignDefaults = field(default_factory=CampaignDefaults)

@@ -23,6 +23,10 @@ The plant is the identified ṙ = a22·r + b2·δ = a22·r + b·s with b = b2·�
 * **ANG_P = ωr_a/2**: with the rate loop as a first-order lag 1/(1 + s/ωr_a), the heading loop
   s² + ωr_a·s + ωr_a·ANG_P has ζ = 0.7071 at ANG_P = ωr_a/2 (a 4.3 % step overshoot).
 
+ωr, N, the ANG_P ratio (0.5 above) and a scale on FF (1 above) are the rule's parameters
+(:class:`CascadeRules`); the quick procedure chooses them by optimising the predicted steps under
+the autopilot's limits (eq. D.1, ``companion.numerics.step_design``), the defaults are the rule.
+
 Every gain is kept inside ArduPilot's documented range (Rover ``ATC_STR_*``: ANG_P 1–10, RAT_P
 and RAT_I 0–2, RAT_FF 0–3); a clamped gain is listed in ``clamped``. A clamp means the design's
 damping is not met (e.g. FF at its limit at low speed); :func:`design_cascade_gains` reports the
@@ -51,9 +55,13 @@ class CascadeRules:
     #: the speed (m/s) above which the autopilot scales the steering output by base/|U| (ArduRover's
     #: MOT_SPD_SCA_BASE for a rudder); None: the output is not scaled
     output_scale_base: float | None = None
+    #: ANG_P = angle_ratio·ωr_a (0.5: ζ = 0.7071 with the rate loop as a first-order lag)
+    angle_ratio: float = 0.5
+    #: FF = ff_scale·(−a22/b) (1: the steady turn's exact output)
+    ff_scale: float = 1.0
 
     def __post_init__(self) -> None:
-        require_positive(self, "full_scale", "rate_bandwidth", "integral_ratio")
+        require_positive(self, "full_scale", "rate_bandwidth", "integral_ratio", "angle_ratio", "ff_scale")
         for name in ("angle_p_range", "rate_p_range", "rate_i_range", "rate_ff_range"):
             require_interval(self, name)
 
@@ -103,24 +111,47 @@ def design_cascade_gains(model: YawModel, rules: CascadeRules = CascadeRules(), 
         raise ValueError(f"the model needs finite a22 < 0 and b2 > 0, got a22={a22}, b2={b2}")
     b = b2 * rules.full_scale * rules.output_scale(speed)
     clamped: list[str] = []
-    rate_ff = _clamp("rate_ff", -a22 / b, rules.rate_ff_range, clamped)
+    rate_ff = _clamp("rate_ff", rules.ff_scale * -a22 / b, rules.rate_ff_range, clamped)
     rate_p = max(0.0, (rules.rate_bandwidth + a22) / b)
     if rules.rate_ff_range[1] <= 0.0:  # no feed-forward: P carries the steady turn (docstring)
         rate_p = max(rate_p, 2.0 * -a22 / b)
     rate_p = _clamp("rate_p", rate_p, rules.rate_p_range, clamped)
     achieved = -a22 + b * rate_p
     rate_i = _clamp("rate_i", achieved / (rules.integral_ratio * b), rules.rate_i_range, clamped)
-    angle_p = _clamp("angle_p", achieved / 2.0, rules.angle_p_range, clamped)
+    angle_p = _clamp("angle_p", rules.angle_ratio * achieved, rules.angle_p_range, clamped)
     # heading loop s² + ωr_a·s + ωr_a·ANG_P (FF exact): ζ = ωr_a / (2·sqrt(ωr_a·ANG_P))
     damping = achieved / (2.0 * math.sqrt(achieved * angle_p))
     return CascadeGains(angle_p=angle_p, rate_p=rate_p, rate_i=rate_i, rate_ff=rate_ff, rate_bandwidth=achieved,
                         heading_damping=damping, speed=speed, clamped=tuple(clamped))
 
 
+#: Rover QuickTune's steering rules (``rover-quicktune.lua``: RTUN_STR_FFRATIO, _P_RATIO, _I_RATIO
+#: defaults) and the samples it accepts (steering output ≥ 0.10, turn rate > 10°/s)
+QUICKTUNE_FF_RATIO = 0.9
+QUICKTUNE_P_RATIO = 0.5
+QUICKTUNE_I_RATIO = 0.5
+QUICKTUNE_STEERING_MIN = 0.10
+QUICKTUNE_TURN_RATE_MIN = math.radians(10.0)
+
+
 def quicktune_feed_forward(steering: list[float], turn_rate: list[float]) -> float:
-    """ArduRover QuickTune's rule on recorded data: FF = 0.9·Σ|steering| / Σ|turn rate| (output per rad/s)."""
-    total_rate = sum(abs(r) for r in turn_rate if math.isfinite(r))
-    total_steering = sum(abs(s) for s in steering if math.isfinite(s))
+    """ArduRover QuickTune's rule on recorded data: FF = 0.9·Σ|steering| / Σ|turn rate| (output per
+    rad/s) over the samples QuickTune accepts (|steering| ≥ 0.10 and |turn rate| > 10°/s); ValueError
+    when none is."""
+    pairs = [(abs(s), abs(r)) for s, r in zip(steering, turn_rate) if math.isfinite(s) and math.isfinite(r)
+             and abs(s) >= QUICKTUNE_STEERING_MIN and abs(r) > QUICKTUNE_TURN_RATE_MIN]
+    total_rate = sum(r for _, r in pairs)
     if total_rate <= 0.0:
-        raise ValueError("no turn rate in the data")
-    return 0.9 * total_steering / total_rate
+        raise ValueError("no sample with steering ≥ 0.10 and a turn rate > 10°/s in the data")
+    return QUICKTUNE_FF_RATIO * sum(s for s, _ in pairs) / total_rate
+
+
+def quicktune_gains(feed_forward: float, rules: CascadeRules = CascadeRules()) -> dict[str, float]:
+    """QuickTune's steering gains from its FF: P = 0.5·FF, I = 0.5·FF (each within the autopilot's
+    range); ANG_P is not QuickTune's to change."""
+    def within(value: float, limits: tuple[float, float]) -> float:
+        return min(max(value, limits[0]), limits[1])
+
+    ff = within(feed_forward, rules.rate_ff_range)
+    return {"heading_rate_ff": ff, "heading_rate_p": within(QUICKTUNE_P_RATIO * ff, rules.rate_p_range),
+            "heading_rate_i": within(QUICKTUNE_I_RATIO * ff, rules.rate_i_range)}

@@ -38,11 +38,12 @@ from behaviors.sequence import Deferred, Instant, ParallelBehavior, SequenceBeha
 from behaviors.speed_tuning import SPEED_CONTEXT, SPEED_GAINS, SpeedTuning, SurgeRecorder
 from behaviors.verification import VerificationStep
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
-from companion.numerics.cascade_gains import quicktune_feed_forward
+from companion.numerics.cascade_gains import quicktune_feed_forward, quicktune_gains
 from companion.procedures.campaign_config import (AXES, CHECKS, DEFAULT_THRUSTS, PROCEDURES,  # noqa: F401 - re-exported
                                                   QUICK_CONVERGENCE_DELAY_S, QUICK_NOISE_BAND, QUICK_PITCH_DOUBLET,
                                                   QUICK_R2_THRESHOLD, CampaignConfig, GainCheck)
 from companion.procedures.campaign_verification import CampaignVerification
+from companion.procedures.heading_design import HeadingDesign, choose_heading_design, optimisable, with_design
 from companion.procedures.results import ProcedureResult
 from companion.procedures.verified_design import CONTROLLERS, LIMIT_PARAMETERS, HeadingLimits
 
@@ -121,6 +122,7 @@ class IdentificationCampaign(Behaviour):
         if self.checks != "none" and self.heading_kind is not None:
             parameters |= set(self.heading_kind.parameters)
         self.verification: str | None = None
+        self.heading_choice: HeadingDesign | None = None  # eq. D.1's decision ("optimised" designs)
         self.surge = SurgeRecorder()  # the settles' speed and throttle, for the speed loop
         self.speed: SpeedTuning | None = None
         if config.speed.enabled:
@@ -179,8 +181,9 @@ class IdentificationCampaign(Behaviour):
                 items.append(ParallelBehavior(manoeuvres, name=f"yaw and pitch at {thrust:.2f}"))
             else:
                 items.extend(manoeuvres)
-            if self.verifier_wanted and index == 0 and len(cfg.thrusts) > 1:
-                # the lowest speed's own design, while the vehicle is there and steady
+            if self.verifier_wanted and index == 0 and len(cfg.thrusts) > 1 and not self.optimised_design:
+                # the lowest speed's own design, while the vehicle is there and steady (an optimised
+                # design is chosen over every speed's model, so it is not known yet here)
                 items.append(Deferred(lambda thrust=thrust: self._verifier().own_step(self.accepted, thrust),
                                       self._heading_gains))
         items.append(Deferred(self._design_step))
@@ -211,6 +214,11 @@ class IdentificationCampaign(Behaviour):
         return self.checks == "verify" and self.heading_kind is not None
 
     @property
+    def optimised_design(self) -> bool:
+        """The heading gains are chosen on their predicted steps (eq. D.1), not by the rule alone."""
+        return self.config.design == "optimised" and optimisable(self.heading_kind) and self.checks != "none"
+
+    @property
     def _heading_gains(self) -> Footprint:
         return Footprint.of(self.heading_kind.parameters if self.heading_kind else (), ("mode", "thrust", "heading"))
 
@@ -218,21 +226,64 @@ class IdentificationCampaign(Behaviour):
         names = self.heading_kind.parameters if self.heading_kind else ()
         return {k: v for k, v in self.original_gains.items() if k in names}
 
+    def _limits(self) -> HeadingLimits:
+        """What bounds a heading step besides the gains, read with the original gains."""
+        return HeadingLimits.from_vehicle(self.original_gains, full_scale=self.config.cascade.full_scale,
+                                          rudder_rate=self.config.rudder_rate,
+                                          output_scale_base=self.config.cascade.output_scale_base
+                                          if self.heading_kind.name == "cascade" else None)
+
     def _verifier(self) -> CampaignVerification:
         """The verification's bookkeeping, made once the original gains (and limits) are known."""
         if self.verifier is None:
-            limits = HeadingLimits.from_vehicle(self.original_gains, full_scale=self.config.cascade.full_scale,
-                                                rudder_rate=self.config.rudder_rate,
-                                                output_scale_base=self.config.cascade.output_scale_base
-                                                if self.heading_kind.name == "cascade" else None)
-            self.verifier = CampaignVerification(self.heading_kind, self.config.verification, self.config.keep, limits)
+            self.verifier = CampaignVerification(self.heading_kind, self.config.verification, self.config.keep,
+                                                 self._limits())
         return self.verifier
+
+    def _choose_heading_design(self) -> str | None:
+        """eq. D.1: the rule's parameters optimised on the predicted steps, against the rule's
+        default, the original gains and QuickTune's rule; the campaign then designs with the chosen
+        rules (its configuration, stored with it), or keeps the original gains. Returns a line for
+        the ground station, None when nothing could be scored (the rule as configured stands)."""
+        quicktune = self._gains_for("quicktune", self._middle_thrust()) \
+            if self.heading_kind.name == "cascade" and self.original_heading() else None
+        try:
+            choice = choose_heading_design(self.heading_kind, self.config.cascade, self.config.bounds, self.accepted,
+                                           self._limits(), self.config.objective, self.original_heading(), quicktune)
+        except ValueError as exc:
+            log.warning("heading design by prediction: %s; the rule as configured is used", exc)
+            return None
+        self.heading_choice = choice
+        log.info("heading design by prediction: %s", choice.choice.reason())
+        if not choice.keeps_original:
+            self.config = with_design(self.config, choice)
+            self.kinds = self.config.kinds()
+            self.heading_kind = next((k for k in self.kinds if k.axis == "yaw"), None)
+            if self.verifier is not None:
+                self.verifier.kind = self.heading_kind
+        best = choice.choice.chosen
+        return f"heading: {best.name}, predicted {best.score.iae_s:.2f} s {best.score.worst_overshoot_pct:.1f}%"
+
+    def _middle_thrust(self) -> float:
+        thrusts = sorted(a.thrust for a in self.accepted if a.axis == "yaw" and a.thrust is not None)
+        return thrusts[len(thrusts) // 2] if thrusts else self.config.thrusts[0]
+
+    @property
+    def keeps_original_heading(self) -> bool:
+        """The design by prediction found nothing better than the vehicle's own heading gains."""
+        return self.heading_choice is not None and self.heading_choice.keeps_original
 
     def _design_step(self) -> Behaviour:
         texts: list[Command] = []
+        if self.optimised_design and any(a.axis == "yaw" for a in self.accepted):
+            line = self._choose_heading_design()
+            if line:
+                texts.append(StatusText(line[:50]))
         for kind in self.kinds:
             if kind.axis not in self.config.axes:
                 continue
+            if kind is self.heading_kind and self.keeps_original_heading:
+                continue  # nothing to design: the vehicle's own gains stay (nothing written, nothing flown)
             try:
                 design = kind.design(self.accepted)
             except ValueError as exc:
@@ -259,7 +310,8 @@ class IdentificationCampaign(Behaviour):
             feed_forward = self._quicktune_feed_forward(thrust)
             if feed_forward is None:
                 return None
-            return {**{k: v for k, v in self.original_gains.items() if k in names}, "heading_rate_ff": feed_forward}
+            return {**{k: v for k, v in self.original_gains.items() if k in names},
+                    **quicktune_gains(feed_forward, self.config.cascade)}
         if label == "constant":  # one gain tuned at the lowest identified thrust, used everywhere
             lowest = min(design.points, key=lambda point: point.thrust)
             return dict(lowest.scheduled)
@@ -271,7 +323,8 @@ class IdentificationCampaign(Behaviour):
         return dict(nearest.scheduled)
 
     def _quicktune_feed_forward(self, thrust: float) -> float | None:
-        """ArduRover QuickTune's FF rule on this thrust's training data (the nearest thrust with a model)."""
+        """ArduRover QuickTune's FF rule on this thrust's training data (the nearest thrust with a model);
+        its P and I follow from it (``quicktune_gains``)."""
         attempts = [a for a in self.accepted if a.axis == "yaw"]
         if not attempts:
             return None
@@ -300,35 +353,51 @@ class IdentificationCampaign(Behaviour):
         return build
 
     def _final_gains_step(self) -> Behaviour | None:
-        """Write every designed schedule's gains for the speed measured now (the resident loop
-        keeps them matched later), only once the heading steps passed :class:`GainCheck`."""
-        if not self.config.write_gains or not self.designs:
+        """Write what each loop verified, for the speed measured now (the resident loop keeps the
+        schedules matched later): the designed schedules once the heading steps passed (the keep
+        rule, or :class:`GainCheck` for the full comparison), and the speed loop's gains once its
+        own steps passed — each loop keeps what it verified, whatever the other's verdict. A heading
+        design that keeps the vehicle's own gains writes nothing for that loop."""
+        if not self.config.write_gains:
             return None
+        texts: list[Command] = []
+        refused: set[str] = set()
         if self.heading_kind is not None and self.heading_kind.name in self.designs:
             if self.checks == "none":
                 self.verification = "not verified: the heading-step checks were skipped, so no gain is written"
-                return Instant(StatusText("gains not written: not verified (no heading-step checks)", 4), name="write gains")
-            if self.verifier_wanted:
+                texts.append(StatusText("gains not written: not verified (no heading-step checks)", 4))
+            elif self.verifier_wanted:
                 self.verification = self._verifier().decide()
             else:
                 self.verification = self.config.verify.verdict(self.step_results)
             if self.verification is not None:
-                self.design_errors["verification"] = self.verification
-                return Instant(StatusText(f"gains rejected: {self.verification}"[:50], 4), name="write gains")
-        return Instant(name="write gains", make=self._write_scheduled_gains, touches=self.footprint)
+                refused.add(self.heading_kind.name)
+                if self.checks != "none":
+                    self.design_errors["verification"] = self.verification
+                    texts.append(StatusText(f"gains rejected: {self.verification}"[:50], 4))
+        writable = tuple(name for name in self.designs if name not in refused)
+        speed_kept = bool(self.speed is not None and self.speed.kept)
+        if not writable and not speed_kept:
+            return Instant(*texts, name="write gains") if texts else None
+        return Instant(*texts, name="write gains", make=lambda telemetry: self._write_scheduled_gains(telemetry, writable),
+                       touches=self.footprint)
 
-    def _write_scheduled_gains(self, telemetry: Telemetry) -> list[Command]:
+    def _write_scheduled_gains(self, telemetry: Telemetry, names: Sequence[str] | None = None) -> list[Command]:
         gains: dict[str, float] = {}
         speeds: list[float] = []
         for name, design in self.designs.items():
+            if names is not None and name not in names:
+                continue
             low = min(point.speed for point in design.points)
             speed = telemetry.speed_water if telemetry.finite("speed_water") else low
             speeds.append(speed)
             gains.update(self._kind(name).gains(design.schedule, speed))
         if self.speed is not None and self.speed.kept:  # verified by its own speed steps
             gains.update(self.speed.kept)
+        if not gains:
+            return []
         self.final_gains = gains
-        speed = speeds[0]
+        speed = speeds[0] if speeds else (telemetry.speed_water if telemetry.finite("speed_water") else math.nan)
         before = {k: v for k, v in self.original_gains.items() if k in gains}
         self.events.append(GainsWritten(speed, before, gains))
         thrust = telemetry.thrust_ratio if telemetry.finite("thrust_ratio") else self.config.thrusts[-1]
@@ -336,7 +405,32 @@ class IdentificationCampaign(Behaviour):
         commands: list[Command] = [SetParameters(gains)]
         if "rudder_trim" in gains:
             commands += reengage_hold(thrust, telemetry.yaw)
-        return commands + [StatusText(f"gains written for {speed:.2f} m/s: {text}"[:50])]
+        where = f"for {speed:.2f} m/s" if math.isfinite(speed) else "(speed loop)"
+        return commands + [StatusText(f"gains written {where}: {text}"[:50])]
+
+    def loop_outcomes(self) -> dict[str, dict[str, str]]:
+        """Loop by loop (heading, speed): ``outcome`` (written, original kept, refused, not tuned)
+        and why, for the result and the summary."""
+        out: dict[str, dict[str, str]] = {}
+        if self.heading_kind is not None and "yaw" in self.config.axes:
+            written = self.final_gains is not None and any(k in self.final_gains for k in self.heading_kind.parameters)
+            if self.keeps_original_heading:
+                out["heading"] = {"outcome": "original kept",
+                                  "why": "no design is predicted better than the vehicle's own gains: "
+                                         + self.heading_choice.choice.reason()}
+            elif written:
+                out["heading"] = {"outcome": "written", "why": self.verification or "verified"}
+            elif self.verification or self.heading_kind.name in self.design_errors:
+                out["heading"] = {"outcome": "refused",
+                                  "why": self.verification or self.design_errors.get(self.heading_kind.name, "")}
+            else:
+                out["heading"] = {"outcome": "not tuned", "why": "no heading design"}
+        if self.speed is not None:
+            kept = bool(self.speed.kept) and self.final_gains is not None
+            why = self.speed.verdict or self.speed.reason
+            out["speed"] = {"outcome": "written" if kept else "refused" if why else "original kept",
+                            "why": why or ("verified by its own speed steps" if kept else "")}
+        return out
 
     # ------------------------------------------------------------------ events
     def _on_complete(self, behavior: Behaviour) -> None:
@@ -457,6 +551,8 @@ class IdentificationCampaign(Behaviour):
             "vehicle_time_by_phase": self.phases_in_order(),
             "final_gains": self.final_gains,
             "speed_loop": self.speed.result() if self.speed is not None else None,
+            "heading_design": self.heading_choice.choice.to_dict() if self.heading_choice is not None else None,
+            "loops": self.loop_outcomes(),
         }
         return ProcedureResult.of("identification", self.status, self.reason, figures)
 

@@ -17,6 +17,7 @@ from behaviors.verification import VerificationConfig
 from companion.checks import check_thrust_levels, require_non_negative, require_positive
 from companion.numerics.cascade_gains import CascadeRules
 from companion.numerics.gains import CAMPAIGN_DAMPING, GainBounds
+from companion.numerics.step_design import DesignObjective
 from companion.procedures.verified_design import KeepRule
 from behaviors.speed_tuning import SpeedLoopConfig
 
@@ -46,6 +47,9 @@ QUICK_PITCH_DOUBLET = 0.15  # rad, the quick procedure's pitch training and vali
 PROCEDURES = ("quick", "thesis")
 #: how a campaign checks its design before writing it (CampaignConfig.checks)
 CHECKS = ("compare", "verify", "none")
+#: how the heading gains are chosen (CampaignConfig.design): the design rule as stated ("rule": eq. 3.57,
+#: the cascade's bandwidth rule), or its parameters optimised on the predicted steps (eq. D.1)
+DESIGNS = ("rule", "optimised")
 AXES = ("yaw", "pitch")
 
 
@@ -79,6 +83,10 @@ class CampaignConfig:
     verify: "GainCheck" = field(default_factory=lambda: GainCheck())
     verification: VerificationConfig = VerificationConfig()  # one decisive step ("verify")
     keep: KeepRule = KeepRule()  # when "verify" keeps the gains
+    # how the heading gains are chosen (DESIGNS); "optimised" scores the rule's default, its optimum,
+    # the original gains and QuickTune's rule on the predicted steps of ``objective`` and keeps the best
+    design: str = "rule"
+    objective: DesignObjective = DesignObjective()
     rudder_rate: float | None = None  # rad/s, the rudder servo's rate where the profile states one (predictions)
     # identify yaw and pitch at one thrust together (their doublets staggered) instead of in turn
     parallel_axes: bool = False
@@ -98,6 +106,8 @@ class CampaignConfig:
             require_positive(self, "depth")
         if self.speed_law not in (None, "u2", "u"):
             raise ValueError(f"CampaignConfig.speed_law must be 'u2', 'u' or None, not {self.speed_law!r}")
+        if self.design not in DESIGNS:
+            raise ValueError(f"CampaignConfig.design must be one of {', '.join(DESIGNS)}, not {self.design!r}")
         if self.checks not in CHECKS:
             raise ValueError(f"CampaignConfig.checks must be one of {', '.join(CHECKS)}, not {self.checks!r}")
         for label in self.step_labels:
@@ -121,7 +131,10 @@ class CampaignConfig:
         - a model is accepted at validation R² ≥ 0.9 (the thesis: 0.61), and the pitch doublets are
           0.15 rad (the thesis: 0.10 training, 0.06 validation; :data:`QUICK_R2_THRESHOLD`);
         - the design is verified, not compared: its step flown at the lowest and highest speed, the
-          rest predicted (``checks="verify"``, companion.procedures.verified_design).
+          rest predicted (``checks="verify"``, companion.procedures.verified_design);
+        - the design rule's parameters are optimised on the predicted ±20° and ±40° steps under the
+          autopilot's own controller and limits, with the original gains as a candidate
+          (``design="optimised"``, eq. D.1, companion.numerics.step_design).
 
         The configuration itself (this dataclass's defaults) is the thesis procedure."""
         rule = SteadinessRule()
@@ -133,7 +146,7 @@ class CampaignConfig:
                         training_amplitude=QUICK_PITCH_DOUBLET, validation_amplitude=QUICK_PITCH_DOUBLET)
         checks = "verify" if self.checks == "compare" else self.checks
         return replace(self, yaw=yaw, pitch=pitch, parallel_axes=True, checks=checks,
-                       bounds=replace(self.bounds, damping=CAMPAIGN_DAMPING))
+                       bounds=replace(self.bounds, damping=CAMPAIGN_DAMPING), design="optimised")
 
     @property
     def checked(self) -> str:
@@ -208,6 +221,10 @@ class CampaignConfig:
         if getattr(profile, "train_full_window", False):
             config = replace(config, yaw=replace(config.yaw, stop_on_convergence=False),
                              pitch=replace(config.pitch, stop_on_convergence=False))
+        margin = getattr(profile, "prediction_margin_pct", None)
+        if margin is not None:
+            config = replace(config, objective=replace(config.objective, margin_pct=float(margin)))
+        config = replace(config, objective=replace(config.objective, max_overshoot_pct=config.keep.max_overshoot_pct))
         if heading == "cascade":
             config = replace(config, step_labels=tuple("quicktune" if label == "constant" else label
                                                        for label in config.step_labels))

@@ -258,8 +258,9 @@ def run_procedure(
 
     The restore point is derived from the procedure's declared footprint and taken before its first
     step. Afterwards the vehicle is put back as found: always after an abort or a failure (the mode
-    too, unless the pilot took the vehicle), and after success too except for the parameters the
-    procedure keeps on purpose (``kept_parameters``, e.g. a campaign's verified final gains)."""
+    too, unless the pilot took the vehicle), and after success or failure too except for the parameters
+    the procedure keeps on purpose (``kept_parameters``, e.g. a campaign's verified final gains: what
+    one loop verified stays when another loop's design was refused)."""
     guard = getattr(abort_requested, "guard", None)
     if guard is not None:
         guard.active += 1  # from here to the end of the restore only the step loop is interruptible
@@ -272,7 +273,10 @@ def run_procedure(
         outcome = run_behavior(link, procedure, limits=limits, abort_requested=abort_requested, on_step=on_step,
                                restore=None, telemetry_timeout_s=telemetry_timeout_s, on_change=on_change)
         outcome.restore = restore
-        keep = getattr(procedure, "kept_parameters", frozenset()) if outcome.status == "completed" else frozenset()
+        # what a procedure verified stays even when another part of it failed (a campaign's speed loop
+        # verified beside a refused heading design); an abort puts everything back
+        keep = getattr(procedure, "kept_parameters", frozenset()) if outcome.status in ("completed", "failed") \
+            else frozenset()
         outcome.restore_problems += restore.restore(link, mode=not outcome.pilot_has_it, keep=keep, guard=guard)
         outcome.restore_notes = list(restore.notes)
         return outcome

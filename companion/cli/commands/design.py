@@ -1,9 +1,19 @@
-"""``companion design``: heading PI gains and turning performance from a yaw model (SPEC C5).
+"""``companion design``: heading gains and turning performance from a yaw model (SPEC C5).
 
     companion design --a22 -1.62 --b2 1.25 --delta0 0.036 --speed 1.4 [--delta-max 0.26] [--json]
+    companion design --autopilot ardurover --a22 -0.9 --b2 1.1 --speed 2.0 [--original ATC_STR_RAT_FF=0.2,...]
 
-Prints kp, ki, trim (gains.py) and, for the speed given, ψ̇max, the U-turn time and the turning
-radius (turning.py, eq. 3.47–3.50). Without ``--speed`` the radius is not printed (it needs V).
+Without ``--autopilot``: the thesis' PI (kp, ki, trim; gains.py) and, for the speed given, ψ̇max,
+the U-turn time and the turning radius (turning.py, eq. 3.47–3.50). Without ``--speed`` the radius
+is not printed (it needs V).
+
+With ``--autopilot``: the campaign's designer (eq. D.1, ``companion.numerics.step_design``) for that
+autopilot's own heading controller — the rule's parameters optimised on the predicted ±20° and ±40°
+steps under the controller's limits (the autopilot's shipped defaults unless given), with the original
+gains (the autopilot's defaults, or ``--original``) as a candidate — printing the chosen gains under
+the autopilot's parameter names and every candidate's predicted step. A user with a model from
+elsewhere gets the design a campaign would make at that one speed. PX4's controllers have no step
+model yet, so ``px4-rover`` and ``px4-uuv`` are refused with that reason.
 """
 from __future__ import annotations
 
@@ -16,6 +26,7 @@ from companion.cli.commands._common import print_json
 from companion.numerics.gains import GainBounds, design_heading_gains
 from companion.numerics.identification import YawModel
 from companion.numerics.turning import DEFAULT_DELTA_MAX, turning_performance
+from companion.cli.commands.design_autopilot import AUTOPILOT_CHOICES, run_for_autopilot
 
 #: the largest rudder limit accepted, rad: a deflection beyond 90° is not a rudder angle (degrees?)
 MAX_RUDDER = math.pi / 2
@@ -38,6 +49,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument(
         "--delta-max", type=float, default=DEFAULT_DELTA_MAX, help=f"rudder limit, rad (default {DEFAULT_DELTA_MAX})"
     )
+    parser.add_argument("--autopilot", choices=AUTOPILOT_CHOICES, default=None,
+                        help="design for this autopilot's own heading controller by its predicted steps (eq. D.1); "
+                             "default: the thesis PI rule")
+    parser.add_argument("--original", default=None, metavar="NAME=VALUE,...",
+                        help="the vehicle's heading gains and limits as found, by the autopilot's parameter names "
+                             "(default: its shipped defaults); scored as a candidate")
+    parser.add_argument("--scale-base", type=float, default=None,
+                        help="ArduRover: the speed above which the steering output is scaled down "
+                             "(MOT_SPD_SCA_BASE, m/s; default 1 for a rudder); 0: not scaled (a skid boat)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(func=run)
     return parser
@@ -73,6 +93,8 @@ def run(args) -> int:
     if error:
         print(f"companion design: error: {error}", file=sys.stderr)
         return 2
+    if getattr(args, "autopilot", None) is not None:
+        return run_for_autopilot(args)
     model = YawModel(a22=args.a22, b2=args.b2, delta0=args.delta0)
     gains = design_heading_gains(model, GainBounds(), speed=args.speed)
     turning = turning_performance(model, args.speed if args.speed is not None else 0.0, args.delta_max)

@@ -44,6 +44,8 @@ log = logging.getLogger(__name__)
 
 PROFILE = AutopilotProfile(
     name="ardurover",
+    # the schedule's ±20° step at the highest speed flew 2.5–3 points above its prediction (SITL)
+    prediction_margin_pct=3.5,
     # "hold" = GUIDED: heading and speed held from SET_ATTITUDE_TARGET (Rover's HOLD mode stops)
     modes={"manual": 0, "hold": 15, "guided": 15, "acro": 1, "steering": 3, "stop": 4, "loiter": 5, "auto": 10,
            "rtl": 11},
