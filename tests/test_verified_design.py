@@ -186,3 +186,30 @@ def test_a_verification_that_cannot_pass_leaves_the_original_gains():
     assert campaign.final_gains is None
     for name, value in restore.parameters.items():
         assert link.param(name) == pytest.approx(value)
+
+
+def test_a_vehicle_already_on_the_best_gains_keeps_them_and_the_campaign_completes_without_writing():
+    from dataclasses import replace
+
+    from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
+    from companion.procedures.runner import RestorePoint, run_procedure
+    from harness.inprocess import InProcessLink
+
+    def campaign_on(link):
+        config = replace(CampaignConfig(thrusts=(0.85,), axes=("yaw",)).quick())
+        campaign = IdentificationCampaign(config)
+        restore = RestorePoint.capture(link, campaign.footprint)
+        campaign.original_gains = dict(restore.parameters)
+        return campaign, run_procedure(link, campaign)
+
+    first, outcome = campaign_on(InProcessLink(seed=4))
+    assert outcome.status == "completed" and first.loop_outcomes()["heading"]["outcome"] == "written"
+    # the same vehicle, already flying what the first campaign wrote
+    link = InProcessLink(seed=4)
+    link.set_params({name: first.final_gains[name] for name in ("heading_p", "heading_i", "rudder_trim")})
+    before = link.get_params(("heading_p", "heading_i", "rudder_trim"))
+    second, outcome = campaign_on(link)
+    assert outcome.status == "completed", outcome.reason
+    assert second.keeps_original_heading and second.loop_outcomes()["heading"]["outcome"] == "original kept"
+    assert second.final_gains is None and (second.verifier is None or not second.verifier.flown)  # nothing flown
+    assert link.get_params(before) == pytest.approx(before)

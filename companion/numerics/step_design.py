@@ -19,7 +19,9 @@ extra reversal, per unsettled step), so the search is one bounded Nelder–Mead
 and not differentiable at the limits, where a simplex search does better than a gradient one.
 
 The rule's default, the vehicle's original gains and QuickTune's rule (where it exists) are scored the
-same way, as candidates. :func:`choose` takes the feasible candidate of least cost; **the original
+same way, as candidates, each held to the *acceptable* overshoot (the keep rule's limit less the margin:
+what is expected to pass the keep rule when flown) — the optimiser's tighter target is a design
+preference, not a reason to replace gains that already pass. :func:`choose` takes the feasible candidate of least cost; **the original
 gains are always a candidate, so no design is proposed that is predicted worse than them** — when
 nothing beats them, the choice is to keep them, and nothing is written for that loop.
 
@@ -67,9 +69,12 @@ class DesignObjective:
     duration_s: float = 25.0  # a verification step's longest record
     dt: float = 0.02
     max_evaluations: int = 160  # of the cost, per optimisation
+    #: a design replaces the original gains only when its predicted step error is lower by at least
+    #: this fraction: a smaller gain is not worth a parameter write and a verification flight
+    min_improvement: float = 0.02
 
     def __post_init__(self) -> None:
-        require_non_negative(self, "max_overshoot_pct", "margin_pct", "preferred_overshoot_pct")
+        require_non_negative(self, "max_overshoot_pct", "margin_pct", "preferred_overshoot_pct", "min_improvement")
         require_positive(self, "duration_s", "dt")
         if not self.step_sizes_rad or any(not (0.0 < s <= math.pi / 2) for s in self.step_sizes_rad):
             raise ValueError(f"DesignObjective.step_sizes_rad must be in (0, π/2], not {self.step_sizes_rad!r}")
@@ -78,7 +83,13 @@ class DesignObjective:
 
     @property
     def target_overshoot_pct(self) -> float:
-        return max(0.0, min(self.preferred_overshoot_pct, self.max_overshoot_pct - self.margin_pct))
+        """What the optimiser designs for."""
+        return max(0.0, min(self.preferred_overshoot_pct, self.acceptable_overshoot_pct))
+
+    @property
+    def acceptable_overshoot_pct(self) -> float:
+        """What any candidate may be predicted at and still be expected to pass the keep rule."""
+        return max(0.0, self.max_overshoot_pct - self.margin_pct)
 
 
 @dataclass(frozen=True)
@@ -132,6 +143,7 @@ class DesignChoice:
     chosen: Candidate
     candidates: tuple[Candidate, ...]
     target_overshoot_pct: float
+    acceptable_overshoot_pct: float = math.inf
 
     @property
     def keeps_original(self) -> bool:
@@ -142,20 +154,24 @@ class DesignChoice:
         others = ", ".join(f"{c.name} {c.score.iae_s:.2f} s{'' if c.score.feasible else ' (infeasible)'}"
                            for c in self.candidates if c is not best)
         return (f"{best.name}: predicted step error {best.score.iae_s:.2f} s, worst overshoot "
-                f"{best.score.worst_overshoot_pct:.1f} % (target ≤ {self.target_overshoot_pct:.1f} %); {others}")
+                f"{best.score.worst_overshoot_pct:.1f} % (designed for ≤ {self.target_overshoot_pct:.1f} %, "
+                f"acceptable ≤ {self.acceptable_overshoot_pct:.1f} %); {others}")
 
     def to_dict(self) -> dict:
         return {"chosen": self.chosen.name, "target_overshoot_pct": self.target_overshoot_pct,
+                "acceptable_overshoot_pct": self.acceptable_overshoot_pct,
                 "reason": self.reason(),
                 "candidates": {c.name: {**c.score.to_dict(), "gains": [dict(g) for g in c.gains]}
                                for c in self.candidates}}
 
 
-def score(cases: Sequence[StepCase], gains: Sequence[Gains], objective: DesignObjective) -> StepScore:
-    """Every case's steps of every size with its gains (eq. D.1's J and constraints)."""
+def score(cases: Sequence[StepCase], gains: Sequence[Gains], objective: DesignObjective,
+          target: float | None = None) -> StepScore:
+    """Every case's steps of every size with its gains (eq. D.1's J and constraints), the overshoot
+    held to ``target`` (default: the design target)."""
     iaes: list[float] = []
     worst_overshoot, worst_reversals, unsettled, violation = 0.0, 0, 0, 0.0
-    target = objective.target_overshoot_pct
+    target = objective.target_overshoot_pct if target is None else target
     for case, case_gains in zip(cases, gains):
         for size in objective.step_sizes_rad:
             times, heading, _ = simulate_step(case.plant, case.controller, dict(case_gains), size,
@@ -176,9 +192,15 @@ def score(cases: Sequence[StepCase], gains: Sequence[Gains], objective: DesignOb
 
 
 def fixed_candidate(name: str, cases: Sequence[StepCase], gains: Gains, objective: DesignObjective) -> Candidate:
-    """The same gains at every speed (the original gains, QuickTune's)."""
+    """The same gains at every speed (the original gains, QuickTune's), judged as every candidate is
+    when choosing: against the acceptable overshoot."""
     per_case = tuple(dict(gains) for _ in cases)
-    return Candidate(name, per_case, score(cases, per_case, objective))
+    return Candidate(name, per_case, score(cases, per_case, objective, objective.acceptable_overshoot_pct))
+
+
+def _judged(candidate: Candidate, cases: Sequence[StepCase], objective: DesignObjective) -> Candidate:
+    """A designed candidate rescored against the acceptable overshoot, as the fixed ones are."""
+    return replace(candidate, score=score(cases, candidate.gains, objective, objective.acceptable_overshoot_pct))
 
 
 # --------------------------------------------------------------------------- rule families
@@ -262,7 +284,8 @@ def _simplex(x0: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
 
 def choose(candidates: Sequence[Candidate], objective: DesignObjective) -> DesignChoice:
     """The feasible candidate of least cost; with none feasible, the least violating (a refusal
-    downstream names it). Ties go to the original gains (nothing to write), then in the given order."""
+    downstream names it). The original gains stay unless the best is ``min_improvement`` better (nothing
+to write, nothing to fly); other ties go in the given order."""
     if not candidates:
         raise ValueError("no candidate design to choose from")
     def key(c: Candidate) -> tuple[float, float, int]:
@@ -271,16 +294,17 @@ def choose(candidates: Sequence[Candidate], objective: DesignObjective) -> Desig
     best = ranked[0]
     original = next((c for c in candidates if c.name == "original"), None)
     if original is not None and original.score.feasible and best is not original \
-            and not best.score.iae_s < original.score.iae_s:
+            and not best.score.iae_s < (1.0 - objective.min_improvement) * original.score.iae_s:
         best = original
-    return DesignChoice(best, tuple(candidates), objective.target_overshoot_pct)
+    return DesignChoice(best, tuple(candidates), objective.target_overshoot_pct, objective.acceptable_overshoot_pct)
 
 
 def design_by_prediction(family: RuleFamily, cases: Sequence[StepCase], design_models: Sequence[YawModel],
                          objective: DesignObjective, *, original: Gains | None = None,
                          others: Mapping[str, Gains] | None = None) -> DesignChoice:
-    """eq. D.1 end to end: the rule's default, its optimum, the original gains and any ``others``
-    (e.g. QuickTune's) scored on the same predicted steps, and the choice among them.
+    """eq. D.1 end to end: the rule's default, its optimum (designed for the target overshoot), the
+    original gains and any ``others`` (e.g. QuickTune's) scored on the same predicted steps against
+    the acceptable overshoot (the keep rule's limit less the margin), and the choice among them.
 
     ``cases``: one per identified speed (its own model and the controller's limits there);
     ``design_models``: the models the rule designs from at the same speeds (the schedule's)."""
@@ -289,10 +313,10 @@ def design_by_prediction(family: RuleFamily, cases: Sequence[StepCase], design_m
     candidates: list[Candidate] = []
     default = _rule_candidate("rule", family, family.x0, cases, design_models, objective)
     if default is not None:
-        candidates.append(default)
+        candidates.append(_judged(default, cases, objective))
     best = optimise(family, cases, design_models, objective)
     if best is not None:
-        candidates.append(best)
+        candidates.append(_judged(best, cases, objective))
     if original:
         candidates.append(fixed_candidate("original", cases, original, objective))
     for name, gains in (others or {}).items():
