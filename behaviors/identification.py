@@ -294,7 +294,31 @@ class IdentificationManoeuvre(Behaviour):
     def _step_settle(self, telemetry: Telemetry, t_rel: float) -> list[Command]:
         if not self._settled(telemetry, t_rel, self._settle_s):
             return []
+        still = self._not_moving(telemetry)
+        if still is not None:
+            self.stage = DONE
+            self.outcome = "not moving"
+            self.finish(Status.FAILURE, still)
+            return [StatusText(still[:50], 4)]
         return self._start_training(telemetry)
+
+    def _not_moving(self, telemetry: Telemetry) -> str | None:
+        """Why the vehicle is still at rest at the end of its settle (None: it moves, or it has no
+        speed sensor to tell): not armed, not in the holding mode, or no throttle out."""
+        rule = self.config.steadiness
+        floor = rule.min_speed if rule is not None else SteadinessRule().min_speed
+        if not telemetry.finite("speed_water") or telemetry.speed_water >= floor:
+            return None
+        where = f"at thrust {self.thrust:.2f}" if self.thrust is not None else "at the commanded thrust"
+        still = f"the vehicle did not move {where} ({telemetry.speed_water:.2f} m/s after the settle)"
+        if not telemetry.armed:
+            return f"{still}: it is not armed; arm it (the campaign never arms a vehicle) and start again"
+        if telemetry.mode and telemetry.mode not in ("hold", "guided"):
+            return f"{still}: it is in {telemetry.mode}, not the holding mode the campaign asked for (mode refused?)"
+        if telemetry.finite("thrust_ratio") and abs(telemetry.thrust_ratio) < 0.02:
+            return (f"{still}: the throttle stayed at zero; check the throttle output, a motor interlock or "
+                    "the speed the thrust asks for (WP_SPEED on ArduRover)")
+        return f"{still}: check the propulsion and the thrust the campaign asks for"
 
     def _start_training(self, telemetry: Telemetry) -> list[Command]:
         self.attempt += 1

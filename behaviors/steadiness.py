@@ -14,6 +14,10 @@ ends a settle once, over the last ``window_s`` of vehicle time:
   holds that throttle then drifts in speed (measured on the skid boat's first level, reached from
   rest: a22 −0.80 and b2 −34 % against −1.02/1.12; our simulator's thrust is a set-point, constant).
 
+* the vehicle moves: its mean water speed is at least ``min_speed`` — a vehicle at rest is perfectly
+  "steady", and measured on ArduRover SITL's skid boat six seconds at rest, unarmed, counted as a
+  settle and the campaign went on to refuse the doublet as "fly faster".
+
 It never ends a settle before ``min_s`` nor lets it run past the configured maximum (the caller's
 fixed settle). Pure: fed telemetry, no clock of its own.
 """
@@ -38,10 +42,11 @@ class SteadinessRule:
     heading: float = math.radians(1.0)  # rad from the held course (yaw)
     rate_window_s: float = 2.0
     throttle_slope: float = 0.001  # 1/s: 1.5 % of throttle over a 15 s record
+    min_speed: float = 0.1  # m/s: below it the vehicle is not moving, never "steady"
 
     def __post_init__(self) -> None:
         require_positive(self, "window_s", "min_s", "speed_slope", "rate", "heading", "rate_window_s",
-                         "throttle_slope")
+                         "throttle_slope", "min_speed")
 
 
 class SteadinessDetector:
@@ -79,5 +84,6 @@ class SteadinessDetector:
         heading = abs(float(recent[-1, 3])) if self.axis == "yaw" else 0.0
         throttle = data[:, 4]
         drift = abs(np.polyfit(t, throttle, 1)[0]) if np.all(np.isfinite(throttle)) else 0.0
-        return abs(slope) < rule.speed_slope and rate < rule.rate and heading < rule.heading \
+        moving = float(np.mean(data[:, 1])) >= rule.min_speed
+        return moving and abs(slope) < rule.speed_slope and rate < rule.rate and heading < rule.heading \
             and drift < rule.throttle_slope

@@ -33,6 +33,34 @@ def test_a_vehicle_still_accelerating_is_not_steady_and_a_settled_one_is():
     assert not _feed(SteadinessDetector(rule, "yaw"), 3.0, lambda t: 1.4)  # never before the window
 
 
+def test_a_vehicle_at_rest_is_never_steady():
+    assert not _feed(SteadinessDetector(SteadinessRule(), "yaw"), 40.0, lambda t: 0.0)
+    assert not _feed(SteadinessDetector(SteadinessRule(), "yaw"), 40.0, lambda t: 0.05)
+
+
+@pytest.mark.parametrize("armed, mode, throttle, words", [
+    (False, "hold", 0.0, "not armed"),
+    (True, "manual", 0.3, "not the holding mode"),
+    (True, "hold", 0.0, "throttle stayed at zero"),
+    (True, "hold", 0.4, "check the propulsion"),
+])
+def test_a_vehicle_that_does_not_move_is_told_why_not_to_fly_faster(armed, mode, throttle, words):
+    from behaviors.base import Status
+    from behaviors.identification import IdentificationManoeuvre, ManoeuvreConfig
+    from companion.interface import Telemetry
+
+    config = ManoeuvreConfig(settle_s=10.0, steadiness=SteadinessRule())
+    manoeuvre = IdentificationManoeuvre(config, thrust=0.6)
+    t = 0.0
+    commands = []
+    while not manoeuvre.done and t < 30.0:
+        commands += manoeuvre.tick(Telemetry(time_s=t, yaw=0.0, yaw_rate=0.0, pitch_rate=0.0, speed_water=0.0,
+                                             rudder=0.0, thrust_ratio=throttle, mode=mode, armed=armed))
+        t += 0.05
+    assert manoeuvre.status is Status.FAILURE and words in manoeuvre.reason and "did not move" in manoeuvre.reason
+    assert "faster" not in manoeuvre.reason and t < 11.0  # at the end of the settle, not later
+
+
 @pytest.mark.e2e
 def test_quick_campaign_identifies_both_axes_in_a_fraction_of_the_vehicle_time(tmp_path):
     command = [sys.executable, "-m", "companion", "rehearse", "--thrusts", "0.8", "--no-steps",
