@@ -200,11 +200,11 @@ class SpeedTuning(Behaviour):
             original = SpeedLoopGains.from_params(self.original) if len(self.original) == len(SPEED_GAINS) else None
             speeds = [speed for _, speed in levels]
             cruise = self.original.get("cruise_speed", math.nan)
-            self.design = design_speed_gains(self.surge, cruise, (min(speeds), max(speeds)), self.config.rules,
-                                             self.context.get("accel_max", 1.0), original)
             per_thrust = self.context.get("speed_default", math.nan)
             if not per_thrust > 0.0:
                 raise ValueError("no WP_SPEED: the speed a thrust level demands is unknown")
+            self.design = design_speed_gains(self.surge, cruise, (min(speeds), max(speeds)), self.config.rules,
+                                             self.context.get("accel_max", 1.0), original, speed_max=per_thrust)
             self._per_thrust = per_thrust
             predictable = "original" in self.design.predicted
             if not predictable and self.original:

@@ -12,8 +12,10 @@ until the set-point follows. Then one step of
 when it has decided**: once the heading has been within the settle band (5 % of the step) for
 ``band_hold_s`` after its peak, or after ``max_s`` without settling. A step that cannot decide is
 repeated once — the water speed at its end differs from its start by more than ``max_speed_change``
-(a disturbance, a thrust change not settled; the turn's own dip, recovered by then, is not one), or the rudder sat at its limit for more than ``max_saturated_s`` (the
-design assumes an unsaturated rudder) — and a second such step ends it undecided. The figures of
+(a disturbance, a thrust change not settled; the turn's own dip is not one: once the heading has
+decided, the record goes on until the speed is back, up to ``max_s``), or the rudder sat at its limit
+for more than ``max_saturated_s`` (the design assumes an unsaturated rudder) — and a second such step
+ends it undecided. The figures of
 merit are :func:`companion.numerics.step_response.step_metrics`.
 
 Chaining: the course the step ends on is the next check's course; nothing returns to the start.
@@ -160,7 +162,11 @@ class VerificationStep(Behaviour):
             if self._band_since is None:
                 self._band_since = now
             if now - self._band_since >= self.config.band_hold_s and self._past_peak():
-                return self._disturbed() or "settled"
+                if self._disturbed() is None:
+                    return "settled"
+                # the heading has settled but the speed is not back yet: the turn's own dip recovers
+                # (a skid boat at low throttle slows in its own turn), a disturbance does not — so
+                # the record goes on, and only a speed still off at ``max_s`` makes the step disturbed
         else:
             self._band_since = None
         if now - self._phase_start >= self.config.max_s:

@@ -79,6 +79,12 @@ def test_the_design_keeps_the_cruise_speed_and_settles_sooner_than_the_defaults_
     assert far.design_speed == pytest.approx(1.5, abs=0.02) and "cruise_speed" in far.clamped  # not extrapolated
 
 
+def test_the_speed_steps_stay_within_what_the_autopilot_can_be_asked_for():
+    # cruise at the top of the speeds flown, WP_SPEED just above it: the step goes down, never above WP_SPEED
+    design = design_speed_gains(SKID, 2.0, (1.0, 2.0), speed_max=2.0)
+    assert max(design.step) <= 2.0 and design.step[1] < design.step[0]
+
+
 def test_the_check_wants_less_overshoot_and_a_shorter_settle():
     check = SpeedCheck()
     good = {"steps": [{"overshoot_pct": 4.0}, {"overshoot_pct": 2.0}], "settling_time_s": 5.0}

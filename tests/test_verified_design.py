@@ -93,6 +93,17 @@ def test_the_speed_lost_in_the_turn_itself_is_no_disturbance():
     assert step.status is Status.SUCCESS and step.flights == 1
 
 
+def test_a_slow_recovery_of_the_speed_lost_in_the_turn_is_waited_for_not_taken_for_a_disturbance():
+    # a skid boat at low throttle: 25 % lost in its own turn, regained over ~12 s by its speed loop,
+    # long after the heading has settled
+    def skid(t):
+        return 1.2 if t < 5.0 else 1.2 * (1.0 - 0.25 * math.exp(-(t - 5.0) / 4.0) * min(1.0, (t - 5.0) / 2.0))
+    step = VerificationStep(0.6, GAINS, VerificationConfig(settle_max_s=5.0), rudder_max=RUDDER_MAX)
+    _fly(step, YawModel(), speed=skid)
+    assert step.status is Status.SUCCESS and step.flights == 1
+    assert step.metrics["ended"] == "settled" and step.metrics["duration_s"] < VerificationConfig().max_s
+
+
 def test_the_keep_rule_refuses_what_overshoots_what_was_not_predicted_and_what_is_worse_than_the_original():
     rule = KeepRule()
     good = {"thrust": 0.6, "label": "own", "decided": True, "max_overshoot_pct": 5.0, "iae_s": 2.6, "oscillations": 0,
@@ -212,4 +223,48 @@ def test_a_vehicle_already_on_the_best_gains_keeps_them_and_the_campaign_complet
     assert outcome.status == "completed", outcome.reason
     assert second.keeps_original_heading and second.loop_outcomes()["heading"]["outcome"] == "original kept"
     assert second.final_gains is None and (second.verifier is None or not second.verifier.flown)  # nothing flown
+    assert link.get_params(before) == pytest.approx(before)
+
+
+def _two_loop_procedure(fail: bool = True):
+    """A procedure that writes one loop's verified gain (heading_p), changes another (heading_i) and
+    then fails (or runs on until aborted): what it verified is its ``kept_parameters``."""
+    from behaviors.base import Behaviour, Footprint, Status
+    from companion.interface import SetParameters
+
+    class TwoLoops(Behaviour):
+        footprint = Footprint.of(parameters=("heading_p", "heading_i"))
+
+        def __init__(self) -> None:
+            super().__init__("two loops")
+            self.kept_parameters = frozenset({"heading_p"})
+            self.ticks = 0
+
+        def update(self, telemetry):
+            self.ticks += 1
+            if self.ticks == 1:
+                return [SetParameters({"heading_p": 0.42, "heading_i": 0.0123})]
+            if self.ticks == 5 and fail:
+                self.finish(Status.FAILURE, "the other loop was refused")
+            return []
+
+    return TwoLoops()
+
+
+def test_what_one_loop_verified_stays_when_another_fails_and_nothing_stays_after_an_abort():
+    from companion.procedures.runner import run_procedure
+    from harness.inprocess import InProcessLink
+
+    link = InProcessLink(seed=1)
+    before = link.get_params(("heading_p", "heading_i"))
+    outcome = run_procedure(link, _two_loop_procedure())
+    assert outcome.status == "failed"
+    assert link.param("heading_p") == pytest.approx(0.42)  # verified: kept
+    assert link.param("heading_i") == pytest.approx(before["heading_i"])  # not verified: restored
+
+    link = InProcessLink(seed=1)
+    ticks = iter(range(1000))
+    outcome = run_procedure(link, _two_loop_procedure(fail=False),
+                            abort_requested=lambda: "operator" if next(ticks) > 10 else None)
+    assert outcome.status == "aborted"
     assert link.get_params(before) == pytest.approx(before)

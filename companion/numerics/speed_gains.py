@@ -178,11 +178,14 @@ def predict_step(model: SurgeModel, gains: SpeedLoopGains, start: float, target:
 
 def design_speed_gains(model: SurgeModel, cruise_speed: float, speed_range: tuple[float, float],
                        rules: SpeedRules = SpeedRules(), accel_max: float = 1.0,
-                       original: SpeedLoopGains | None = None) -> SpeedDesign:
+                       original: SpeedLoopGains | None = None, speed_max: float = math.inf) -> SpeedDesign:
     """The rule of the module docstring. ``cruise_speed`` is the vehicle's CRUISE_SPEED, kept when it
     lies within ``speed_range`` (the campaign's steady speeds) widened by 20 %, else replaced by the
     middle of that range (the steady law is not extrapolated further); ValueError for a model
-    that cannot be designed on (γ or the steady law not positive)."""
+    that cannot be designed on (γ or the steady law not positive). ``speed_max``: the most speed the
+    autopilot can be asked for (ArduRover: WP_SPEED at thrust level 1); the speed steps stay below it
+    (measured on SITL's motorboat with CRUISE_SPEED = WP_SPEED = 5: the design's cruise speed came out
+    at 5.01 m/s, a step that could not be asked for)."""
     if not (model.gamma > 0.0 and model.gain > 0.0 and model.exponent > 0.0):
         raise ValueError(f"the surge model cannot be designed on ({model.describe()})")
     low, high = speed_range
@@ -198,8 +201,9 @@ def design_speed_gains(model: SurgeModel, cruise_speed: float, speed_range: tupl
     speed = model.steady_speed(throttle)  # the speed that percent holds: the feed-forward exact there
     tau = model.time_constant(speed)
     gain = model.throttle_gain(speed)
-    up = speed + rules.step
-    step = (speed, up) if up <= 1.1 * high else (speed, speed - rules.step)
+    start = min(speed, speed_max)
+    up = start + rules.step
+    step = (start, up) if up <= min(1.1 * high, speed_max) else (start, start - rules.step)
     i_min = max(rules.i_range[0], throttle / (20.0 * speed))
     grid_p, grid_i = np.meshgrid(np.geomspace(rules.p_range[0], rules.p_range[1], 16),
                                  np.geomspace(max(i_min, 1e-4), rules.i_range[1], 10))

@@ -17,9 +17,11 @@ as :data:`CampaignEvent` records, to the application after every step
 (``companion.procedures.app``), which stores them through the one serialiser, so nothing already
 measured is lost if the process dies.
 
-Outcome: SUCCESS when at least one model was accepted and every requested schedule whose axis was
-identified could be designed; FAILURE otherwise, with the reason (the runner then restores every
-parameter, so no gain from a failed campaign stays on the vehicle).
+Outcome: SUCCESS when at least one model was accepted and every loop ended with gains verified at
+least as good as the original ones: designed, verified and written, or the original gains kept
+because nothing was predicted (heading, eq. D.1) or flown (speed) better. FAILURE otherwise, with the
+reason; what one loop verified stays on the vehicle even when another loop was refused (the runner
+restores everything else, and everything after an abort).
 """
 from __future__ import annotations
 
@@ -408,6 +410,11 @@ class IdentificationCampaign(Behaviour):
         where = f"for {speed:.2f} m/s" if math.isfinite(speed) else "(speed loop)"
         return commands + [StatusText(f"gains written {where}: {text}"[:50])]
 
+    def _speed_refused(self) -> bool:
+        """The speed loop was to be tuned and ended with neither verified gains nor the original
+        gains shown to be the better ones (exit 1, with its reason; what the heading verified stays)."""
+        return self.speed is not None and self.loop_outcomes().get("speed", {}).get("outcome") == "refused"
+
     def loop_outcomes(self) -> dict[str, dict[str, str]]:
         """Loop by loop (heading, speed): ``outcome`` (written, original kept, refused, not tuned)
         and why, for the result and the summary."""
@@ -427,9 +434,13 @@ class IdentificationCampaign(Behaviour):
                 out["heading"] = {"outcome": "not tuned", "why": "no heading design"}
         if self.speed is not None:
             kept = bool(self.speed.kept) and self.final_gains is not None
-            why = self.speed.verdict or self.speed.reason
-            out["speed"] = {"outcome": "written" if kept else "refused" if why else "original kept",
-                            "why": why or ("verified by its own speed steps" if kept else "")}
+            why = self.speed.verdict or self.speed.reason or ""
+            if kept:
+                out["speed"] = {"outcome": "written", "why": "verified by its own speed steps"}
+            elif (self.speed.verdict or "").startswith("not faster than the original"):
+                out["speed"] = {"outcome": "original kept", "why": why}
+            else:
+                out["speed"] = {"outcome": "refused", "why": why or "the speed loop was not tuned"}
         return out
 
     # ------------------------------------------------------------------ events
@@ -518,9 +529,12 @@ class IdentificationCampaign(Behaviour):
     def _conclude(self) -> list[Command]:
         if not self.accepted:
             self.finish(Status.FAILURE, "no model passed validation")
-        elif self.design_errors:
-            self.finish(Status.FAILURE, "; ".join(f"gains rejected: {v}" if k == "verification" else f"{k} design: {v}"
-                                                  for k, v in self.design_errors.items()))
+        elif self.design_errors or self._speed_refused():
+            reasons = [f"gains rejected: {v}" if k == "verification" else f"{k} design: {v}"
+                       for k, v in self.design_errors.items()]
+            if self._speed_refused():
+                reasons.append(f"speed loop: {self.loop_outcomes()['speed']['why']}")
+            self.finish(Status.FAILURE, "; ".join(reasons))
         else:
             self.finish(Status.SUCCESS)
         verdict = "complete" if self.status is Status.SUCCESS else f"failed: {self.reason}"

@@ -39,3 +39,17 @@ def verification_lines(verified: dict | None) -> list[str]:
             lines.append(f"{thrust:6.2f} {_fmt(steps.get('scheduled', {}).get('overshoot_pct'), '10.1f')} "
                          f"{_fmt(steps.get('original', {}).get('overshoot_pct'), '10.1f')}")
     return lines
+
+
+def loop_lines(loops: dict | None, heading_design: dict | None) -> list[str]:
+    """Loop by loop, what the campaign left on the vehicle and why (``IdentificationCampaign.loop_outcomes``),
+    then the heading design's candidates (eq. D.1)."""
+    lines = [f"{name} loop: {entry['outcome']}" + (f" ({entry['why']})" if entry.get("why") else "")
+             for name, entry in (loops or {}).items()]
+    if heading_design:
+        scored = ", ".join(f"{name} {_fmt(c.get('iae_s'), '.2f')} s / {_fmt(c.get('worst_overshoot_pct'), '.1f')} %"
+                           + ("" if c.get("feasible") else " (too much overshoot)")
+                           for name, c in (heading_design.get("candidates") or {}).items())
+        lines.append(f"heading design by prediction: {heading_design.get('chosen')} chosen; predicted step error / "
+                     f"worst overshoot: {scored}")
+    return lines

@@ -5,7 +5,7 @@ import argparse
 import sys
 from dataclasses import replace
 
-from companion.cli.commands._campaign_text import phase_line, verification_lines
+from companion.cli.commands._campaign_text import loop_lines, phase_line, verification_lines
 from companion.cli.commands._common import add_procedure_argument, apply_procedure, add_schedules_argument, print_json, thrust_list
 
 
@@ -189,7 +189,7 @@ def print_summary(summary: dict) -> None:
         for thrust in sorted({s["thrust"] for s in steps}):
             cells = {s["label"]: s["max_overshoot_pct"] for s in steps if s["thrust"] == thrust}
             print(f"{thrust:6.2f} " + " ".join(f"{_fmt(cells.get(label), '10.1f')}" for label in labels))
-    lines = verification_lines(summary.get("verified"))
+    lines = verification_lines(summary.get("verified")) + loop_lines(summary.get("loops"), summary.get("heading_design"))
     if lines:
         print()
         print("\n".join(lines))
