@@ -192,7 +192,10 @@ class IdentificationManoeuvre(Behaviour):
     Ends in SUCCESS with an accepted model, FAILURE when no attempt passed validation."""
 
     def __init__(self, config: ManoeuvreConfig = ManoeuvreConfig(), *, thrust: float | None = None,
-                 status_prefix: str = "") -> None:
+                 status_prefix: str = "", settled_speed: Callable[[float, float], str | None] | None = None) -> None:
+        """``settled_speed(thrust, speed)``, asked when the settle ends, says why this thrust need not be
+        identified (e.g. it gives the speed another thrust already gave), None to go on: the manoeuvre
+        then ends at once (SUCCESS, outcome "skipped", no attempt)."""
         if config.axis not in ("yaw", "pitch"):
             raise ValueError(f"axis must be 'yaw' or 'pitch', not {config.axis!r}")
         super().__init__(f"{config.axis} identification")
@@ -201,6 +204,8 @@ class IdentificationManoeuvre(Behaviour):
         self.config = config
         self.thrust = thrust
         self._prefix = status_prefix
+        self._settled_speed = settled_speed
+        self.settled_speed = math.nan  # the water speed when the settle ended
         self.stage = SETTLE
         self._stage_start: float | None = None
         self._settle_s = config.settle_s
@@ -300,6 +305,14 @@ class IdentificationManoeuvre(Behaviour):
             self.outcome = "not moving"
             self.finish(Status.FAILURE, still)
             return [StatusText(still[:50], 4)]
+        self.settled_speed = telemetry.speed_water
+        if self._settled_speed is not None and self.thrust is not None and telemetry.finite("speed_water"):
+            skip = self._settled_speed(self.thrust, telemetry.speed_water)
+            if skip is not None:
+                self._enter(DONE, telemetry.time_s)
+                self.outcome = "skipped"
+                self.finish(Status.SUCCESS, skip)
+                return [self._status(skip[:40], 4)]
         return self._start_training(telemetry)
 
     def _not_moving(self, telemetry: Telemetry) -> str | None:

@@ -32,7 +32,7 @@ from typing import Sequence, Union
 
 import numpy as np
 
-from behaviors.base import Behaviour, Footprint, Status
+from behaviors.base import Behaviour, Footprint, Status, footprint_of
 from behaviors.gain_scheduling import GainDesign, ScheduleKind
 from behaviors.heading_steps import HeadingStepTest, reengage_hold
 from behaviors.identification import TRAIN, VALIDATE, IdentificationAttempt, IdentificationManoeuvre
@@ -41,6 +41,7 @@ from behaviors.speed_tuning import SPEED_CONTEXT, SPEED_GAINS, SpeedTuning, Surg
 from behaviors.verification import VerificationStep
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.cascade_gains import quicktune_feed_forward, quicktune_gains
+from companion.numerics.thrust_levels import respaced, same_speed_as
 from companion.procedures.campaign_config import (AXES, CHECKS, DEFAULT_THRUSTS, PROCEDURES,  # noqa: F401 - re-exported
                                                   QUICK_CONVERGENCE_DELAY_S, QUICK_NOISE_BAND, QUICK_PITCH_DOUBLET,
                                                   QUICK_R2_THRESHOLD, CampaignConfig, GainCheck)
@@ -125,6 +126,9 @@ class IdentificationCampaign(Behaviour):
             parameters |= set(self.heading_kind.parameters)
         self.verification: str | None = None
         self.heading_choice: HeadingDesign | None = None  # eq. D.1's decision ("optimised" designs)
+        self._plan: list[float | None] = list(config.thrusts)  # the thrust of each level, re-planned in flight
+        self._settled: dict[float, float] = {}  # thrust → speed when its yaw settle ended
+        self.respacing: list[str] = []  # what re-planned the thrust levels, and how
         self.surge = SurgeRecorder()  # the settles' speed and throttle, for the speed loop
         self.speed: SpeedTuning | None = None
         if config.speed.enabled:
@@ -174,15 +178,19 @@ class IdentificationCampaign(Behaviour):
         items: list = [Instant(SetMode("hold"), *depth, SetHeading(course), SetThrust(cfg.thrusts[0]),
                                StatusText(f"identification campaign: {len(cfg.thrusts)} thrusts, axes {','.join(cfg.axes)}"),
                                name="prepare")]
+        self._plan = list(cfg.thrusts)
+        level_footprint = Footprint.union(footprint_of(m) for m in self._level_manoeuvres(0, course))
         for index, thrust in enumerate(cfg.thrusts):
-            prefix = f"[{index + 1}/{len(cfg.thrusts)} T{thrust * 100:.0f}] "
-            items.append(Instant(SetThrust(thrust), SetHeading(course), name=f"thrust {thrust:.2f}"))
-            manoeuvres = [IdentificationManoeuvre(replace(cfg.yaw if axis == "yaw" else cfg.pitch, axis=axis),
-                                                  thrust=thrust, status_prefix=prefix) for axis in cfg.axes]
-            if cfg.parallel_axes and len(manoeuvres) > 1:
-                items.append(ParallelBehavior(manoeuvres, name=f"yaw and pitch at {thrust:.2f}"))
+            # each level is built when its turn comes: a level that repeats a lower one's speed
+            # re-plans the thrusts still to fly (_settled_speed)
+            items.append(Deferred(lambda index=index: self._level_thrust(index, course),
+                                  Footprint.of(setpoints=("thrust", "heading"))))
+            if cfg.parallel_axes and len(cfg.axes) > 1:
+                items.append(Deferred(lambda index=index: self._level_parallel(index, course), level_footprint))
             else:
-                items.extend(manoeuvres)
+                for position in range(len(cfg.axes)):
+                    items.append(Deferred(lambda index=index, position=position:
+                                          self._level_manoeuvre(index, position, course), level_footprint))
             if self.verifier_wanted and index == 0 and len(cfg.thrusts) > 1 and not self.optimised_design:
                 # the lowest speed's own design, while the vehicle is there and steady (an optimised
                 # design is chosen over every speed's model, so it is not known yet here)
@@ -209,6 +217,51 @@ class IdentificationCampaign(Behaviour):
         checks = {"verify": 2, "compare": len(cfg.thrusts) * len(cfg.step_labels)}.get(self.checks, 0)
         self._total = len(cfg.thrusts) * len(cfg.axes) + checks
         return SequenceBehavior(items, on_complete=self._on_complete, name="campaign")
+
+    # ------------------------------------------------------------------ thrust levels
+    def _level_thrust(self, index: int, course: float) -> Behaviour | None:
+        thrust = self._plan[index]
+        if thrust is None:  # dropped by a re-plan: nothing left to fly there
+            return None
+        return Instant(SetThrust(thrust), SetHeading(course), name=f"thrust {thrust:.2f}")
+
+    def _level_manoeuvres(self, index: int, course: float) -> list[IdentificationManoeuvre]:
+        cfg = self.config
+        thrust = self._plan[index]
+        prefix = f"[{index + 1}/{len(cfg.thrusts)} T{thrust * 100:.0f}] "
+        return [IdentificationManoeuvre(replace(cfg.yaw if axis == "yaw" else cfg.pitch, axis=axis), thrust=thrust,
+                                        status_prefix=prefix,
+                                        settled_speed=self._settled_speed if axis == "yaw" else None)
+                for axis in cfg.axes]
+
+    def _level_manoeuvre(self, index: int, position: int, course: float) -> Behaviour | None:
+        return self._level_manoeuvres(index, course)[position] if self._plan[index] is not None else None
+
+    def _level_parallel(self, index: int, course: float) -> Behaviour | None:
+        if self._plan[index] is None:
+            return None
+        return ParallelBehavior(self._level_manoeuvres(index, course), name=f"yaw and pitch at {self._plan[index]:.2f}")
+
+    def _settled_speed(self, thrust: float, speed: float) -> str | None:
+        """A level settled at the speed of a lower one (the boat's top speed, or WP_SPEED above what it
+        can do): skip it and re-space the levels not yet flown within the thrusts that gave distinct
+        speeds (``companion.numerics.thrust_levels``). The reason, None to identify this level."""
+        flown = {level: speed_ for level, speed_ in self._settled.items()}
+        repeated = same_speed_as(flown, thrust, speed)
+        self._settled[thrust] = speed
+        if repeated is None:
+            return None
+        index = self._plan.index(thrust) if thrust in self._plan else len(self._plan)
+        remaining = len(self._plan) - index
+        new = [t for t in respaced(self._settled, remaining) if t not in self._settled]
+        self._plan[index:] = new + [None] * (remaining - len(new))  # a level without a thrust is not flown
+        note = (f"thrust {thrust:.2f} gives the speed of thrust {repeated:.2f} ({speed:.2f} m/s): the boat is at its "
+                f"top speed, or WP_SPEED asks for more than it can do")
+        note += f"; the levels left are flown at {', '.join(f'{t:.2f}' for t in new)}" if new else \
+            "; no level is left to fly below it"
+        self.respacing.append(note)
+        log.warning(note)
+        return note
 
     # ------------------------------------------------------------------ verification ("verify")
     @property
@@ -567,6 +620,7 @@ class IdentificationCampaign(Behaviour):
             "speed_loop": self.speed.result() if self.speed is not None else None,
             "heading_design": self.heading_choice.choice.to_dict() if self.heading_choice is not None else None,
             "loops": self.loop_outcomes(),
+            "thrust_levels": {"flown": [t for t in self._plan if t is not None], "respacing": self.respacing},
         }
         return ProcedureResult.of("identification", self.status, self.reason, figures)
 

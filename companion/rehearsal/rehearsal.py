@@ -370,6 +370,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
         summary["verified"] = campaign.verifier.summary() if campaign.verifier is not None else None
         summary["heading_design"] = campaign.heading_choice.choice.to_dict() if campaign.heading_choice else None
         summary["loops"] = campaign.loop_outcomes()
+        summary["thrust_levels"] = campaign.result().figures["thrust_levels"]
         summary["final_gains"] = campaign.final_gains
         summary["store"] = str(store_path)
         summary["report"] = str(out / "report.html") if config.report else None

@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
               "store": args.store, "report": report,
               **{k: v for k, v in campaign.result().figures.items()
                  if k in ("accepted", "design", "steps", "final_gains", "speed_loop", "checks", "verified",
-                          "vehicle_time_s", "vehicle_time_by_phase", "heading_design", "loops")}}
+                          "vehicle_time_s", "vehicle_time_by_phase", "heading_design", "loops", "thrust_levels")}}
     if args.json:
         print_json(result)
     else:
@@ -141,6 +141,8 @@ def run(args: argparse.Namespace) -> int:
         for a in result["accepted"]:
             model = ", ".join(f"{k} {v:.4f}" for k, v in a["model"].items() if isinstance(v, float))
             print(f"  {a['axis']:5s} thrust {a['thrust']:.2f} speed {a['speed']:.2f} m/s R2 {a['r2']:.3f}: {model}")
+        for line in (result.get("thrust_levels") or {}).get("respacing", []):
+            print(f"  thrust levels: {line}")
         for line in loop_lines(result.get("loops"), result.get("heading_design")):
             print(f"  {line}")
         speed = result.get("speed_loop")
