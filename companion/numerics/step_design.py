@@ -25,10 +25,11 @@ preference, not a reason to replace gains that already pass. :func:`choose` take
 gains are always a candidate, so no design is proposed that is predicted worse than them** — when
 nothing beats them, the choice is to keep them, and nothing is written for that loop.
 
-The overshoot target is the keep rule's limit less a margin for what the model does not predict:
-``DesignObjective.target_overshoot_pct`` = min(``preferred_overshoot_pct``, ``max_overshoot_pct`` −
-``margin_pct``). The margin is the spread of flown minus predicted overshoot measured per autopilot
-(the autopilot's profile states it; ``DEFAULT_MARGIN_PCT`` otherwise).
+The overshoot target is what a flown step should show less a margin for what the model does not
+predict: ``DesignObjective.target_overshoot_pct`` = min(``preferred_overshoot_pct`` (6 %),
+``max_overshoot_pct`` (the keep rule's 10 %)) − ``margin_pct``. The margin is the spread of flown minus
+predicted overshoot measured per autopilot (the autopilot's profile states it; ``DEFAULT_MARGIN_PCT``
+otherwise).
 
 Pure: no I/O; each evaluation is an Euler simulation (``dt`` 20 ms against yaw time constants of
 0.3–1 s and rate-loop bandwidths ≤ 10 rad/s).
@@ -64,7 +65,7 @@ class DesignObjective:
     step_sizes_rad: tuple[float, ...] = (math.radians(20.0), math.radians(40.0))
     max_overshoot_pct: float = 10.0  # the keep rule's limit on a flown step
     margin_pct: float = DEFAULT_MARGIN_PCT  # flown minus predicted, measured per autopilot
-    preferred_overshoot_pct: float = 6.0  # never design for more, even with a small margin
+    preferred_overshoot_pct: float = 6.0  # what a flown step should show at most (the quick procedure's goal)
     max_reversals: int = 1
     duration_s: float = 25.0  # a verification step's longest record
     dt: float = 0.02
@@ -83,8 +84,9 @@ class DesignObjective:
 
     @property
     def target_overshoot_pct(self) -> float:
-        """What the optimiser designs for."""
-        return max(0.0, min(self.preferred_overshoot_pct, self.acceptable_overshoot_pct))
+        """What the optimiser designs for: the overshoot a flown step should show (the preferred, never
+        above the keep rule's limit) less the margin a flown step shows above its prediction."""
+        return max(0.0, min(self.preferred_overshoot_pct, self.max_overshoot_pct) - self.margin_pct)
 
     @property
     def acceptable_overshoot_pct(self) -> float:
