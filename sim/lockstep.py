@@ -15,7 +15,11 @@ the machine's load or the scheduling of the two processes:
   raises the limit; what follows waits for the next limit.
 
 When a TCP companion disconnects, vehicle time waits again, as at the start, for the next one
-(whose first acknowledgement engages from where the vehicle is). The one wall-clock rule left: a
+(whose first acknowledgement engages from where the vehicle is). A reboot is simulated in lockstep
+too: the autopilot's silence and its new boot's first sample run without acknowledgements
+(``hold_until``: there is nothing to acknowledge meanwhile), then the companion's acknowledgements of
+the new boot's clock step it on; an acknowledgement of the old boot's clock that arrives after the
+new boot began lies ahead of the vehicle and is ignored. The one wall-clock rule left: a
 companion silent for ``SILENCE_S`` (it hung, or a UDP client left) releases the vehicle, which then
 free-runs so that other clients keep a live vehicle, until a companion acknowledges again.
 ``stats`` counts such *interruptions* that a companion came back from, and the ticks they ran
@@ -43,6 +47,9 @@ class Lockstep:
         self.released = False  # a companion was engaged and left: free-run until the next one
         self.last_ack_wall = 0.0
         self.client: object | None = None  # the TCP client the acknowledgements come from
+        #: a tick the physics may reach without acknowledgements (a rebooting autopilot's silence and
+        #: its new boot's first sample: nothing to acknowledge meanwhile); None: none
+        self.hold_until: int | None = None
         self.stats: dict[str, float | int | None] = {"engaged_at_s": None, "acks": 0, "interruptions": 0,
                                                      "free_ticks": 0}
         self._free_since_release = 0  # ticks run free since the last release (counted if a companion returns)
@@ -55,16 +62,22 @@ class Lockstep:
             if now - self.last_ack_wall > SILENCE_S:
                 self.release(f"no acknowledgement for {SILENCE_S:g} s of wall clock")
                 return None
-            return self.acked_tick + lead_ticks
+            return max(self.acked_tick + lead_ticks, self.hold_until if self.hold_until is not None else -1)
         if self.released:
             return None
         return tick  # before the first acknowledgement vehicle time waits at its start
 
-    def acknowledge(self, time_boot_ms: float, tick: int, now: float, client: object | None = None) -> bool:
-        """Take a SYSTEM_TIME acknowledgement; True when it is valid."""
+    def acknowledge(self, time_boot_ms: float, tick: int, now: float, client: object | None = None,
+                    boot_tick: int = 0) -> bool:
+        """Take a SYSTEM_TIME acknowledgement of this boot's ``time_boot_ms`` (the boot began at
+        ``boot_tick``); True when it is valid. A sample cannot lie ahead of the vehicle: an
+        acknowledgement that would is of the previous boot's clock (the companion had not yet heard
+        the new boot) and is ignored."""
         if not self.enabled or not math.isfinite(time_boot_ms):
             return False
-        acked = int(math.floor(time_boot_ms / (self.dt * 1000.0) + 1e-6))
+        acked = boot_tick + int(math.floor(time_boot_ms / (self.dt * 1000.0) + 1e-6))
+        if acked > tick:
+            return False
         if not self.engaged:
             # first acknowledgement (or a new companion after a release): from here, or from where the
             # vehicle already is when it was released

@@ -180,12 +180,12 @@ class SimServer:
         """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (param1 = 1): the autopilot reboots as ArduPilot does —
         silent for ``REBOOT_S`` of vehicle time (the physics go on), then a fresh boot: its clock from
         0, disarmed in MANUAL with its default set-points, no override, the streams at their SR_*
-        rates; its parameters are kept (flash). Refused in lockstep (the vehicle clock there is the
-        companion's acknowledgements of this boot's time)."""
-        if self.lockstep.enabled:
-            self.status_text("Reboot not simulated in lockstep")
-            return Result.DENIED
+        rates; its parameters are kept (flash). In lockstep the silence and the new boot's first
+        sample run without acknowledgements (there is nothing to acknowledge meanwhile; sim/lockstep.py),
+        so the reboot lands at the same vehicle time whatever the pace."""
         self._reboot_at_tick = self.tick + max(1, int(round(REBOOT_S / self.dt)))
+        if self.lockstep.enabled:
+            self.lockstep.hold_until = self._reboot_at_tick + self._lead_ticks()
         return Result.ACCEPTED
 
     @property
@@ -356,7 +356,8 @@ class SimServer:
         if msg.get_srcComponent() != self.LOCKSTEP_COMPONENT:
             return
         self.lockstep.acknowledge(msg.time_boot_ms, self.tick, time.monotonic(),
-                                  client=self._origin if isinstance(self._origin, TcpClient) else None)
+                                  client=self._origin if isinstance(self._origin, TcpClient) else None,
+                                  boot_tick=self._boot_tick)
 
     LOCKSTEP_COMPONENT = 191  # MAV_COMP_ID_ONBOARD_COMPUTER: the companion
 

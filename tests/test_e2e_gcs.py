@@ -31,8 +31,9 @@ def acks_for(gcs, command: int, until, timeout_s: float) -> list[tuple[int, int]
 
 @pytest.fixture
 def companion(sim_factory, tmp_path):
-    sim = sim_factory(speedup=20, seed=2)
-    process = subprocess.Popen([sys.executable, "-m", "companion", "run", "--connect", sim.endpoint,
+    # lockstep: the closed loops' outcomes (settled, accepted) are the vehicle's, not the machine's load
+    sim = sim_factory(transport="tcp", speedup=20, seed=2, lockstep=True)
+    process = subprocess.Popen([sys.executable, "-m", "companion", "run", "--connect", sim.endpoint, "--lockstep",
                                 "--store", str(tmp_path / "store.sqlite"), "--max-vehicle-time", "600",
                                 "--preset", "starfish"],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -151,15 +151,12 @@ def test_a_full_disk_during_a_campaign_ends_it_restored_with_the_reason(tmp_path
 pytestmark_e2e = pytest.mark.e2e
 
 
-def _gcs_sets(sim, name: str, value: float) -> None:
+def _gcs(sim):
+    """A ground station on the simulator (kept open: in lockstep what it sends acts at the next
+    vehicle tick the companion allows, which may come after a wall-clock wait)."""
     from harness.mavlink_clients import connect_client
 
-    gcs = connect_client(sim.endpoint)
-    try:
-        gcs.mav.param_set_send(1, 1, name.encode(), value, 9)
-        gcs.recv_match(type="PARAM_VALUE", blocking=True, timeout=2.0)
-    finally:
-        gcs.close()
+    return connect_client(sim.endpoint)
 
 
 @pytest.mark.e2e
@@ -171,8 +168,9 @@ def test_a_parameter_someone_else_changes_is_kept_and_said(sim_factory, tmp_path
     from companion.procedures.campaign import CampaignConfig
     from companion.records.store import Store
 
-    sim = sim_factory(transport="tcp", speedup=20, seed=3)
-    link = VehicleLink.connect(sim.endpoint)
+    sim = sim_factory(transport="tcp", speedup=20, seed=3, lockstep=True)  # the closed loop at a fixed pace
+    link = VehicleLink.connect(sim.endpoint, lockstep=True)
+    gcs = _gcs(sim)
     try:
         link.set_mode("hold")
         link.arm(True)
@@ -182,7 +180,7 @@ def test_a_parameter_someone_else_changes_is_kept_and_said(sim_factory, tmp_path
             def __call__(self):
                 if not self.done and link.vehicle_time_s - start > 6.0:
                     self.done = True
-                    _gcs_sets(sim, "HDG_P", 0.9)
+                    gcs.mav.param_set_send(1, 1, b"HDG_P", 0.9, 9)
                 return None
 
         abort = ChangeAtSettle()
@@ -196,6 +194,7 @@ def test_a_parameter_someone_else_changes_is_kept_and_said(sim_factory, tmp_path
         assert link.get_param("HDG_P") == pytest.approx(0.9)
         assert {name: link.get_param(name) for name in found} == found
     finally:
+        gcs.close()
         link.close()
 
 
@@ -209,8 +208,8 @@ def test_a_reboot_is_recognised_and_the_new_boot_keeps_its_own_mode(sim_factory,
     from companion.procedures.campaign import CampaignConfig
     from companion.records.store import Store
 
-    sim = sim_factory(transport="tcp", speedup=20, seed=3)
-    link = VehicleLink.connect(sim.endpoint)
+    sim = sim_factory(transport="tcp", speedup=20, seed=3, lockstep=True)  # the reboot lands at a fixed vehicle time
+    link = VehicleLink.connect(sim.endpoint, lockstep=True)
     try:
         link.set_mode("hold")
         link.arm(True)

@@ -216,8 +216,8 @@ def test_a_second_companion_on_the_vehicle_stops_the_procedure_and_the_vehicle_i
     from behaviors.schedules import GAIN_SCHEDULES  # noqa: F401 - the campaign's schedules load
     from pymavlink import mavutil
 
-    sim = sim_factory(speedup=20.0, seed=4)
-    link = VehicleLink.connect(sim.endpoint, heartbeat_timeout_s=10.0)
+    sim = sim_factory(transport="tcp", speedup=20.0, seed=4, lockstep=True)
+    link = VehicleLink.connect(sim.endpoint, heartbeat_timeout_s=10.0, lockstep=True)
     other = mav_client(sim.endpoint, source_system=1, source_component=191)
     stop = threading.Event()
 

@@ -127,6 +127,20 @@ def _wait_for_line(path: Path, prefix: str, process: subprocess.Popen, timeout_s
     raise AssertionError(f"no {prefix!r} line: {path.read_text()[-2000:]}")
 
 
+def _servo_after(gcs, vehicle_s: float, wall_limit_s: float = 60.0):
+    """The first SERVO_OUTPUT_RAW stamped ``vehicle_s`` of vehicle time after the first one read now
+    (its ``time_usec``: the autopilot's clock, whatever the machine's pace); None if none came."""
+    first = gcs.recv_match(type="SERVO_OUTPUT_RAW", blocking=True, timeout=5)
+    if first is None:
+        return None
+    deadline = time.monotonic() + wall_limit_s  # a watchdog only: the wait itself is on vehicle time
+    while time.monotonic() < deadline:
+        msg = gcs.recv_match(type="SERVO_OUTPUT_RAW", blocking=True, timeout=1.0)
+        if msg is not None and msg.time_usec - first.time_usec >= vehicle_s * 1e6:
+            return msg
+    return None
+
+
 @pytest.mark.e2e
 def test_the_units_stop_signal_mid_campaign_restores_the_vehicle(sim_factory, mav_client, tmp_path):
     service = unit_settings()
@@ -200,9 +214,8 @@ def test_the_units_stop_signal_mid_campaign_restores_the_vehicle(sim_factory, ma
             mode = msg.custom_mode
     assert mode == MANUAL
     assert {name: _read_param(gcs, name) for name in GAINS} == found
-    time.sleep(15.0 / SPEEDUP)  # 15 s of vehicle time: fins released to MANUAL's centred stick have long arrived
-    gcs.recv_match(type="SERVO_OUTPUT_RAW", blocking=False)
-    servo = gcs.recv_match(type="SERVO_OUTPUT_RAW", blocking=True, timeout=5)
+    # 15 s of vehicle time (on the vehicle's own clock): fins released to MANUAL's centred stick have long arrived
+    servo = _servo_after(gcs, 15.0)
     assert servo is not None and abs(servo.servo1_raw - 1500) <= 2 and abs(servo.servo2_raw - 1500) <= 2, servo
     # journald's lines: a priority on every log line, the abort a warning, no traceback
     logged = [line for line in log.splitlines() if not line.startswith(("status page:", "companion running on"))]
