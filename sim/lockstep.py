@@ -19,7 +19,7 @@ When a TCP companion disconnects, vehicle time waits again, as at the start, for
 too: the autopilot's silence and its new boot's first sample run without acknowledgements
 (``hold_until``: there is nothing to acknowledge meanwhile), then the companion's acknowledgements of
 the new boot's clock step it on; an acknowledgement of the old boot's clock that arrives after the
-new boot began lies ahead of the vehicle and is ignored. The one wall-clock rule left: a
+new boot began lies far ahead of the vehicle and is ignored. The one wall-clock rule left: a
 companion silent for ``SILENCE_S`` (it hung, or a UDP client left) releases the vehicle, which then
 free-runs so that other clients keep a live vehicle, until a companion acknowledges again.
 ``stats`` counts such *interruptions* that a companion came back from, and the ticks they ran
@@ -68,15 +68,16 @@ class Lockstep:
         return tick  # before the first acknowledgement vehicle time waits at its start
 
     def acknowledge(self, time_boot_ms: float, tick: int, now: float, client: object | None = None,
-                    boot_tick: int = 0) -> bool:
+                    boot_tick: int = 0, max_ahead: int | None = None) -> bool:
         """Take a SYSTEM_TIME acknowledgement of this boot's ``time_boot_ms`` (the boot began at
-        ``boot_tick``); True when it is valid. A sample cannot lie ahead of the vehicle: an
-        acknowledgement that would is of the previous boot's clock (the companion had not yet heard
-        the new boot) and is ignored."""
+        ``boot_tick``); True when it is valid. A companion acknowledges at most a sample or so ahead
+        of what it received (its stall rule steps one sample on): an acknowledgement more than
+        ``max_ahead`` ticks ahead of the vehicle is of the previous boot's clock (the companion had not
+        yet heard the new boot) and is ignored."""
         if not self.enabled or not math.isfinite(time_boot_ms):
             return False
         acked = boot_tick + int(math.floor(time_boot_ms / (self.dt * 1000.0) + 1e-6))
-        if acked > tick:
+        if max_ahead is not None and acked > tick + max_ahead:
             return False
         if not self.engaged:
             # first acknowledgement (or a new companion after a release): from here, or from where the

@@ -357,7 +357,7 @@ class SimServer:
             return
         self.lockstep.acknowledge(msg.time_boot_ms, self.tick, time.monotonic(),
                                   client=self._origin if isinstance(self._origin, TcpClient) else None,
-                                  boot_tick=self._boot_tick)
+                                  boot_tick=self._boot_tick, max_ahead=2 * self._lead_ticks())
 
     LOCKSTEP_COMPONENT = 191  # MAV_COMP_ID_ONBOARD_COMPUTER: the companion
 
