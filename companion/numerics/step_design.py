@@ -328,11 +328,12 @@ def design_by_prediction(family: RuleFamily, cases: Sequence[StepCase], design_m
 
 
 def cascade_case(model: YawModel, speed: float, *, rudder_max: float, rudder_rate: float, full_scale: float,
-                 rate_max: float, rate_accel_max: float, output_scale_base: float | None) -> StepCase:
+                 rate_max: float, rate_accel_max: float, output_scale_base: float | None,
+                 rate_imax: float = 1.0) -> StepCase:
     """A case under ArduPilot's cascade (eq. A.2) at ``speed``."""
     plant = RudderPlant(model.a22, model.b2, model.delta0, rudder_max, rudder_rate)
     limits = {"full_scale": full_scale, "rate_max": rate_max, "rate_accel_max": rate_accel_max,
-              "output_scale": output_speed_scale(output_scale_base, speed)}
+              "output_scale": output_speed_scale(output_scale_base, speed), "rate_imax": rate_imax}
     return StepCase(speed, model, plant, "cascade", limits)
 
 

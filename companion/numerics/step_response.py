@@ -105,12 +105,13 @@ def _slew(current: float, demand: float, limit: float, max_step: float) -> float
 
 def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], step: float, duration_s: float,
                   *, full_scale: float = 0.5236, rate_max: float = math.inf, imax: float = 0.15,
-                  rate_accel_max: float = math.inf, output_scale: float = 1.0,
+                  rate_accel_max: float = math.inf, output_scale: float = 1.0, rate_imax: float = 1.0,
                   dt: float = 0.01) -> tuple[np.ndarray, np.ndarray, float]:
     """Heading over time after a step of ``step`` rad from 0 (module docstring); also the largest
     rudder deflection reached. ``controller``: ``"pi"`` (gains ``heading_p``, ``heading_i``,
     ``rudder_trim``) or ``"cascade"`` (``heading_angle_p``, ``heading_rate_p``, ``heading_rate_i``,
-    ``heading_rate_ff``; ``heading_rate_imax`` as a fraction of the output, default 1), with the
+    ``heading_rate_ff``; ``heading_rate_imax`` as a fraction of the output, else ``rate_imax``: the
+    vehicle's), with the
     desired turn rate limited to ``rate_max`` (rad/s), its change to ``rate_accel_max`` (rad/s²,
     which also caps it at √(2·|e|·accel) so the turn can stop on target, as ArduPilot's
     ``get_turn_rate_from_heading``), and the output scaled by ``output_scale`` (k of eq. A.2)."""
@@ -125,7 +126,7 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
     elif controller == "cascade":
         angle_p = gains.get("heading_angle_p", 0.0)
         rate_p, rate_i = gains.get("heading_rate_p", 0.0), gains.get("heading_rate_i", 0.0)
-        rate_ff, rate_imax = gains.get("heading_rate_ff", 0.0), gains.get("heading_rate_imax", 1.0)
+        rate_ff, rate_imax = gains.get("heading_rate_ff", 0.0), gains.get("heading_rate_imax", rate_imax)
         integral = min(max(plant.delta0 / (full_scale * output_scale), -rate_imax), rate_imax)
         accel_step = rate_accel_max * dt
         previous_demand = 0.0

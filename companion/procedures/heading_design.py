@@ -58,7 +58,8 @@ def step_case(controller: str, model, speed: float, limits: HeadingLimits) -> St
     if controller == "cascade":
         return cascade_case(model, speed, rudder_max=limits.rudder_max, rudder_rate=limits.rudder_rate,
                             full_scale=limits.full_scale, rate_max=limits.rate_max,
-                            rate_accel_max=limits.rate_accel_max, output_scale_base=limits.output_scale_base)
+                            rate_accel_max=limits.rate_accel_max, output_scale_base=limits.output_scale_base,
+                            rate_imax=limits.rate_imax)
     return pi_case(model, speed, rudder_max=limits.rudder_max, rudder_rate=limits.rudder_rate, imax=limits.imax)
 
 

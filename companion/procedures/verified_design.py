@@ -48,8 +48,8 @@ LIMIT_PARAMETERS = ("rudder_max", "rudder_rate", "heading_imax", "turn_rate_max"
 class HeadingLimits:
     """What bounds a heading step besides the gains: the rudder's limit and slew rate (rad, rad/s),
     the PI's integrator clamp (rad), the cascade's full scale (rad per unit output), turn-rate
-    limit (rad/s), turn-acceleration limit (rad/s²) and the speed above which its output is scaled
-    down (m/s, eq. A.2; None: never)."""
+    limit (rad/s), turn-acceleration limit (rad/s²), the speed above which its output is scaled
+    down (m/s, eq. A.2; None: never) and its rate integrator's clamp (fraction of the output)."""
 
     rudder_max: float
     rudder_rate: float = math.inf
@@ -58,6 +58,7 @@ class HeadingLimits:
     rate_max: float = math.inf
     rate_accel_max: float = math.inf
     output_scale_base: float | None = None
+    rate_imax: float = 1.0  # the cascade's rate integrator clamp, a fraction of the output
 
     @classmethod
     def from_vehicle(cls, values: dict[str, float], *, full_scale: float, rudder_rate: float | None,
@@ -73,7 +74,8 @@ class HeadingLimits:
                    imax=values.get("heading_imax", 0.15), full_scale=full_scale,
                    rate_max=math.radians(turn) if turn and turn > 0 else math.inf,
                    rate_accel_max=math.radians(accel) if accel and accel > 0 else math.inf,
-                   output_scale_base=output_scale_base)
+                   output_scale_base=output_scale_base,
+                   rate_imax=imax if (imax := values.get("heading_rate_imax", 1.0)) and imax > 0 else 1.0)
 
 
 def predicted_step(controller: str, model, gains: dict[str, float], limits: HeadingLimits, step: float,
@@ -84,7 +86,7 @@ def predicted_step(controller: str, model, gains: dict[str, float], limits: Head
     plant = RudderPlant(model.a22, model.b2, model.delta0, limits.rudder_max, limits.rudder_rate)
     options = {"imax": limits.imax} if controller == "pi" else {
         "full_scale": limits.full_scale, "rate_max": limits.rate_max, "rate_accel_max": limits.rate_accel_max,
-        "output_scale": output_speed_scale(limits.output_scale_base, speed)}
+        "output_scale": output_speed_scale(limits.output_scale_base, speed), "rate_imax": limits.rate_imax}
     return predict_step(plant, controller, gains, abs(step), duration_s, **options)
 
 

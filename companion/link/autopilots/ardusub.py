@@ -48,7 +48,7 @@ from dataclasses import replace
 from companion.interface import Telemetry
 from companion.link.autopilots.ardupilot import ArduPilotStrategy, yaw_quaternion
 from companion.link.errors import ParamTimeout
-from companion.link.profile import AutopilotProfile, CampaignDefaults
+from companion.link.profile import AutopilotProfile, CampaignDefaults, NativeScale
 from companion.link.autopilots.vectored_mix import (STICK_CENTRE, STICK_HALF_RANGE, VECTORED_FACTORS,  # noqa: F401
                                                     VectoredAxes, throttle_stick, unmix_vectored)
 
@@ -78,8 +78,12 @@ PROFILE = AutopilotProfile(
         "heading_rate_d": "ATC_RAT_YAW_D", "heading_rate_ff": "ATC_RAT_YAW_FF", "heading_rate_imax": "ATC_RAT_YAW_IMAX",
         "pitch_p": "ATC_ANG_PIT_P", "gcs_sysid": "MAV_GCS_SYSID", "override_timeout": "RC_OVERRIDE_TIME",
         "system_id": "MAV_SYSID", "gcs_failsafe": "FS_GCS_ENABLE",
+        # read, never written: AC_AttitudeControl's yaw rate and acceleration limits, for the
+        # predicted steps (eq. A.2); 0 is "no limit"
+        "turn_rate_max": "ATC_RATE_Y_MAX", "turn_accel_max": "ATC_ACCEL_Y_MAX",
     },
     aliases={"gcs_sysid": ("SYSID_MYGCS",), "system_id": ("SYSID_THISMAV",)},
+    native_scales={"turn_accel_max": NativeScale(scale=100.0)},  # ATC_ACCEL_Y_MAX is in centidegrees/s²
     marker_param="ATC_ANG_YAW_P",
     angle_full_scale_rad=0.35,
     pwm_half_range=400,
