@@ -133,6 +133,21 @@ def test_the_keep_rule_refuses_what_overshoots_what_was_not_predicted_and_what_i
     assert "(predicted): overshoot 62.8" in rule.verdict([good], mispredicted)  # only predicted: it counts
 
 
+def test_the_vehicles_own_gains_stand_when_the_design_only_fails_to_beat_them_and_they_pass_themselves():
+    rule = KeepRule()
+    design = {"thrust": 0.65, "label": "scheduled", "decided": True, "max_overshoot_pct": 0.5, "iae_s": 0.46,
+              "oscillations": 0, "predicted": {"overshoot_pct": 0.2, "iae_s": 0.34}}  # ArduSub's vectored model
+    own = {"thrust": 0.65, "label": "original", "decided": True, "max_overshoot_pct": 1.0, "iae_s": 0.46,
+           "oscillations": 0}
+    predicted = [{"thrust": 0.45, "label": "original", "overshoot_pct": 1.5, "iae_s": 0.44, "oscillations": 0},
+                 {"thrust": 0.45, "label": "scheduled", "overshoot_pct": 0.2, "iae_s": 0.33, "oscillations": 0}]
+    assert "not better than the original" in rule.verdict([design, own], predicted)
+    assert rule.originals_stand([design, own], predicted)
+    assert not rule.originals_stand([design, {**own, "max_overshoot_pct": 15.0}], predicted)  # they fail themselves
+    assert not rule.originals_stand([{**design, "max_overshoot_pct": 12.0}, own], predicted)  # another reason
+    assert not rule.originals_stand([design, {**own, "iae_s": 0.9}], predicted)  # the design passes: nothing to keep
+
+
 def test_a_prediction_sees_the_rudder_limit_and_the_schedule_covered_by_a_nearby_design():
     limits = HeadingLimits(rudder_max=math.radians(5.0))
     saturated = predicted_step("pi", YawModel(), {"heading_p": 3.0, "heading_i": 0.1}, limits, math.radians(20.0), 25.0)

@@ -126,6 +126,8 @@ class IdentificationCampaign(Behaviour):
             parameters |= set(self.heading_kind.parameters)
         self.verification: str | None = None
         self.heading_choice: HeadingDesign | None = None  # eq. D.1's decision ("optimised" designs)
+        #: why the original heading gains stayed after the design was flown against them (None: they did not)
+        self.heading_original_flown: str | None = None
         self._plan: list[float | None] = list(config.thrusts)  # the thrust of each level, re-planned in flight
         self._settled: dict[float, float] = {}  # thrust → speed when its yaw settle ended
         self.respacing: list[str] = []  # what re-planned the thrust levels, and how
@@ -427,7 +429,12 @@ class IdentificationCampaign(Behaviour):
                 self.verification = self.config.verify.verdict(self.step_results)
             if self.verification is not None:
                 refused.add(self.heading_kind.name)
-                if self.checks != "none":
+                if self.verifier_wanted and self._verifier().originals_stand():
+                    # flown, the design was no better than the vehicle's own gains, which pass the
+                    # checks themselves: those stay, verified at least as good as any design
+                    self.heading_original_flown = self.verification
+                    texts.append(StatusText("heading: own gains kept, no design flew better"[:50]))
+                elif self.checks != "none":
                     self.design_errors["verification"] = self.verification
                     texts.append(StatusText(f"gains rejected: {self.verification}"[:50], 4))
         writable = tuple(name for name in self.designs if name not in refused)
@@ -478,6 +485,10 @@ class IdentificationCampaign(Behaviour):
                 out["heading"] = {"outcome": "original kept",
                                   "why": "no design is predicted better than the vehicle's own gains: "
                                          + self.heading_choice.choice.reason()}
+            elif self.heading_original_flown:
+                out["heading"] = {"outcome": "original kept",
+                                  "why": "the design flew no better than the vehicle's own gains, which pass the "
+                                         f"checks themselves: {self.heading_original_flown}"}
             elif written:
                 out["heading"] = {"outcome": "written", "why": self.verification or "verified"}
             elif self.verification or self.heading_kind.name in self.design_errors:

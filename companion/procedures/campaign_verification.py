@@ -145,6 +145,10 @@ class CampaignVerification:
         """The keep rule's verdict (None: the gains may be written)."""
         return self.rule.verdict(self.flown, self.predicted)
 
+    def originals_stand(self) -> bool:
+        """The design was refused only for not beating the original gains, which pass themselves."""
+        return self.rule.originals_stand(self.flown, self.predicted)
+
     def summary(self) -> dict:
         """Flown and predicted steps (figures only, no series), the coverage and the rule, for JSON."""
         def figures(step: dict) -> dict:

@@ -30,7 +30,7 @@ ones (the flown step's noise), predicted step error 3–6 % above the flown one.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Iterable, Sequence
 
 from companion.checks import require_non_negative, require_positive
@@ -181,6 +181,21 @@ class KeepRule:
                 return (f"thrust {thrust:.2f} (predicted): not better than the original gains "
                         f"(step error {scheduled['iae_s']:.2f} s vs {original['iae_s']:.2f} s)")
         return None
+
+    def originals_stand(self, flown: Sequence[dict], predicted: Iterable[dict]) -> bool:
+        """The verdict refuses the design only because it is not better than the original gains, and
+        the original gains pass the step checks themselves (flown where they were flown, else
+        predicted): the vehicle's own gains are as good as anything designed, and they stay."""
+        flown, predicted = list(flown), list(predicted)
+        if self.verdict(flown, predicted) is None:
+            return False
+        if replace(self, better_than_original=False).verdict(flown, predicted) is not None:
+            return False
+        flown_original = [s for s in flown if s["label"] == "original"]
+        if any(not s.get("decided", True) or self.step_fails(s) for s in flown_original):
+            return False
+        flown_at = {s["thrust"] for s in flown_original}
+        return not any(self.step_fails(s) for s in predicted if s["label"] == "original" and s["thrust"] not in flown_at)
 
     def covers(self, own: dict, scheduled: dict) -> bool:
         """The schedule's predicted step at a speed flown with that speed's own design agrees with
