@@ -84,6 +84,7 @@ class VerificationStep(Behaviour):
         self._peaked = False
         self.flights = 0
         self.why_undecided: str | None = None
+        self.undecided: list[str] = []  # why each flight that could not decide did not (figures included)
         self.metrics: dict = {}
         self.series: dict[str, list[float]] = {"time": [], "heading": [], "target": [], "rudder": [], "speed": []}
         self.stage_times: dict[str, float] = {}
@@ -187,6 +188,15 @@ class VerificationStep(Behaviour):
         start, end = float(np.mean(first)), float(np.mean(last))
         return "disturbed" if abs(end - start) > self.config.max_speed_change * max(abs(start), 1e-6) else None
 
+    def _undecided_detail(self, verdict: str) -> str:
+        """One flight's verdict with its figures: the speed change or the time at the rudder's limit."""
+        if verdict == "saturated":
+            return f"saturated: rudder at its limit for {self._saturated_s:.1f} s"
+        if verdict == "disturbed" and len(self._speeds) >= 2:
+            start, end = self._speeds[0][1], self._speeds[-1][1]
+            return f"disturbed: water speed {start:.2f} -> {end:.2f} m/s over the step"
+        return verdict
+
     def _past_peak(self) -> bool:
         """The smoothed heading has turned back from its extreme (the overshoot is in the record)."""
         first = self._first_index
@@ -211,6 +221,7 @@ class VerificationStep(Behaviour):
             self.finish(Status.SUCCESS)
             return []
         self.why_undecided = f"the step was {verdict}"
+        self.undecided.append(self._undecided_detail(verdict))
         if self.flights > self.config.repeats:
             self._enter("done", now)
             self.finish(Status.FAILURE, f"{self.label} gains at thrust {self.thrust:.2f}: "
@@ -232,7 +243,7 @@ class VerificationStep(Behaviour):
 
     def result(self) -> dict:
         return {"label": self.label, "thrust": self.thrust, "gains": self.gains, "decided": self.decided,
-                "why_undecided": self.why_undecided, "flights": self.flights,
+                "why_undecided": self.why_undecided, "flights": self.flights, "undecided": list(self.undecided),
                 "max_overshoot_pct": self.metrics.get("overshoot_pct", math.nan),
                 "iae_s": self.metrics.get("iae_s", math.nan),
                 "oscillations": self.metrics.get("oscillations", 0), "steps": [self.metrics] if self.metrics else [],

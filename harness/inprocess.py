@@ -204,6 +204,11 @@ class InProcessLink(_AutopilotHost):
     def vehicle_time_s(self) -> float:
         return self.vehicle.time_s
 
+    @property
+    def waits_for_companion(self) -> bool:
+        """The physics step only as the procedure reads them: a computation costs no vehicle time."""
+        return True
+
     def param(self, neutral: str) -> float:
         return self.autopilot.params[self.profile.native_param(neutral)]
 

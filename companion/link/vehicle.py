@@ -160,6 +160,12 @@ class VehicleLink:
         return self.clock.vehicle_time_s
 
     @property
+    def waits_for_companion(self) -> bool:
+        """The vehicle's time advances only as the companion reads it (our simulator in lockstep):
+        a computation in the loop costs no vehicle time. False for real firmware."""
+        return bool(self.clock.lockstep)
+
+    @property
     def latest_telemetry(self) -> Telemetry | None:
         return self.telemetry.latest
 

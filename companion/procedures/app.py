@@ -209,7 +209,9 @@ def run_campaign(
     config = config.resolved_for(profile)
     limits = limits if limits is not None else SafetyLimits.for_profile(profile)
     campaign_id = store.start_campaign(vehicle_id, "identification", config.to_dict())
-    campaign = IdentificationCampaign(config)
+    # a vehicle that does not wait for the companion keeps moving while the design computes: it then
+    # runs beside the loop (behaviors/background.py); one that waits (lockstep, in-process) stays exact
+    campaign = IdentificationCampaign(config, background_design=not getattr(link, "waits_for_companion", True))
     try:
         objection = await_ready(link, tell=lambda text: _tell(link, text[:50], 4))
     except LinkError as exc:  # lost while waiting: nothing was changed

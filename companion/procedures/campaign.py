@@ -32,6 +32,7 @@ from typing import Sequence, Union
 
 import numpy as np
 
+from behaviors.background import BackgroundStep
 from behaviors.base import Behaviour, Footprint, Status, footprint_of
 from behaviors.gain_scheduling import GainDesign, ScheduleKind
 from behaviors.heading_steps import HeadingStepTest, reengage_hold
@@ -98,8 +99,12 @@ CampaignEvent = Union[AttemptRecorded, StepsChecked, DesignMade, GainsWritten, S
 class IdentificationCampaign(Behaviour):
     """The campaign as one behaviour (see module docstring)."""
 
-    def __init__(self, config: CampaignConfig = CampaignConfig(), original_gains: dict[str, float] | None = None) -> None:
+    def __init__(self, config: CampaignConfig = CampaignConfig(), original_gains: dict[str, float] | None = None,
+                 *, background_design: bool = False) -> None:
+        """``background_design``: compute the heading design beside the loop (a vehicle that does not
+        wait for the companion: real firmware); False computes it in the loop (lockstep, in-process)."""
         super().__init__("identification campaign")
+        self.background_design = background_design
         self.config = config
         self.kinds = config.kinds()
         self.original_gains = dict(original_gains or {})
@@ -297,19 +302,25 @@ class IdentificationCampaign(Behaviour):
                                                  self._limits())
         return self.verifier
 
-    def _choose_heading_design(self) -> str | None:
+    def _score_heading_design(self) -> HeadingDesign | None:
         """eq. D.1: the rule's parameters optimised on the predicted steps, against the rule's
-        default, the original gains and QuickTune's rule; the campaign then designs with the chosen
-        rules (its configuration, stored with it), or keeps the original gains. Returns a line for
-        the ground station, None when nothing could be scored (the rule as configured stands)."""
+        default, the original gains and QuickTune's rule (pure computation on what the campaign
+        has measured: it may run beside the loop, ``BackgroundStep``). None when nothing could be
+        scored (the rule as configured stands)."""
         quicktune = self._gains_for("quicktune", self._middle_thrust()) \
             if self.heading_kind.name == "cascade" and self.original_heading() else None
         try:
-            choice = choose_heading_design(self.heading_kind, self.config.cascade, self.config.bounds, self.accepted,
-                                           self._limits(), self.config.objective, self.original_heading(), quicktune)
+            return choose_heading_design(self.heading_kind, self.config.cascade, self.config.bounds, self.accepted,
+                                         self._limits(), self.config.objective, self.original_heading(), quicktune)
         except ValueError as exc:
             log.warning("heading design by prediction: %s; the rule as configured is used", exc)
             return None
+
+    def _adopt_heading_design(self, choice: HeadingDesign | None) -> list[Command]:
+        """The campaign designs with the chosen rules (its configuration, stored with it), or keeps
+        the original gains; the line for the ground station."""
+        if choice is None:
+            return []
         self.heading_choice = choice
         log.info("heading design by prediction: %s", choice.choice.reason())
         if not choice.keeps_original:
@@ -319,7 +330,8 @@ class IdentificationCampaign(Behaviour):
             if self.verifier is not None:
                 self.verifier.kind = self.heading_kind
         best = choice.choice.chosen
-        return f"heading: {best.name}, predicted {best.score.iae_s:.2f} s {best.score.worst_overshoot_pct:.1f}%"
+        return [StatusText(f"heading: {best.name}, predicted {best.score.iae_s:.2f} s "
+                           f"{best.score.worst_overshoot_pct:.1f}%"[:50])]
 
     def _middle_thrust(self) -> float:
         thrusts = sorted(a.thrust for a in self.accepted if a.axis == "yaw" and a.thrust is not None)
@@ -331,11 +343,20 @@ class IdentificationCampaign(Behaviour):
         return self.heading_choice is not None and self.heading_choice.keeps_original
 
     def _design_step(self) -> Behaviour:
-        texts: list[Command] = []
+        """The gain design of every requested schedule. The heading design by prediction takes a
+        second or two of computation: beside a vehicle that does not wait for the companion it runs
+        beside the loop (``BackgroundStep``), so the vehicle keeps its course and speed meanwhile."""
         if self.optimised_design and any(a.axis == "yaw" for a in self.accepted):
-            line = self._choose_heading_design()
-            if line:
-                texts.append(StatusText(line[:50]))
+            if self.background_design:
+                return BackgroundStep(self._score_heading_design,
+                                      lambda choice: self._adopt_heading_design(choice) + self._design_kinds(),
+                                      name="heading design by prediction")
+            return Instant(*self._adopt_heading_design(self._score_heading_design()), *self._design_kinds(),
+                           name="design")
+        return Instant(*self._design_kinds(), name="design")
+
+    def _design_kinds(self) -> list[Command]:
+        texts: list[Command] = []
         for kind in self.kinds:
             if kind.axis not in self.config.axes:
                 continue
@@ -353,7 +374,7 @@ class IdentificationCampaign(Behaviour):
             texts.append(StatusText(f"{kind.name} schedule designed at {len(design.points)} speeds"))
             if self.verifier_wanted and kind is self.heading_kind:
                 self._verifier().predict(design, self.accepted, self.original_heading())
-        return Instant(*texts, name="design")
+        return texts
 
     def _gains_for(self, label: str, thrust: float) -> dict[str, float] | None:
         """Gains of one heading-step check: the originals, one constant set, or the scheduled set."""

@@ -152,7 +152,7 @@ class CampaignVerification:
     def summary(self) -> dict:
         """Flown and predicted steps (figures only, no series), the coverage and the rule, for JSON."""
         def figures(step: dict) -> dict:
-            keep = ("thrust", "label", "decided", "why_undecided", "flights", "max_overshoot_pct", "iae_s",
+            keep = ("thrust", "label", "decided", "why_undecided", "undecided", "flights", "max_overshoot_pct", "iae_s",
                     "oscillations", "overshoot_pct", "settling_time_s", "rise_time_s", "speed", "saturated")
             out = {k: step[k] for k in keep if k in step}
             if step.get("steps"):

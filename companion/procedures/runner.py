@@ -61,6 +61,12 @@ class Link(Protocol):
 
     def status_text(self, text: str, severity: int = 6) -> None: ...
 
+    @property
+    def waits_for_companion(self) -> bool:
+        """The vehicle's time advances only as the companion reads it (a computation in the loop
+        costs no vehicle time)."""
+        ...
+
 
 def _last_words(link, within_s: float = 10.0) -> str:
     """The vehicle's latest warnings (STATUSTEXT severity ≤ 4, within ``within_s`` of vehicle time)
