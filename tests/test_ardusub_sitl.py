@@ -57,7 +57,9 @@ def test_native_gains_kept_after_the_verification_steps_pass(rehearsal):
     assert summary["status"] == "completed", summary.get("reason")
     assert summary["verification"] == "passed" and summary["checks"] == "verify"
     flown = summary["verified"]["flown"]
-    assert {(s["thrust"], s["label"]) for s in flown} >= {(0.45, "own"), (0.65, "scheduled")}
+    # the design by prediction needs every speed's model: the schedule is flown at both ends
+    assert {(s["thrust"], s["label"]) for s in flown} >= {(0.45, "scheduled"), (0.65, "scheduled")}
+    assert summary["heading_design"]["chosen"] in ("optimised", "rule", "quicktune")
     for step in flown:
         assert step["decided"] and step["max_overshoot_pct"] <= 10.0 and step["oscillations"] <= 1
     predicted = {(s["thrust"], s["label"]): s for s in summary["verified"]["predicted"]}

@@ -110,8 +110,10 @@ def test_quicktune_takes_only_the_samples_it_accepts_and_sets_p_and_i_from_ff():
     steering = [0.05, 0.3, 0.3, 0.5]
     rate = [0.5, 0.01, 0.4, 0.6]  # the first has too little steering, the second too little turn rate
     assert quicktune_feed_forward(steering, rate) == pytest.approx(0.9 * 0.8 / 1.0)
+    # none accepted (a small doublet): every sample, as the comparison still needs a gain
+    assert quicktune_feed_forward([0.05, 0.07], [0.1, 0.1]) == pytest.approx(0.9 * 0.12 / 0.2)
     with pytest.raises(ValueError):
-        quicktune_feed_forward([0.05], [0.5])
+        quicktune_feed_forward([0.05], [0.0])
     gains = quicktune_gains(0.8)
     assert gains == pytest.approx({"heading_rate_ff": 0.8, "heading_rate_p": 0.4, "heading_rate_i": 0.4})
 

@@ -136,13 +136,15 @@ QUICKTUNE_TURN_RATE_MIN = math.radians(10.0)
 
 def quicktune_feed_forward(steering: list[float], turn_rate: list[float]) -> float:
     """ArduRover QuickTune's rule on recorded data: FF = 0.9·Σ|steering| / Σ|turn rate| (output per
-    rad/s) over the samples QuickTune accepts (|steering| ≥ 0.10 and |turn rate| > 10°/s); ValueError
-    when none is."""
-    pairs = [(abs(s), abs(r)) for s, r in zip(steering, turn_rate) if math.isfinite(s) and math.isfinite(r)
-             and abs(s) >= QUICKTUNE_STEERING_MIN and abs(r) > QUICKTUNE_TURN_RATE_MIN]
+    rad/s) over the samples QuickTune accepts (|steering| ≥ 0.10 and |turn rate| > 10°/s). Where no
+    sample is accepted (a doublet scaled down on a skid boat at low throttle, a slow hull), over every
+    sample: QuickTune itself would ask for more steering, the rule still defines a gain to compare
+    with. ValueError when the data hold no turn at all."""
+    finite = [(abs(s), abs(r)) for s, r in zip(steering, turn_rate) if math.isfinite(s) and math.isfinite(r)]
+    pairs = [(s, r) for s, r in finite if s >= QUICKTUNE_STEERING_MIN and r > QUICKTUNE_TURN_RATE_MIN] or finite
     total_rate = sum(r for _, r in pairs)
     if total_rate <= 0.0:
-        raise ValueError("no sample with steering ≥ 0.10 and a turn rate > 10°/s in the data")
+        raise ValueError("no turn rate in the data")
     return QUICKTUNE_FF_RATIO * sum(s for s, _ in pairs) / total_rate
 
 
