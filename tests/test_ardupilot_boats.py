@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.sitl_limits import SITL_UNDER_LOAD
+
 from companion.procedures.app import AbortFlag, run_campaign
 from companion.procedures.campaign import CampaignConfig
 from companion.records.store import Store
@@ -22,7 +24,7 @@ from companion.rehearsal.rehearsal import arm_when_ready, preset_vehicle, simula
 from harness.ardupilot import HEADING_GAINS, assert_as_found, found_state
 
 BIN = os.environ.get("ARDUPILOT_SITL_BIN")
-pytestmark = [pytest.mark.e2e, pytest.mark.skipif(
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("sitl"), SITL_UNDER_LOAD, pytest.mark.skipif(
     not (BIN and (Path(BIN) / "ardurover").is_file()),
     reason="ARDUPILOT_SITL_BIN is not set to a folder with ArduPilot's ardurover SITL binary")]
 

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.sitl_limits import SITL_UNDER_LOAD
+
 from behaviors.identification import ManoeuvreConfig
 from companion.rehearsal.launcher import SimulatorProcess
 from companion.rehearsal.rehearsal import arm_when_ready, preset_vehicle, simulator_truth, true_speed
@@ -26,7 +28,7 @@ from companion.records.store import Store
 from harness.ardupilot import assert_as_found, found_state, sitl_pid
 
 BIN = os.environ.get("ARDUPILOT_SITL_BIN")
-pytestmark = [pytest.mark.e2e, pytest.mark.skipif(
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("sitl"), SITL_UNDER_LOAD, pytest.mark.skipif(
     not (BIN and (Path(BIN) / "ardurover").is_file()),
     reason="ARDUPILOT_SITL_BIN is not set to a folder with ArduPilot's ardurover SITL binary")]
 

@@ -21,11 +21,13 @@ from pathlib import Path
 
 import pytest
 
+from tests.sitl_limits import SITL_UNDER_LOAD
+
 from companion.records.store import Store
 from harness.ardupilot import assert_as_found, found_state, sitl_pid
 
 BIN = os.environ.get("ARDUPILOT_SITL_BIN")
-pytestmark = [pytest.mark.e2e, pytest.mark.skipif(
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("sitl"), SITL_UNDER_LOAD, pytest.mark.skipif(
     not (BIN and (Path(BIN) / "ardusub").is_file()),
     reason="ARDUPILOT_SITL_BIN is not set to a folder with ArduPilot's ardusub SITL binary")]
 

@@ -11,6 +11,7 @@ import pytest
 pytestmark = pytest.mark.e2e
 
 
+@pytest.mark.slow
 def test_run_behavior_prints_its_summary_and_exits_by_its_status(sim_factory, mav_client, tmp_path):
     sim = sim_factory(transport="tcp", speedup=50, seed=3)
     gcs = mav_client(sim.endpoint)

@@ -26,6 +26,7 @@ def _trial_gains(changes, found) -> bool:
     return bool(trial) and len(changes) > trial[0] + 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kill_point, until", [("doublet", _in_doublet), ("trial gains", _trial_gains)])
 def test_a_killed_companion_leaves_a_trail_the_next_start_follows(sim_factory, tmp_path, kill_point, until):
     sim = sim_factory(transport="tcp", speedup=0, seed=4, lockstep=True)  # vehicle time as each companion reads it

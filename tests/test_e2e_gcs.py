@@ -86,6 +86,7 @@ def test_a_disarmed_vehicle_is_refused(companion, mav_client):
     assert acks and acks[0][0] == 1, acks  # TEMPORARILY_REJECTED: the simulator boots disarmed
 
 
+@pytest.mark.slow
 def test_user_3_runs_min_speed_seeking_and_reports(companion, mav_client):
     sim, process = companion
     gcs = mav_client(sim.endpoint)

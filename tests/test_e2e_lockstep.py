@@ -28,6 +28,7 @@ def roll_std(speedup: float) -> tuple[float, float]:
     return result["std_open_deg"], result["std_closed_deg"]
 
 
+@pytest.mark.slow
 def test_closed_loop_result_does_not_depend_on_the_speedup():
     open_slow, closed_slow = roll_std(20.0)
     open_fast, closed_fast = roll_std(100.0)

@@ -84,6 +84,7 @@ def test_report_and_store_are_written(rehearsal):
         assert {"roll", "min_speed", "gain_design"} <= kinds
 
 
+@pytest.mark.slow
 def test_hugin_rehearsal_recovers_the_current_from_squares_and_turns(tmp_path):
     """The steady-state manoeuvres inside the rehearsal on the HUGIN-like preset, scored
     against the known current the simulator was started with (14 mm/s towards 300°)."""

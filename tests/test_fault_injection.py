@@ -46,6 +46,7 @@ def test_every_fault_kind_meets_every_phase():
     assert len(covered) == len(FAULT_KINDS) * len(PHASES)
 
 
+@pytest.mark.slow
 @pytest.mark.e2e
 @pytest.mark.parametrize("case", CASES, ids=[case.label for case in CASES])
 def test_the_vehicle_is_restored_whatever_the_link_does(lockstep_sim, case, tmp_path):

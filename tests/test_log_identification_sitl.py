@@ -12,8 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from tests.sitl_limits import SITL_UNDER_LOAD
+
 BIN = os.environ.get("ARDUPILOT_SITL_BIN")
-pytestmark = [pytest.mark.e2e, pytest.mark.skipif(
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("sitl"), SITL_UNDER_LOAD, pytest.mark.skipif(
     not (BIN and (Path(BIN) / "ardurover").is_file()),
     reason="ARDUPILOT_SITL_BIN is not set to a folder with ArduPilot's ardurover SITL binary")]
 

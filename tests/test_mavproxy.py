@@ -55,6 +55,7 @@ class _LineReader:
         raise AssertionError(f"no {pattern!r} in MAVProxy output:\n" + "\n".join(self.seen[-40:]))
 
 
+@pytest.mark.slow
 def test_mavproxy_sees_vehicle_reads_and_writes_parameters(sim_factory):
     command = _mavproxy_command()
     if command is None:

@@ -184,6 +184,7 @@ def test_the_log_path_prints_the_export_command(tmp_path, capsys):
 
 
 @pytest.mark.e2e
+@pytest.mark.xdist_group("sitl")
 @pytest.mark.skipif(not (BIN and (Path(BIN) / "ardurover").is_file()),
                     reason="ARDUPILOT_SITL_BIN is not set to a folder with ArduPilot's ardurover SITL binary")
 def test_an_exported_parm_loads_into_ardurover_sitl(tmp_path, capsys):

@@ -24,11 +24,13 @@ from pathlib import Path
 
 import pytest
 
+from tests.sitl_limits import SITL_UNDER_LOAD
+
 from companion.records.store import Store
 from harness.px4 import (SCENARIOS, UdpRelay, client_endpoint, connect_armed, found_state, settled_state, px4_bin, run_scenario,
                          simulator)
 
-pytestmark = [pytest.mark.e2e, pytest.mark.skipif(
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("sitl"), SITL_UNDER_LOAD, pytest.mark.skipif(
     px4_bin() is None, reason="PX4_SITL_BIN is not set to a PX4 SITL build folder (with bin/px4)")]
 
 SPEEDUP = 5.0  # PX4 free-runs on the wall clock: a companion that lags its stream loses samples

@@ -33,6 +33,7 @@ def rehearse(workdir: Path, speedup: float, seed: int = 1) -> dict:
     return json.loads(done.stdout)
 
 
+@pytest.mark.slow
 def test_same_seed_gives_the_same_summary_bit_for_bit(tmp_path):
     slow = rehearse(tmp_path / "at50", 50.0)
     fast = rehearse(tmp_path / "at100", 100.0)

@@ -141,6 +141,7 @@ def _servo_after(gcs, vehicle_s: float, wall_limit_s: float = 60.0):
     return None
 
 
+@pytest.mark.slow
 @pytest.mark.e2e
 def test_the_units_stop_signal_mid_campaign_restores_the_vehicle(sim_factory, mav_client, tmp_path):
     service = unit_settings()

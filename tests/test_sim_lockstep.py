@@ -3,6 +3,8 @@ waits at its start for the companion, and input acts at the last tick the compan
 at whatever tick the simulator happened to read it — so a rehearsal is a function of its seed."""
 from __future__ import annotations
 
+import pytest
+
 import socket
 import time
 
@@ -67,6 +69,7 @@ def test_input_acts_at_the_limit_whatever_the_wall_clock_delay(sim_factory, mav_
     assert answered == [PERIOD_MS] * 3
 
 
+@pytest.mark.slow
 def test_a_burst_left_queued_by_a_full_socket_still_reaches_the_companion(sim_factory):
     """Frames a full TCP socket did not take must drain although, in lockstep, no new frame follows
     until the companion has read them (found under load: a rehearsal stopped with LinkLost, the

@@ -461,6 +461,7 @@ def _heading_step_response(sim_factory, mav_client, speedup: float) -> list[tupl
             if m.get_type() == "ATTITUDE" and m.time_boot_ms >= onset_ms]
 
 
+@pytest.mark.slow
 def test_response_does_not_depend_on_speedup(sim_factory, mav_client):
     import numpy as np
 

@@ -19,10 +19,12 @@ from pathlib import Path
 
 import pytest
 
+from tests.sitl_limits import SITL_UNDER_LOAD
+
 from sim.px4_sitl import ENV_BIN
 
 BIN = os.environ.get(ENV_BIN)
-pytestmark = [pytest.mark.e2e, pytest.mark.skipif(
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("sitl"), SITL_UNDER_LOAD, pytest.mark.skipif(
     not (BIN and ((Path(BIN) / "bin" / "px4").is_file() or (Path(BIN) / "px4").is_file())),
     reason=f"{ENV_BIN} is not set to a PX4 SITL build folder (with bin/px4)")]
 

@@ -60,6 +60,7 @@ def page_state(url: str) -> dict:
         return json.loads(response.read())
 
 
+@pytest.mark.slow
 def test_the_page_shows_the_vehicle_and_the_procedure(sim_factory, mav_client, tmp_path):
     # TCP: lossless; 5x: acknowledgements keep their margin on a loaded machine (the product runs at 1x)
     sim = sim_factory(transport="tcp", speedup=5, seed=2)

@@ -353,6 +353,7 @@ def dask_cluster(tmp_path):
                 process.wait()
 
 
+@pytest.mark.slow
 @pytest.mark.e2e
 def test_a_real_dask_cluster_gives_the_same_rows_and_records_a_failing_case(local_sweep, dask_cluster, tmp_path):
     """Two of the local sweep's cases (one per worker, to keep the suite short; the README reports

@@ -41,6 +41,7 @@ class VehicleLink:
                                    dialect=CONNECT_DIALECT)
         self.timeouts = timeouts
         self.clock = VehicleClock(self.transport, timeouts, lockstep=lockstep)
+        self.waits_for_companion = bool(lockstep)  # vehicle time advances only as the companion reads it
         self.announcements = VehicleAnnouncements(self.transport)
         self.announcements.clock_s = lambda: self.clock.vehicle_time_s
         self.commands = CommandChannel(self.transport, self.clock)
@@ -158,12 +159,6 @@ class VehicleLink:
     @property
     def vehicle_time_s(self) -> float:
         return self.clock.vehicle_time_s
-
-    @property
-    def waits_for_companion(self) -> bool:
-        """The vehicle's time advances only as the companion reads it (our simulator in lockstep):
-        a computation in the loop costs no vehicle time. False for real firmware."""
-        return bool(self.clock.lockstep)
 
     @property
     def latest_telemetry(self) -> Telemetry | None:
