@@ -16,6 +16,9 @@ from typing import Any, Iterable, Sequence
 
 #: the most thrust levels a campaign flies (each costs a settle and a manoeuvre at sea)
 MAX_THRUST_LEVELS = 12
+#: the least thrust level a campaign flies: 5 % of full ahead. Below it a vehicle barely moves (it is
+#: never "steady" at rest), and a level like 1e-9, or "1.5" read as 1.5 %, is a typo, not a plan
+MIN_THRUST_LEVEL = 0.05
 
 
 def _value(obj: Any, name: str) -> Any:
@@ -83,7 +86,7 @@ def require_interval(obj: Any, name: str) -> None:
 
 def check_thrust_levels(levels: Sequence[float], what: str = "thrusts") -> tuple[float, ...]:
     """``levels`` as a tuple of thrust levels: 1..:data:`MAX_THRUST_LEVELS` distinct fractions in
-    (0, 1]. ValueError with one sentence otherwise."""
+    [:data:`MIN_THRUST_LEVEL`, 1]. ValueError with one sentence otherwise."""
     values = tuple(levels)
     if not values:
         raise ValueError(f"{what}: no thrust level given")
@@ -93,6 +96,10 @@ def check_thrust_levels(levels: Sequence[float], what: str = "thrusts") -> tuple
     for value in values:
         if not (is_number(value) and 0.0 < value <= 1.0):
             raise ValueError(f"{what}: {value!r} is not a thrust level in (0, 1] "
+                             "(a fraction of full ahead: 60 % is 0.6)")
+        if value < MIN_THRUST_LEVEL:
+            raise ValueError(f"{what}: {value:g} of full ahead is below the least thrust level a campaign flies, "
+                             f"{MIN_THRUST_LEVEL:g} ({MIN_THRUST_LEVEL * 100:g} %): the vehicle would barely move "
                              "(a fraction of full ahead: 60 % is 0.6)")
     if len(set(values)) != len(values):
         raise ValueError(f"{what}: {', '.join(f'{v:g}' for v in values)} repeats a thrust level")

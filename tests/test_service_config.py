@@ -136,3 +136,29 @@ def test_a_procedure_the_configuration_does_not_allow_is_denied(tmp_path):
     with pytest.raises(ValueError, match="unknown procedure"):
         ServeConfig(procedures=("identification", "launch"))
     assert MAV_CMD_USER_3  # the allowed one is covered by the ground-station tests
+
+
+@pytest.mark.parametrize("command", ["run", "identify", "results"])
+def test_the_help_names_the_default_store_file(command, capsys):
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "$COMPANION_STORE or ./companion.sqlite" in text and "./None" not in text
+
+
+@pytest.mark.parametrize("text", ["1e-9", "1.5", "0.6,0.02"])
+def test_a_thrust_level_too_small_to_move_the_vehicle_is_refused_with_the_unit(text):
+    from companion.checks import parse_thrust_levels
+
+    with pytest.raises(ValueError, match="least thrust level a campaign flies"):
+        parse_thrust_levels(text)
+    assert parse_thrust_levels("5,60") == pytest.approx((0.05, 0.6))
+
+
+def test_a_serial_port_that_is_not_there_is_one_sentence_not_a_missing_module(capsys):
+    import serial  # noqa: F401 - a declared dependency: the serial link needs it
+
+    code = main(["status", "--connect", "/dev/ttyNOSUCHPORT0,57600"])
+    err = capsys.readouterr().err
+    assert code != 0 and "cannot reach a vehicle on /dev/ttyNOSUCHPORT0,57600" in err
+    assert "Traceback" not in err and "ModuleNotFoundError" not in err

@@ -17,7 +17,7 @@ DEFAULT_STORE = "companion.sqlite"
 
 def add_store_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--store", default=os.environ.get("COMPANION_STORE", DEFAULT_STORE),
-                        help="SQLite store (default: $COMPANION_STORE or ./%(default)s)")
+                        help=f"SQLite store (default: $COMPANION_STORE or ./{DEFAULT_STORE})")
 
 
 def add_connect_arguments(parser: argparse.ArgumentParser, required: bool = True) -> None:
