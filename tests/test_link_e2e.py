@@ -135,7 +135,9 @@ def test_rudder_override_in_hold_turns_then_autopilot_takes_back(link):
 
 
 def test_override_expires_when_not_refreshed(link):
-    assert link.mode == "hold"
+    # its own start, whatever ran before it on this worker's shared vehicle
+    link.set_mode("hold")
+    link.arm(True)
     timeout = link.override_timeout_s
     try:
         link.skip_to_now()
@@ -172,6 +174,7 @@ def status_main(argv: list[str]) -> int:
 def test_status_command_prints_json(sim, link, capsys):
     import threading
 
+    link.set_mode("manual")  # its own start, whatever ran before it on this worker's shared vehicle
     # in lockstep the vehicle only moves on while the link acknowledges: keep it reading meanwhile
     answer: list[int] = []
     status = threading.Thread(target=lambda: answer.append(status_main(["status", "--connect", sim.endpoint,
