@@ -253,8 +253,7 @@ class IdentificationCampaign(Behaviour):
         """A level settled at the speed of a lower one (the boat's top speed, or WP_SPEED above what it
         can do): skip it and re-space the levels not yet flown within the thrusts that gave distinct
         speeds (``companion.numerics.thrust_levels``). The reason, None to identify this level."""
-        flown = {level: speed_ for level, speed_ in self._settled.items()}
-        repeated = same_speed_as(flown, thrust, speed)
+        repeated = same_speed_as(self._settled, thrust, speed)  # before this level joins them
         self._settled[thrust] = speed
         if repeated is None:
             return None
@@ -491,10 +490,12 @@ class IdentificationCampaign(Behaviour):
         where = f"for {speed:.2f} m/s" if math.isfinite(speed) else "(speed loop)"
         return commands + [StatusText(f"gains written {where}: {text}"[:50])]
 
-    def _speed_refused(self) -> bool:
-        """The speed loop was to be tuned and ended with neither verified gains nor the original
-        gains shown to be the better ones (exit 1, with its reason; what the heading verified stays)."""
-        return self.speed is not None and self.loop_outcomes().get("speed", {}).get("outcome") == "refused"
+    def _speed_refused(self) -> str | None:
+        """Why the speed loop, which was to be tuned, ended with neither verified gains nor the
+        original gains shown to be the better ones (exit 1; what the heading verified stays); None
+        when it did not."""
+        speed = self.loop_outcomes().get("speed", {}) if self.speed is not None else {}
+        return speed.get("why") if speed.get("outcome") == "refused" else None
 
     def loop_outcomes(self) -> dict[str, dict[str, str]]:
         """Loop by loop (heading, speed): ``outcome`` (written, original kept, refused, not tuned)
@@ -612,13 +613,14 @@ class IdentificationCampaign(Behaviour):
         self._phase_clock = (now, phase)
 
     def _conclude(self) -> list[Command]:
+        speed_refused = self._speed_refused()
         if not self.accepted:
             self.finish(Status.FAILURE, "no model passed validation")
-        elif self.design_errors or self._speed_refused():
+        elif self.design_errors or speed_refused is not None:
             reasons = [f"gains rejected: {v}" if k == "verification" else f"{k} design: {v}"
                        for k, v in self.design_errors.items()]
-            if self._speed_refused():
-                reasons.append(f"speed loop: {self.loop_outcomes()['speed']['why']}")
+            if speed_refused is not None:
+                reasons.append(f"speed loop: {speed_refused}")
             self.finish(Status.FAILURE, "; ".join(reasons))
         else:
             self.finish(Status.SUCCESS)
