@@ -99,6 +99,22 @@ def dispatch(host: "_AutopilotHost", command: Command) -> None:
         raise TypeError(f"unknown command {command!r}")
 
 
+class WriteHooks:
+    """The link's ``parameters.on_write`` (``companion.link.parameters``): listeners told of each
+    parameter write before it is applied (a crash trail records it)."""
+
+    def __init__(self) -> None:
+        self._listeners: list[Callable[[str, float], None]] = []
+
+    def on_write(self, listener: Callable[[str, float], None]) -> Callable[[], None]:
+        self._listeners.append(listener)
+        return lambda: self._listeners.remove(listener) if listener in self._listeners else None
+
+    def notify(self, native: str, value: float) -> None:
+        for listener in list(self._listeners):
+            listener(native, value)
+
+
 class _AutopilotHost:
     """A simulated vehicle and autopilot plus what the commands leave behind (overrides, texts,
     parameter writes, mode changes); shared by :class:`InProcessLink` and :class:`ClosedLoop`."""
@@ -117,6 +133,7 @@ class _AutopilotHost:
         self.named_values: list[tuple[str, float]] = []
         self.param_writes: list[tuple[str, float]] = []
         self.mode_changes: list[str] = []
+        self.parameters = WriteHooks()
 
     # ------------------------------------------------------------------ stepping
     def _step(self, dt: float) -> None:
@@ -165,6 +182,7 @@ class _AutopilotHost:
     def set_param(self, native: str, value: float) -> float:
         if native in self.refuse:
             raise ParamRefused(f"{native} refused")
+        self.parameters.notify(native, float(value))
         result = self.autopilot.set_param(native, float(value))
         if not result.accepted:
             raise ParamRefused(f"{native} = {value} refused")
@@ -228,6 +246,8 @@ class InProcessLink(_AutopilotHost):
             if self._user_callback is not None:
                 self._user_callback(item[1], item[2])
         sample = telemetry_from(self.vehicle.measure(), mode=self.mode, armed=self.autopilot.armed)
+        if self.mode != "manual":  # the set-point the autopilot holds (NAV_CONTROLLER_OUTPUT over MAVLink)
+            sample = replace(sample, heading_target=self.autopilot.heading_setpoint)
         if self.nan_from_s is not None and now >= self.nan_from_s:
             sample = replace(sample, roll=math.nan, pitch=math.nan, yaw=math.nan)
         return sample

@@ -68,9 +68,29 @@ class DriftConfig:
         require_choice(self, "input_hold", ("foh", "zoh"))
 
 
+@dataclass(frozen=True)
+class WindowRecord:
+    """A window's samples, kept when asked (``PassiveYawEstimator(keep_records=True)``): the
+    regression rows Φ = [ψ̇f, δf, −1] and targets ψ̈f (eq. 3.14–3.15), and the raw series a model is
+    validated on (eq. 3.35): times, unwrapped heading, rudder, and the yaw rate at the start."""
+
+    phi: np.ndarray
+    y: np.ndarray
+    times: np.ndarray
+    heading: np.ndarray
+    rudder: np.ndarray
+    yaw_rate0: float
+
+    def __post_init__(self) -> None:
+        n = len(self.y)
+        if self.phi.shape != (n, 3) or not len(self.times) == len(self.heading) == len(self.rudder) == n:
+            raise ValueError("a window record's rows and series must have one length")
+
+
 @dataclass
 class WindowEstimate:
-    """One window's passive estimate: Θ̂ = [a22, b2, C0] and its HAC covariance."""
+    """One window's passive estimate: Θ̂ = [a22, b2, C0] and its HAC covariance (and, when kept,
+    its samples)."""
 
     t_start: float
     t_end: float
@@ -81,6 +101,7 @@ class WindowEstimate:
     heading_span_deg: float
     theta: list[float]
     covariance: list[list[float]]
+    record: WindowRecord | None = field(default=None, repr=False)
 
     @property
     def a22(self) -> float:
@@ -112,8 +133,9 @@ class PassiveYawEstimator:
     """Streams (time, heading, rudder, speed) samples; :meth:`add` returns a :class:`WindowEstimate`
     when a window closes (else None). See the module docstring."""
 
-    def __init__(self, config: DriftConfig = DriftConfig()) -> None:
+    def __init__(self, config: DriftConfig = DriftConfig(), *, keep_records: bool = False) -> None:
         self.config = config
+        self.keep_records = keep_records
         self._heading_filter = StateVariableFilter(config.bandwidth, hold=config.output_hold)
         self._rudder_filter = StateVariableFilter(config.bandwidth, hold=config.input_hold)
         self._last_t: float | None = None
@@ -125,6 +147,8 @@ class PassiveYawEstimator:
         self._speeds: list[float] = []
         self._rudders: list[float] = []
         self._headings: list[float] = []
+        self._times: list[float] = []
+        self._yaw_rate0 = 0.0
         self._window_start: float | None = None
         self.restarts = 0
 
@@ -138,6 +162,7 @@ class PassiveYawEstimator:
 
     def _clear(self) -> None:
         self._rows, self._targets, self._speeds, self._rudders, self._headings = [], [], [], [], []
+        self._times = []
         self._window_start = None
 
     def add(self, t: float, heading: float, rudder: float, speed: float) -> WindowEstimate | None:
@@ -159,11 +184,13 @@ class PassiveYawEstimator:
             return None
         if self._window_start is None:
             self._window_start = t
+            self._yaw_rate0 = rate_f  # the filtered rate: the record's initial condition (eq. 3.35)
         self._rows.append((rate_f, rudder_f, -1.0))
         self._targets.append(acc_f)
         self._speeds.append(speed)
         self._rudders.append(rudder)
         self._headings.append(self._unwrapped)
+        self._times.append(t)
         if t - self._window_start < self.config.window_s:
             return None
         estimate = self._estimate(t)
@@ -182,10 +209,13 @@ class PassiveYawEstimator:
             theta, covariance = hac_least_squares(phi, y, lags)
         except np.linalg.LinAlgError:
             return None
+        record = WindowRecord(phi=phi, y=y, times=np.asarray(self._times), heading=np.asarray(self._headings),
+                              rudder=np.asarray(self._rudders, dtype=float),
+                              yaw_rate0=float(self._yaw_rate0)) if self.keep_records else None
         return WindowEstimate(t_start=float(self._window_start), t_end=float(t_end), samples=len(y), speed=speed,
                               speed_spread=spread, rudder_std=float(np.std(self._rudders)),
                               heading_span_deg=math.degrees(max(self._headings) - min(self._headings)),
-                              theta=[float(v) for v in theta], covariance=covariance.tolist())
+                              theta=[float(v) for v in theta], covariance=covariance.tolist(), record=record)
 
 
 @dataclass

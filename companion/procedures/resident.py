@@ -12,7 +12,7 @@ stops procedures with COMMAND_LONG aimed at component 191:
 | MAV_CMD_USER_1 | identification campaign (then scheduling follows the schedule it wrote) |
 | MAV_CMD_USER_2 | roll stabilisation (param1: closed-loop seconds, 0 = default) |
 | MAV_CMD_USER_3 | minimum-speed seeking (param1: seconds, 0 = default) |
-| MAV_CMD_USER_4 | abort the running procedure (the autopilot is restored) |
+| MAV_CMD_USER_4 | abort the running procedure (the autopilot is restored); with none running and learning on: param1 = 1 accepts the learned gains, 0 reverts them |
 | MAV_CMD_USER_5 | steady-state squares and turns (SPEC C8) |
 
 A start is answered COMMAND_ACK IN_PROGRESS (with progress for the campaign) and finally ACCEPTED or
@@ -20,7 +20,10 @@ FAILED; a retransmitted start of the procedure already running is answered IN_PR
 start while another procedure runs, a start on a disarmed vehicle, or an abort with nothing running
 is answered TEMPORARILY_REJECTED; a start of a procedure the configuration does not allow
 (``ServeConfig.procedures``) is answered DENIED. Everything runs on vehicle time; SIGINT/SIGTERM
-abort what runs and end. An optional observer (``Companion(observer=...)``, e.g. the status page of
+abort what runs and end. With ``learn`` (``companion run --learn``) the heading gains are tuned from
+the mission's own course changes (``companion.procedures.learning``); the stored designs are then not
+scheduled (the learner owns the heading gains), and the learner pauses while a procedure runs. An
+optional observer (``Companion(observer=...)``, e.g. the status page of
 ``companion.service``) is told when a procedure starts and ends; it only watches.
 """
 from __future__ import annotations
@@ -33,6 +36,7 @@ from typing import Callable, Protocol
 from pymavlink.dialects.v20.common import MAV_RESULT_DENIED
 
 from behaviors.gain_scheduling import GainDesign, GainScheduler, SchedulingConfig
+from behaviors.mission_learning import LearningConfig
 from behaviors.base import Footprint
 from companion.errors import UserError
 from companion.link.errors import LinkError
@@ -51,6 +55,7 @@ from companion.procedures.app import (
 )
 from companion.procedures.campaign import CampaignConfig
 from companion.procedures.health import HealthSession
+from companion.procedures.learning import LearningSession
 from companion.procedures.min_speed import MinSpeedProcedureConfig
 from behaviors.schedules import schedule_kind
 from companion.procedures.registry import ABORT_COMMAND, COMMANDS, IDENTIFICATION_COMMAND, ProcedureContext
@@ -100,6 +105,9 @@ class ServeConfig:
     # health monitoring: passive identification against the stored models between procedures
     health: bool = True
     drift: DriftConfig = DriftConfig()
+    # tuning during ordinary missions (the operator's opt-in, ``--learn``)
+    learn: bool = False
+    learning: LearningConfig = LearningConfig()
     # the procedures a ground station may start (names of registry.COMMANDS); an abort is always obeyed
     procedures: tuple[str, ...] = tuple(COMMANDS.values())
 
@@ -124,6 +132,7 @@ class Companion:
         self.unscheduled: RestorePoint | None = None
         self.history: list[dict] = []
         self.health = HealthSession(link, store, vehicle_id, config.drift) if config.health else None
+        self.learning = LearningSession(link, store, vehicle_id, config.learning, config.campaign) if config.learn else None
         link.ground.on_user_command(self._on_user_command)
 
     # ------------------------------------------------------------------ ground station
@@ -135,6 +144,8 @@ class Companion:
             elif self.pending:  # a start that has not begun yet is cancelled
                 cancelled, _ = self.pending.pop(0)
                 self.link.ground.send_command_ack(cancelled, MAV_RESULT_FAILED)
+                self.link.ground.send_command_ack(command, MAV_RESULT_ACCEPTED)
+            elif self.learning is not None and self._learning_decision(params):
                 self.link.ground.send_command_ack(command, MAV_RESULT_ACCEPTED)
             else:
                 self.link.ground.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
@@ -159,6 +170,13 @@ class Companion:
             return
         self.pending.append((command, params))
         self.link.ground.send_command_ack(command, MAV_RESULT_IN_PROGRESS, 0)
+
+    def _learning_decision(self, params: tuple[float, ...]) -> bool:
+        """USER_4 with nothing running: param1 = 1 accepts the learned gains, else they are reverted;
+        False when learning has nothing on the vehicle to decide on."""
+        if params and params[0] == 1:
+            return self.learning.accept()
+        return self.learning.revert()
 
     def _abort_requested(self) -> Callable[[], str | None]:
         return lambda: self.stop() or (self.procedure_abort() if self.procedure_abort else None)
@@ -207,8 +225,16 @@ class Companion:
         return schedule_kind(design.kind, self.config.bounds if design.kind == "heading" else None)
 
     def run(self) -> list[dict]:
-        """Serve until stopped; then the gains in place before scheduling started are written back."""
-        self._rebuild_scheduler()
+        """Serve until stopped; then the gains in place before scheduling started are written back
+        (learned gains: kept if verified, else the original ones, ``LearningSession.finish``)."""
+        if self.learning is not None:
+            refused = self.learning.start()
+            if refused is not None:
+                log.warning("learning off: %s", refused)
+                self.link.status_text(f"LEARN: off, {refused}"[:50], 4)
+                self.learning = None
+        if self.learning is None:
+            self._rebuild_scheduler()
         if self.health is not None:
             self.health.start()
         self.link.status_text("companion ready: USER_1 identify, USER_2 roll, USER_3 min-speed, USER_4 abort")
@@ -227,7 +253,11 @@ class Companion:
                     self._schedule(telemetry)
                 if self.health is not None:
                     self.health.step(telemetry)
+                if self.learning is not None:
+                    self.learning.step(telemetry)
         finally:
+            if self.learning is not None:
+                self.learning.finish()
             if self.health is not None:
                 self.health.finish()
             if self.scheduler is not None and self.scheduler.writes and self.unscheduled is not None:
@@ -270,7 +300,8 @@ class Companion:
                                                                vehicle_id=self.vehicle_id, abort=abort, gcs=gcs)
                 entry = {"procedure": name, "status": outcome.status, "reason": outcome.reason,
                          "campaign_id": campaign_id}
-                self._rebuild_scheduler()
+                if self.learning is None:  # with learning on, the learner owns the heading gains
+                    self._rebuild_scheduler()
                 if self.health is not None:  # a new campaign is the new healthy reference
                     self.health.start()
             else:

@@ -175,6 +175,9 @@ def keys(profiles: tuple[str, ...], procedures: tuple[str, ...], schedules: tupl
             "tolerance": Key("health_tolerance", positive),
             "threshold": Key("health_threshold", positive),
         },
+        "learning": {
+            "enabled": Key("learn", boolean, "--learn"),
+        },
         "http": {
             "listen": Key("http", listen_address, "--http"),
             "allow_remote": Key("http_allow_remote", boolean, "--http-allow-remote"),

@@ -180,6 +180,7 @@ class StatusFeed:
         self.board.set("schedule", self._schedule(designs))
         self.board.set("gains", self._gains(designs))
         self.board.set("health", self._health())
+        self.board.set("learning", self._learning())
         self.board.set("alarms", self._alarms())
 
     def _models(self) -> dict | None:
@@ -256,6 +257,12 @@ class StatusFeed:
                 "windows": windows,
                 "alarm": None if alarm is None else {"parameter": alarm.alarm, "time_s": alarm.window.t_end,
                                                      "change_pct": 100.0 * (alarm.ratio[alarm.alarm] - 1.0)}}
+
+    def _learning(self) -> dict:
+        session = getattr(self.companion, "learning", None)
+        if session is None:
+            return {"on": False, "reason": "learning is off (companion run --learn)"}
+        return session.status()
 
     def _alarms(self) -> list[dict]:
         alarms = [m for m in self.messages if m["severity"] <= MAV_SEVERITY_WARNING]

@@ -41,6 +41,7 @@ class RunSettings:
     health_window_s: float | None = None
     health_tolerance: float | None = None
     health_threshold: float | None = None
+    learn: bool = False  # tune during ordinary missions (the operator's opt-in)
     http: str | None = None  # HOST:PORT of the status page (None: no page)
     http_allow_remote: bool = False
     log_level: str | None = None
@@ -101,7 +102,7 @@ class RunSettings:
         if self.schedules is not None:
             extra["schedules"] = self.schedules
         return ServeConfig(schedule_gains=self.schedule_gains, preset=self.preset, max_vehicle_s=self.max_vehicle_time,
-                           health=self.health, campaign=campaign, min_speed=MinSpeedProcedureConfig.levelled(),
+                           health=self.health, learn=self.learn, campaign=campaign, min_speed=MinSpeedProcedureConfig.levelled(),
                            scheduling=scheduling, drift=drift, **extra)
 
 

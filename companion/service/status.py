@@ -18,7 +18,7 @@ from typing import Any
 
 #: the sections, in the order the JSON lists them (``None``: nothing known yet)
 SECTIONS = ("companion", "connection", "vehicle", "procedure", "estimates", "models", "schedule", "gains",
-            "health", "alarms", "messages", "report", "history")
+            "health", "learning", "alarms", "messages", "report", "history")
 
 
 def json_ready(value: Any) -> Any:

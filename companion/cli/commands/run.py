@@ -61,6 +61,12 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--no-health", action="store_true", default=None,
                         help="do not watch the vehicle's health (passive identification against the stored models, "
                              "STATUSTEXT warning on a drift of a22 or b2)")
+    parser.add_argument("--learn", action="store_true", default=None,
+                        help="tune during ordinary missions: learn the yaw model from the mission's own course "
+                             "changes, write the designed heading gains on a steady straight (never in a turn or a "
+                             "hand-flown mode), verify them on the next course changes and revert if they are worse "
+                             "or not as predicted (USER_4 param1=1 accepts, 0 reverts). Replaces --scheduling of "
+                             "stored designs while on")
     parser.add_argument("--preset", default=None,
                         help="simulator preset (analytic minimum speed: the levelled start of minimum-speed seeking "
                              "and the results)")
@@ -99,6 +105,7 @@ def settings_from(args: argparse.Namespace):
         "procedures", "procedure", "thrusts", "http", "http_allow_remote", "max_vehicle_time", "log_format")}
     flags["schedule_gains"] = False if args.no_scheduling else None
     flags["health"] = False if args.no_health else None
+    flags["learn"] = True if args.learn else None
     flags["log_level"] = {1: "info", 2: "debug"}.get(min(verbose, 2)) if verbose else None
     flags["yes"] = True if getattr(args, "yes", False) else None
     return merge(from_file, flags, {"store": os.environ.get("COMPANION_STORE", DEFAULT_STORE)})

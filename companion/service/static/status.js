@@ -125,6 +125,17 @@ function render(s) {
     replace("health", parts);
   }
 
+  const l = s.learning;
+  if (l) {
+    const parts = [el("p", l.phase ? `${l.phase}: ${l.reason}` : l.reason, l.on ? "" : "muted")];
+    (l.bands || []).forEach((b) => parts.push(el("p",
+      `${num(b.speed, 2)} m/s: ${b.windows} windows${b.validated ? ", validated" : ""}`, "muted")));
+    (l.writes || []).forEach((w) => parts.push(el("p",
+      `t=${num(w.time_s, 0)} s ${w.why}: ` + Object.entries(w.gains).map(([k, v]) => `${k} ${num(v, 3)}`).join(", "))));
+    if (l.verdict) parts.push(el("p", `verdict: ${l.verdict.reason}`, l.verdict.keep ? "yes" : "sev-err"));
+    replace("learning", parts);
+  }
+
   replace("alarms", messageItems(s.alarms));
   replace("messages", messageItems(s.messages));
 

@@ -1,0 +1,336 @@
+"""Tuning while the vehicle works: the heading gains learned, written and verified from an ordinary
+mission's own course changes (``companion run --learn``). A step function of vehicle time and
+telemetry that never asks for a manoeuvre: it only writes gains, at safe moments.
+
+Phases (:class:`Phase`):
+
+1. **learning** — every closed window of the passive estimator goes to the speed bands of
+   :class:`companion.numerics.parameter_tracking.MissionModels` (eq. L.1); every completed course
+   change (:class:`companion.numerics.mission_turns.TurnRecorder`) is kept as a turn flown on the
+   original gains. When the set of validated bands grows, the ``designer`` is asked (the campaign's
+   design by prediction, eq. D.1, under the autopilot's own controller with the original gains as a
+   candidate). A design predicted no better than the original gains is said and nothing is written.
+2. **waiting to write** — the design's gains at the current speed are written at the next *safe
+   moment*: the mode is one in which the autopilot steers itself (``LearningConfig.modes``; never a
+   mode the pilot flies by hand), no course change is in progress, and for ``steady_s`` the turn rate
+   stayed below ``max_turn_rate_deg_s`` and the heading within ``max_heading_error_deg`` of its
+   set-point (a course change whose record is still open then is dropped: it would be flown on two
+   gain sets). Each write is announced by STATUSTEXT and queued as an event for the store.
+3. **verifying** — the next ``verify_turns`` course changes are judged against the turns flown on
+   the original gains at the same speed and against their prediction (eq. L.2). Kept: **kept**, and
+   from then on the design's gains follow the speed (rewritten at safe moments, with hysteresis).
+   Else **waiting to revert**, then the original gains are written at the next safe moment:
+   **reverted**, and this session writes nothing more (the reason is said and stored).
+
+A ground station may accept (the verification ends, the gains stay) or revert at any time
+(:meth:`MissionLearner.accept`, :meth:`MissionLearner.revert`; ``companion run`` maps them onto
+MAV_CMD_USER_4). A revert asked for by the ground station is written at once: the operator chose
+the moment.
+"""
+from __future__ import annotations
+
+import enum
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Protocol, Sequence
+
+from behaviors.base import Behaviour, Footprint
+from companion.checks import require_positive
+from companion.interface import Command, SetParameters, StatusText, Telemetry
+from companion.numerics.angles import wrap_pi
+from companion.numerics.drift import DriftConfig, PassiveYawEstimator
+from companion.numerics.identification import YawModel
+from companion.numerics.mission_turns import (FlownTurn, TurnFigures, TurnRecorder, TurnVerdict, VerdictConfig,
+                                              judge_turns)
+from companion.numerics.parameter_tracking import MissionModels, TrackingConfig, WindowOutcome
+
+log = logging.getLogger(__name__)
+
+
+class LearnedDesign(Protocol):
+    """What the designer hands over: the gains at a speed, and a predicted step under the autopilot's
+    controller for any gains (normalised IAE s, overshoot %)."""
+
+    @property
+    def summary(self) -> str: ...
+
+    def gains_at(self, speed: float) -> dict[str, float]: ...
+
+    def predict(self, gains: dict[str, float], speed: float, step: float) -> tuple[float, float]: ...
+
+
+@dataclass(frozen=True)
+class DesignOutcome:
+    """The designer's answer over the validated bands: a design to write, or None with the reason."""
+
+    design: LearnedDesign | None
+    reason: str
+
+
+Designer = Callable[[Sequence[tuple[float, YawModel]]], DesignOutcome]
+
+
+class Phase(enum.Enum):
+    LEARNING = "learning"
+    WAITING_TO_WRITE = "waiting to write"
+    VERIFYING = "verifying"
+    KEPT = "kept"
+    WAITING_TO_REVERT = "waiting to revert"
+    REVERTED = "reverted"
+
+
+@dataclass(frozen=True)
+class LearningConfig:
+    """When to write and how to verify (module docstring)."""
+
+    modes: tuple[str, ...] = ("auto", "guided", "hold")
+    window: DriftConfig = DriftConfig()
+    tracking: TrackingConfig = TrackingConfig()
+    min_step_deg: float = 10.0
+    turn_s: float = 25.0
+    verify_turns: int = 3
+    steady_s: float = 5.0
+    max_turn_rate_deg_s: float = 2.0
+    max_heading_error_deg: float = 5.0
+    verdict: VerdictConfig = VerdictConfig()
+    relative_hysteresis: float = 0.08  # rewrite a kept design's gains when one moved by more than this
+
+    def __post_init__(self) -> None:
+        require_positive(self, "min_step_deg", "turn_s", "verify_turns", "steady_s", "max_turn_rate_deg_s",
+                         "max_heading_error_deg", "relative_hysteresis")
+        if not self.modes:
+            raise ValueError("LearningConfig.modes: at least one mode in which the autopilot steers itself")
+
+
+@dataclass(frozen=True)
+class GainWrite:
+    """One write: when, why (``design``, ``schedule``, ``revert``), at what speed, which gains."""
+
+    time_s: float
+    why: str
+    speed: float
+    gains: dict[str, float]
+
+    def to_dict(self) -> dict:
+        return {"time_s": self.time_s, "why": self.why, "speed": self.speed if math.isfinite(self.speed) else None,
+                "gains": dict(self.gains)}
+
+
+@dataclass(frozen=True)
+class LearningResult:
+    """Where learning ended and what it did (the store's record; ``to_dict`` is its JSON)."""
+
+    phase: Phase
+    reason: str
+    writes: tuple[GainWrite, ...]
+    turns: tuple[TurnFigures, ...]
+    windows: tuple[WindowOutcome, ...]
+    bands: tuple[dict, ...]
+    verdict: TurnVerdict | None
+    design: str
+    mode_left_s: float  # vehicle seconds spent outside the learning modes
+
+    @property
+    def in_force(self) -> bool:
+        """Verified learned gains are on the vehicle."""
+        return self.phase is Phase.KEPT
+
+    def to_dict(self) -> dict:
+        return {"phase": self.phase.value, "reason": self.reason, "in_force": self.in_force,
+                "writes": [w.to_dict() for w in self.writes], "turns": [t.to_dict() for t in self.turns],
+                "windows": [w.to_dict() for w in self.windows], "bands": list(self.bands),
+                "verdict": self.verdict.to_dict() if self.verdict else None, "design": self.design,
+                "mode_left_s": self.mode_left_s}
+
+
+class MissionLearner(Behaviour):
+    """The module docstring's phases over ``designer`` and the vehicle's ``original`` gains (neutral
+    names, read before anything was written)."""
+
+    def __init__(self, designer: Designer, original: dict[str, float], config: LearningConfig = LearningConfig()) -> None:
+        super().__init__("learning")
+        if not original:
+            raise ValueError("MissionLearner needs the vehicle's original gains")
+        self.designer = designer
+        self.original = dict(original)
+        self.config = config
+        self.footprint = Footprint.of(parameters=tuple(original))
+        self.estimator = PassiveYawEstimator(config.window, keep_records=True)
+        self.models = MissionModels(config.tracking)
+        self.recorder = TurnRecorder(config.min_step_deg, config.turn_s)
+        self.phase = Phase.LEARNING
+        self.note = "learning from the mission's course changes"
+        self.design: LearnedDesign | None = None
+        self.design_summary = ""
+        self.written: dict[str, float] | None = None  # the learned gains on the vehicle now
+        self.written_at = math.nan
+        self.writes: list[GainWrite] = []
+        self.turns: list[TurnFigures] = []
+        self.windows: list[WindowOutcome] = []
+        self.verdict: TurnVerdict | None = None
+        self.events: list[dict] = []  # drained by the procedure into the store
+        self._designed_bands = 0
+        self._steady_since = math.nan
+        self._last_t = math.nan
+        self._outside_s = 0.0
+        self._revert_now = False
+
+    # ------------------------------------------------------------------ ground station
+    def accept(self) -> list[Command]:
+        """The ground station accepts the gains being verified (or kept): they stay."""
+        if self.phase not in (Phase.VERIFYING, Phase.KEPT):
+            return []
+        self._set(Phase.KEPT, "accepted by the ground station")
+        return [StatusText("LEARN: gains accepted by the ground station")]
+
+    def revert(self, reason: str = "reverted by the ground station") -> None:
+        """The original gains go back at the next step, at once (the operator chose the moment); a
+        design not yet written is dropped. Either way this session writes nothing more."""
+        if self.phase is Phase.REVERTED:
+            return
+        if self.written is None:
+            self.events.append({"type": "revert", "reason": reason, "written": False})
+            self._set(Phase.REVERTED, reason)
+            return
+        self._revert_now = True
+        self._set(Phase.WAITING_TO_REVERT, reason)
+
+    # ------------------------------------------------------------------ the step function
+    def update(self, telemetry: Telemetry) -> Sequence[Command]:
+        commands: list[Command] = []
+        t = telemetry.time_s
+        allowed = telemetry.mode in self.config.modes
+        if math.isfinite(self._last_t) and not allowed:
+            self._outside_s += max(0.0, t - self._last_t)
+        self._last_t = t
+        window = self.estimator.add(t, telemetry.yaw, telemetry.rudder, telemetry.speed_water)
+        if window is not None:
+            self.windows.append(self.models.add(window))
+        turn = self.recorder.add(t, telemetry.yaw, telemetry.heading_target if allowed else math.nan,
+                                 telemetry.speed_water)
+        if turn is not None:
+            self._turn_flown(turn)
+        steady = self._steady(telemetry, allowed)
+        if self._revert_now and self.phase is Phase.WAITING_TO_REVERT:
+            return commands + self._write_original(t, telemetry.speed_water)
+        if self.phase is Phase.LEARNING:
+            commands += self._maybe_design()
+        elif self.phase is Phase.WAITING_TO_WRITE and steady:
+            commands += self._write_design(t, telemetry.speed_water, "design")
+            self._set(Phase.VERIFYING, f"verifying on the next {self.config.verify_turns} course changes")
+        elif self.phase is Phase.VERIFYING:
+            commands += self._maybe_judge()
+        elif self.phase is Phase.WAITING_TO_REVERT and steady:
+            commands += self._write_original(t, telemetry.speed_water)
+        elif self.phase is Phase.KEPT and steady:
+            commands += self._follow_speed(t, telemetry.speed_water)
+        return commands
+
+    def _set(self, phase: Phase, reason: str) -> None:
+        if phase is not self.phase or reason != self.note:
+            log.info("learning: %s (%s)", phase.value, reason)
+        self.phase, self.note = phase, reason
+
+    def _steady(self, telemetry: Telemetry, allowed: bool) -> bool:
+        """A safe moment to write (module docstring, phase 2)."""
+        c = self.config
+        quiet = (allowed and telemetry.finite("yaw_rate", "yaw")
+                 and abs(math.degrees(telemetry.yaw_rate)) <= c.max_turn_rate_deg_s
+                 and (not math.isfinite(telemetry.heading_target)
+                      or abs(math.degrees(wrap_pi(telemetry.heading_target - telemetry.yaw))) <= c.max_heading_error_deg))
+        if not quiet:
+            self._steady_since = math.nan
+            return False
+        if not math.isfinite(self._steady_since):
+            self._steady_since = telemetry.time_s
+        return telemetry.time_s - self._steady_since >= c.steady_s
+
+    # ------------------------------------------------------------------ design and writes
+    def _maybe_design(self) -> list[Command]:
+        validated = self.models.validated()
+        if len(validated) <= self._designed_bands:
+            return []
+        self._designed_bands = len(validated)
+        outcome = self.designer(validated)
+        self.events.append({"type": "design", "bands": [s for s, _ in validated], "reason": outcome.reason,
+                            "written": outcome.design is not None})
+        if outcome.design is None:
+            self.note = f"nothing to write: {outcome.reason}"
+            log.info("learning: %s", self.note)
+            return [StatusText(f"LEARN: keeping the gains ({outcome.reason})"[:50])]
+        self.design, self.design_summary = outcome.design, outcome.design.summary
+        self._set(Phase.WAITING_TO_WRITE, f"designed at {len(validated)} speed(s): {outcome.reason}")
+        return [StatusText(f"LEARN: designed at {len(validated)} speed(s), waiting"[:50])]
+
+    def _write(self, t: float, speed: float, why: str, gains: dict[str, float]) -> list[Command]:
+        self.recorder.discard()  # a course change flown on two gain sets is no step of either
+        write = GainWrite(t, why, speed, dict(gains))
+        self.writes.append(write)
+        self.events.append({"type": "write", **write.to_dict()})
+        return [SetParameters(dict(gains))]
+
+    def _write_design(self, t: float, speed: float, why: str) -> list[Command]:
+        gains = self.design.gains_at(speed)
+        self.written, self.written_at = gains, t
+        text = "LEARN: wrote " + " ".join(f"{k.replace('heading_', '')}={v:.3g}" for k, v in gains.items())
+        return self._write(t, speed, why, gains) + [StatusText(text[:50])]
+
+    def _write_original(self, t: float, speed: float) -> list[Command]:
+        self._revert_now = False
+        self.events.append({"type": "revert", "reason": self.note, "written": True})
+        self.written = None
+        commands = self._write(t, speed, "revert", self.original)
+        self._set(Phase.REVERTED, self.note)
+        return commands + [StatusText(f"LEARN: reverted ({self.note})"[:50], 4)]
+
+    def _follow_speed(self, t: float, speed: float) -> list[Command]:
+        if not math.isfinite(speed) or self.written is None:
+            return []
+        gains = self.design.gains_at(speed)
+        moved = any(abs(gains[k] - self.written.get(k, 0.0)) > self.config.relative_hysteresis * max(abs(self.written.get(k, 0.0)), 1e-6)
+                    for k in gains)
+        if not moved:
+            return []
+        self.written = gains
+        return self._write(t, speed, "schedule", gains)
+
+    # ------------------------------------------------------------------ turns and the verdict
+    def _turn_flown(self, turn: FlownTurn) -> None:
+        figures = turn.figures()
+        if not math.isfinite(figures["iae_s"]):
+            return
+        learned = self.written is not None and turn.t_start >= self.written_at
+        predicted, predicted_overshoot, original = math.nan, math.nan, math.nan
+        if self.design is not None and math.isfinite(turn.speed):
+            if learned:
+                predicted, predicted_overshoot = self.design.predict(self.written, turn.speed, turn.step)
+            original = self.design.predict(self.original, turn.speed, turn.step)[0]
+        self.turns.append(TurnFigures(t_start=turn.t_start, speed=turn.speed, step_deg=math.degrees(turn.step),
+                                      gains="learned" if learned else "original", iae_s=figures["iae_s"],
+                                      overshoot_pct=figures["overshoot_pct"], predicted_iae_s=predicted,
+                                      predicted_overshoot_pct=predicted_overshoot, original_iae_s=original))
+
+    def _maybe_judge(self) -> list[Command]:
+        after = [t for t in self.turns if t.gains == "learned"]
+        if len(after) < self.config.verify_turns:
+            return []
+        speed = sum(t.speed for t in after) / len(after)
+        width = self.config.tracking.band_width
+        before = [t for t in self.turns if t.gains == "original" and abs(t.speed - speed) <= width * speed]
+        self.verdict = judge_turns(before, after, self.config.verdict)
+        self.events.append({"type": "verdict", **self.verdict.to_dict()})
+        if self.verdict.keep:
+            self._set(Phase.KEPT, f"verified: {self.verdict.reason}")
+            return [StatusText(f"LEARN: kept, {self.verdict.after_iae_s:.2f}s vs {self.verdict.before_iae_s:.2f}s"[:50])]
+        self._set(Phase.WAITING_TO_REVERT, self.verdict.reason)
+        return [StatusText("LEARN: verification failed, reverting"[:50], 4)]
+
+    # ------------------------------------------------------------------ the record
+    def result(self) -> LearningResult:
+        bands = tuple({"speed": b.speed, "windows": b.tracker.windows, "validated": b.validated(self.config.tracking),
+                       "a22": b.model().a22, "b2": b.model().b2, "delta0": b.model().delta0,
+                       "validations": [r2 for _, r2 in b.validations]} for b in self.models.bands)
+        return LearningResult(phase=self.phase, reason=self.note, writes=tuple(self.writes), turns=tuple(self.turns),
+                              windows=tuple(self.windows), bands=bands, verdict=self.verdict, design=self.design_summary,
+                              mode_left_s=self._outside_s)

@@ -1,0 +1,232 @@
+"""Tuning during ordinary missions inside ``companion run --learn``: the application side of
+:class:`behaviors.mission_learning.MissionLearner` — the designer it asks, the vehicle's original
+gains, its writes through the link and its records in the store.
+
+* **Designer**: the campaign's design by prediction (eq. D.1, ``companion.procedures.heading_design``)
+  over the bands' validated models, under the autopilot's own heading controller (the simulator's PI,
+  ArduPilot's cascade) with the limits read from the vehicle, the original gains a candidate. The
+  schedule kind's fit over the validated bands gives the gains at a speed (one band: the same gains
+  at every speed); the prediction for any gains at a speed is the step on the schedule's model there.
+* **Which gains**: the heading kind's scheduled gains, never its trims. On ArduRover in AUTO the
+  navigation controller commands a turn rate, so the rate loop's FF/P/I carry the turns; the
+  cascade's angle P is written with them but only acts in the modes that hold a heading (GUIDED).
+* **Records**: one campaign of kind ``learning`` per session. Its restore point (the original
+  gains) is stored as a trail before the first write and every write is recorded before it is sent
+  (:class:`companion.procedures.trail.TrailRecorder`), so a ``kill -9`` mid-learning is followed by
+  ``companion recover``, which writes the original gains back. Events (designs, writes, verdicts) are
+  ``learning_event`` results as they happen, and the session's end a ``learning`` result.
+* **The end of a session** (a signal, ``max_vehicle_s``): gains verified and kept stay on the
+  vehicle (that was the goal; the trail is closed); gains still being verified, or waiting to be
+  reverted, are reverted first.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+from behaviors.base import Footprint
+from behaviors.gain_scheduling import ScheduleKind
+from behaviors.mission_learning import DesignOutcome, LearningConfig, LearningResult, MissionLearner, Phase
+from companion.interface import Command, SetParameters
+from companion.numerics.identification import YawModel
+from companion.numerics.step_response import predict_step
+from companion.procedures.campaign import CampaignConfig
+from companion.procedures.heading_design import choose_heading_design, optimisable, step_case, with_design
+from companion.procedures.restore import RestorePoint
+from companion.procedures.trail import TrailRecorder, vehicle_identity
+from companion.procedures.verified_design import CONTROLLERS, LIMIT_PARAMETERS, HeadingLimits
+from companion.records.store import Store
+
+log = logging.getLogger(__name__)
+
+#: a predicted step's length (vehicle seconds), as the campaign's objective
+PREDICTED_S = 30.0
+
+
+@dataclass(frozen=True)
+class _BandModel:
+    """A validated band in the shape the campaign's designer reads (an accepted yaw attempt)."""
+
+    speed: float
+    model: YawModel
+    axis: str = "yaw"
+    accepted: bool = True
+    thrust: float | None = None
+
+
+@dataclass(frozen=True)
+class ScheduledDesign:
+    """A design over the validated bands: the kind's schedule (its gains at a speed) and the
+    controller's limits for predictions (``behaviors.mission_learning.LearnedDesign``)."""
+
+    kind: ScheduleKind
+    schedule: object
+    limits: HeadingLimits
+    summary: str
+
+    def gains_at(self, speed: float) -> dict[str, float]:
+        low, high = self.schedule.speed_range
+        return self.kind.scheduled_gains(self.schedule, min(max(speed, low), high))
+
+    def predict(self, gains: dict[str, float], speed: float, step: float) -> tuple[float, float]:
+        low, high = self.schedule.speed_range
+        speed = min(max(speed, low), high)
+        case = step_case(CONTROLLERS[self.kind.name], self.schedule.model_at(speed), speed, self.limits)
+        metrics = predict_step(case.plant, case.controller, dict(gains), step, PREDICTED_S, **case.limits)
+        return float(metrics["iae_s"]), float(metrics["overshoot_pct"])
+
+
+class HeadingDesigner:
+    """eq. D.1 over the validated bands (module docstring)."""
+
+    def __init__(self, config: CampaignConfig, kind: ScheduleKind, original: dict[str, float],
+                 limits: HeadingLimits) -> None:
+        self.config, self.kind, self.original, self.limits = config, kind, original, limits
+
+    def __call__(self, validated: Sequence[tuple[float, YawModel]]) -> DesignOutcome:
+        attempts = [_BandModel(speed, model) for speed, model in validated]
+        try:
+            choice = choose_heading_design(self.kind, self.config.cascade, self.config.bounds, attempts, self.limits,
+                                           self.config.objective, self.original)
+        except ValueError as exc:
+            return DesignOutcome(None, f"no design: {exc}")
+        if choice.keeps_original:
+            return DesignOutcome(None, f"the original gains are predicted best ({choice.choice.reason()})")
+        kind = next(k for k in with_design(self.config, choice).kinds() if k.axis == "yaw")
+        try:
+            schedule = kind.fit([a.speed for a in attempts], [a.model for a in attempts])
+        except ValueError as exc:
+            return DesignOutcome(None, f"no schedule: {exc}")
+        best = choice.choice.chosen
+        summary = (f"{best.name}: predicted step error {best.score.iae_s:.2f} s, overshoot "
+                   f"{best.score.worst_overshoot_pct:.1f} %")
+        return DesignOutcome(ScheduledDesign(kind, schedule, self.limits, summary), choice.choice.reason())
+
+
+def heading_kind_for(config: CampaignConfig) -> ScheduleKind | None:
+    return next((k for k in config.kinds() if k.axis == "yaw"), None)
+
+
+class LearningSession:
+    """One ``companion run --learn`` session: the learner, its trail and its records."""
+
+    def __init__(self, link, store: Store, vehicle_id: int, config: LearningConfig = LearningConfig(),
+                 campaign: CampaignConfig = CampaignConfig()) -> None:
+        self.link, self.store, self.vehicle_id, self.config = link, store, vehicle_id, config
+        self.campaign = campaign.resolved_for(getattr(link, "profile", None))
+        self.learner: MissionLearner | None = None
+        self.campaign_id: int | None = None
+        self.trail_id: int | None = None
+        self.recorder: TrailRecorder | None = None
+        self.restore: RestorePoint | None = None
+        self.result: LearningResult | None = None
+
+    def start(self) -> str | None:
+        """Read the original gains and open the records; the reason when learning cannot run."""
+        kind = heading_kind_for(self.campaign)
+        if not optimisable(kind):
+            return f"no model of this autopilot's heading controller to design with ({kind.name if kind else 'none'})"
+        profile = self.link.profile
+        limit_names = tuple(name for name in LIMIT_PARAMETERS if name in profile.params)
+        self.restore = RestorePoint.capture(self.link, Footprint.of(parameters=kind.scheduled + limit_names))
+        values = self.restore.parameters
+        original = {name: values[name] for name in kind.scheduled if name in values}
+        if len(original) != len(kind.scheduled):
+            return f"the vehicle did not give its heading gains ({', '.join(sorted(set(kind.scheduled) - set(original)))})"
+        limits = HeadingLimits.from_vehicle(values, full_scale=self.campaign.cascade.full_scale,
+                                            rudder_rate=self.campaign.rudder_rate,
+                                            output_scale_base=self.campaign.cascade.output_scale_base
+                                            if kind.name == "cascade" else None)
+        margin = getattr(profile, "prediction_margin_pct", None)
+        config = self.config
+        if margin is not None:  # the prediction's measured margin on this autopilot (eq. L.2)
+            config = replace(config, verdict=replace(config.verdict, overshoot_margin_pct=float(margin)))
+        self.learner = MissionLearner(HeadingDesigner(self.campaign, kind, original, limits), original, config)
+        self.campaign_id = self.store.start_campaign(self.vehicle_id, "learning", {
+            "original": original, "modes": list(config.modes), "heading_kind": kind.name})
+        self.trail_id = self.store.save_restore_point(self.campaign_id, self.restore.as_json(), vehicle_identity(self.link))
+        self.recorder = TrailRecorder(self.store, self.trail_id, self.link)
+        self.link.status_text(f"LEARN: on, original {kind.name} gains recorded"[:50])
+        log.info("learning on: original gains %s, limits %s", original, limits)
+        return None
+
+    def status(self) -> dict:
+        """What the status page shows: the phase and why, the bands, the writes, the verdict."""
+        if self.learner is None:
+            result = self.result
+            if result is None:
+                return {"on": False, "reason": "learning has not started"}
+            return {"on": False, "phase": result.phase.value, "reason": result.reason,
+                    "writes": [w.to_dict() for w in result.writes[-5:]]}
+        result = self.learner.result()
+        return {"on": True, "phase": result.phase.value, "reason": result.reason, "campaign_id": self.campaign_id,
+                "bands": [{k: band[k] for k in ("speed", "windows", "validated")} for band in result.bands],
+                "turns": len(result.turns), "writes": [w.to_dict() for w in result.writes[-5:]],
+                "verdict": result.verdict.to_dict() if result.verdict else None}
+
+    @property
+    def phase(self) -> Phase | None:
+        return self.learner.phase if self.learner is not None else None
+
+    def step(self, telemetry) -> None:
+        if self.learner is None:
+            return
+        self._send(self.learner.tick(telemetry))
+        self._drain()
+
+    def accept(self) -> bool:
+        if self.learner is None or self.learner.phase not in (Phase.VERIFYING, Phase.KEPT):
+            return False
+        self._send(self.learner.accept())
+        self._drain()
+        return True
+
+    def revert(self) -> bool:
+        """The ground station's revert: the original gains at the next step (at once), or a design
+        waiting to be written dropped; False when there was nothing to revert."""
+        if self.learner is None or self.learner.phase not in (Phase.WAITING_TO_WRITE, Phase.VERIFYING, Phase.KEPT):
+            return False
+        self.learner.revert()
+        self._drain()
+        return True
+
+    def _send(self, commands: Sequence[Command]) -> None:
+        if not commands:
+            return
+        self.recorder(commands)
+        self.link.execute(list(commands))
+
+    def _drain(self) -> None:
+        while self.learner.events:
+            event = self.learner.events.pop(0)
+            self.store.add_behavior_result(self.campaign_id, "learning_event", event["type"], event)
+
+    def finish(self) -> LearningResult | None:
+        """Unverified gains reverted, the result stored, the trail closed (idempotent)."""
+        if self.learner is None:
+            return self.result
+        learner = self.learner
+        if learner.written is not None and learner.phase is not Phase.KEPT:
+            try:
+                self._send([SetParameters(dict(learner.original))])
+                learner.written = None
+                learner.note = f"{learner.note}; the session ended before the verification: original gains written back"
+            except Exception as exc:  # noqa: BLE001 - the trail stays open: `companion recover` finishes it
+                log.error("learning: the original gains could not be written back: %s", exc)
+                self._close(learner, "failed", f"the original gains could not be written back: {exc}", close_trail=False)
+                return self.result
+        status = "completed" if learner.phase is Phase.KEPT else "failed"
+        self._close(learner, status, learner.note, close_trail=True)
+        return self.result
+
+    def _close(self, learner: MissionLearner, status: str, reason: str, *, close_trail: bool) -> None:
+        self.result = learner.result()
+        self.store.add_behavior_result(self.campaign_id, "learning", self.result.phase.value, self.result.to_dict())
+        if self.recorder is not None:
+            self.recorder.close()
+        if close_trail and self.trail_id is not None:
+            self.store.finish_restore(self.trail_id, [], [f"learning ended: {self.result.phase.value}"])
+        self.store.finish_campaign(self.campaign_id, status, reason)
+        self.learner = None
+
