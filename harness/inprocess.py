@@ -44,6 +44,7 @@ from companion.link.profiles import SIM as PROFILE
 from sim.autopilot import MODE_ALT_HOLD, Autopilot, pwm_from_fin
 from sim.params import ParamTable
 from sim.preset import load_preset
+from sim.build import build_vehicle
 from sim.vehicle import ActuatorDemand, Vehicle
 
 __all__ = ["ClosedLoop", "HuginLoop", "InProcessLink", "LinkLost", "ParamRefused", "dispatch", "telemetry_from"]
@@ -126,7 +127,7 @@ class _AutopilotHost:
     def _build(self, preset_name: str, seed: int, depth: float, speed: float | None = None,
                faults: tuple = ()) -> None:
         preset = load_preset(preset_name)
-        self.vehicle = Vehicle(preset, seed=seed, depth=depth, speed=speed, faults=faults)
+        self.vehicle = build_vehicle(preset, seed=seed, depth=depth, speed=speed, faults=faults)
         self.autopilot = Autopilot(self.vehicle, ParamTable.for_preset(preset))
         self.overrides: dict[str, float] = {}
         self.status_texts: list[str] = []
