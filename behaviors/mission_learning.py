@@ -5,17 +5,20 @@ telemetry that never asks for a manoeuvre: it only writes gains, at safe moments
 Phases (:class:`Phase`):
 
 1. **learning** — every closed window of the passive estimator goes to the speed bands of
-   :class:`companion.numerics.parameter_tracking.MissionModels` (eq. L.1); every completed course
-   change (:class:`companion.numerics.mission_turns.TurnRecorder`) is kept as a turn flown on the
-   original gains. When the set of validated bands grows, the ``designer`` is asked (the campaign's
+   :class:`companion.numerics.parameter_tracking.MissionModels` (eq. L.1); every completed turn is
+   kept as flown on the original gains: a course change (``verification="course_changes"``,
+   :class:`companion.numerics.mission_turns.TurnRecorder`: an autopilot that reports its heading
+   set-point) or a turn-rate segment (``"turn_rate"``, ``RateSegmentRecorder``: a navigation that asks
+   the rate loop for turn rates, ArduRover in AUTO, whose rate loop carries the turns). When the set of validated bands grows, the ``designer`` is asked (the campaign's
    design by prediction, eq. D.1, under the autopilot's own controller with the original gains as a
    candidate). A design predicted no better than the original gains is said and nothing is written.
 2. **waiting to write** — the design's gains at the current speed are written at the next *safe
    moment*: the mode is one in which the autopilot steers itself (``LearningConfig.modes``; never a
-   mode the pilot flies by hand), no course change is in progress, and for ``steady_s`` the turn rate
-   stayed below ``max_turn_rate_deg_s`` and the heading within ``max_heading_error_deg`` of its
-   set-point (a course change whose record is still open then is dropped: it would be flown on two
-   gain sets). Each write is announced by STATUSTEXT and queued as an event for the store.
+   mode the pilot flies by hand) and has been for ``steady_s``, the vehicle is on a straight — its
+   heading changed by less than ``max_turn_rate_deg_s`` on average over ``steady_s`` (a turn is a net
+   change of course; a boat weaving about a straight leg is on it) — and, where the autopilot
+   reports its heading set-point, the heading stayed within ``max_heading_error_deg`` of it. A turn
+   whose record is still open then is dropped: it would be flown on two gain sets. Each write is announced by STATUSTEXT and queued as an event for the store.
 3. **verifying** — the next ``verify_turns`` course changes are judged against the turns flown on
    the original gains at the same speed and against their prediction (eq. L.2). Kept: **kept**, and
    from then on the design's gains follow the speed (rewritten at safe moments, with hysteresis).
@@ -32,25 +35,27 @@ from __future__ import annotations
 import enum
 import logging
 import math
-from dataclasses import dataclass, field
+from collections import deque
+from dataclasses import dataclass
 from typing import Callable, Protocol, Sequence
 
 from behaviors.base import Behaviour, Footprint
-from companion.checks import require_positive
+from companion.checks import require_choice, require_positive
 from companion.interface import Command, SetParameters, StatusText, Telemetry
 from companion.numerics.angles import wrap_pi
 from companion.numerics.drift import DriftConfig, PassiveYawEstimator
 from companion.numerics.identification import YawModel
-from companion.numerics.mission_turns import (FlownTurn, TurnFigures, TurnRecorder, TurnVerdict, VerdictConfig,
-                                              judge_turns)
+from companion.numerics.mission_turns import (RATE_ERROR, STEP_ERROR, FlownSegment, FlownTurn, RateSegmentRecorder,
+                                              TurnFigures, TurnRecorder, TurnVerdict, VerdictConfig, judge_turns)
 from companion.numerics.parameter_tracking import MissionModels, TrackingConfig, WindowOutcome
 
 log = logging.getLogger(__name__)
 
 
 class LearnedDesign(Protocol):
-    """What the designer hands over: the gains at a speed, and a predicted step under the autopilot's
-    controller for any gains (normalised IAE s, overshoot %)."""
+    """What the designer hands over: the gains at a speed, a predicted step under the autopilot's
+    controller for any gains (normalised IAE s, overshoot %), and the predicted turn-rate error (RMS
+    deg/s) of its rate loop asked for a flown segment's turn rates."""
 
     @property
     def summary(self) -> str: ...
@@ -58,6 +63,8 @@ class LearnedDesign(Protocol):
     def gains_at(self, speed: float) -> dict[str, float]: ...
 
     def predict(self, gains: dict[str, float], speed: float, step: float) -> tuple[float, float]: ...
+
+    def predict_rate(self, gains: dict[str, float], speed: float, segment: FlownSegment) -> float: ...
 
 
 @dataclass(frozen=True)
@@ -85,20 +92,26 @@ class LearningConfig:
     """When to write and how to verify (module docstring)."""
 
     modes: tuple[str, ...] = ("auto", "guided", "hold")
+    verification: str = "course_changes"  # or "turn_rate" (module docstring)
     window: DriftConfig = DriftConfig()
     tracking: TrackingConfig = TrackingConfig()
     min_step_deg: float = 10.0
     turn_s: float = 25.0
     verify_turns: int = 3
-    steady_s: float = 5.0
-    max_turn_rate_deg_s: float = 2.0
+    segment_s: float = 20.0  # a turn-rate segment
+    min_segment_rate_deg_s: float = 2.0
+    verify_segments: int = 4
+    steady_s: float = 8.0
+    max_turn_rate_deg_s: float = 1.5
     max_heading_error_deg: float = 5.0
     verdict: VerdictConfig = VerdictConfig()
     relative_hysteresis: float = 0.08  # rewrite a kept design's gains when one moved by more than this
 
     def __post_init__(self) -> None:
-        require_positive(self, "min_step_deg", "turn_s", "verify_turns", "steady_s", "max_turn_rate_deg_s",
-                         "max_heading_error_deg", "relative_hysteresis")
+        require_positive(self, "min_step_deg", "turn_s", "verify_turns", "segment_s", "min_segment_rate_deg_s",
+                         "verify_segments", "steady_s", "max_turn_rate_deg_s", "max_heading_error_deg",
+                         "relative_hysteresis")
+        require_choice(self, "verification", ("course_changes", "turn_rate"))
         if not self.modes:
             raise ValueError("LearningConfig.modes: at least one mode in which the autopilot steers itself")
 
@@ -158,7 +171,10 @@ class MissionLearner(Behaviour):
         self.footprint = Footprint.of(parameters=tuple(original))
         self.estimator = PassiveYawEstimator(config.window, keep_records=True)
         self.models = MissionModels(config.tracking)
-        self.recorder = TurnRecorder(config.min_step_deg, config.turn_s)
+        self.by_rate = config.verification == "turn_rate"
+        self.recorder: TurnRecorder | RateSegmentRecorder = (
+            RateSegmentRecorder(config.segment_s, config.min_segment_rate_deg_s) if self.by_rate
+            else TurnRecorder(config.min_step_deg, config.turn_s))
         self.phase = Phase.LEARNING
         self.note = "learning from the mission's course changes"
         self.design: LearnedDesign | None = None
@@ -171,7 +187,9 @@ class MissionLearner(Behaviour):
         self.verdict: TurnVerdict | None = None
         self.events: list[dict] = []  # drained by the procedure into the store
         self._designed_bands = 0
-        self._steady_since = math.nan
+        self._recent: deque[tuple[float, float]] = deque()  # (time, unwrapped heading) over steady_s
+        self._unwrapped = math.nan
+        self._last_yaw = math.nan
         self._last_t = math.nan
         self._outside_s = 0.0
         self._revert_now = False
@@ -207,10 +225,16 @@ class MissionLearner(Behaviour):
         window = self.estimator.add(t, telemetry.yaw, telemetry.rudder, telemetry.speed_water)
         if window is not None:
             self.windows.append(self.models.add(window))
-        turn = self.recorder.add(t, telemetry.yaw, telemetry.heading_target if allowed else math.nan,
-                                 telemetry.speed_water)
-        if turn is not None:
-            self._turn_flown(turn)
+        if self.by_rate:
+            segment = self.recorder.add(t, telemetry.turn_rate_target if allowed else math.nan,
+                                        telemetry.turn_rate_achieved, telemetry.speed_water)
+            if segment is not None:
+                self._segment_flown(segment)
+        else:
+            turn = self.recorder.add(t, telemetry.yaw, telemetry.heading_target if allowed else math.nan,
+                                     telemetry.speed_water)
+            if turn is not None:
+                self._turn_flown(turn)
         steady = self._steady(telemetry, allowed)
         if self._revert_now and self.phase is Phase.WAITING_TO_REVERT:
             return commands + self._write_original(t, telemetry.speed_water)
@@ -218,7 +242,9 @@ class MissionLearner(Behaviour):
             commands += self._maybe_design()
         elif self.phase is Phase.WAITING_TO_WRITE and steady:
             commands += self._write_design(t, telemetry.speed_water, "design")
-            self._set(Phase.VERIFYING, f"verifying on the next {self.config.verify_turns} course changes")
+            what = (f"{self.config.verify_segments} turn-rate segments" if self.by_rate
+                    else f"{self.config.verify_turns} course changes")
+            self._set(Phase.VERIFYING, f"verifying on the next {what}")
         elif self.phase is Phase.VERIFYING:
             commands += self._maybe_judge()
         elif self.phase is Phase.WAITING_TO_REVERT and steady:
@@ -235,16 +261,24 @@ class MissionLearner(Behaviour):
     def _steady(self, telemetry: Telemetry, allowed: bool) -> bool:
         """A safe moment to write (module docstring, phase 2)."""
         c = self.config
-        quiet = (allowed and telemetry.finite("yaw_rate", "yaw")
-                 and abs(math.degrees(telemetry.yaw_rate)) <= c.max_turn_rate_deg_s
-                 and (not math.isfinite(telemetry.heading_target)
+        t = telemetry.time_s
+        target_known = math.isfinite(telemetry.heading_target)
+        quiet = (allowed and math.isfinite(telemetry.yaw)
+                 and (not target_known
                       or abs(math.degrees(wrap_pi(telemetry.heading_target - telemetry.yaw))) <= c.max_heading_error_deg))
         if not quiet:
-            self._steady_since = math.nan
+            self._recent.clear()
             return False
-        if not math.isfinite(self._steady_since):
-            self._steady_since = telemetry.time_s
-        return telemetry.time_s - self._steady_since >= c.steady_s
+        self._unwrapped = telemetry.yaw if not math.isfinite(self._unwrapped) else \
+            self._unwrapped + wrap_pi(telemetry.yaw - self._last_yaw)
+        self._last_yaw = telemetry.yaw
+        self._recent.append((t, self._unwrapped))
+        while self._recent and t - self._recent[0][0] > c.steady_s:
+            self._recent.popleft()
+        if len(self._recent) < 2 or t - self._recent[0][0] < 0.9 * c.steady_s:
+            return False
+        net = math.degrees(self._recent[-1][1] - self._recent[0][1]) / (t - self._recent[0][0])
+        return abs(net) <= c.max_turn_rate_deg_s
 
     # ------------------------------------------------------------------ design and writes
     def _maybe_design(self) -> list[Command]:
@@ -306,23 +340,35 @@ class MissionLearner(Behaviour):
             if learned:
                 predicted, predicted_overshoot = self.design.predict(self.written, turn.speed, turn.step)
             original = self.design.predict(self.original, turn.speed, turn.step)[0]
-        self.turns.append(TurnFigures(t_start=turn.t_start, speed=turn.speed, step_deg=math.degrees(turn.step),
-                                      gains="learned" if learned else "original", iae_s=figures["iae_s"],
-                                      overshoot_pct=figures["overshoot_pct"], predicted_iae_s=predicted,
-                                      predicted_overshoot_pct=predicted_overshoot, original_iae_s=original))
+        self.turns.append(TurnFigures(t_start=turn.t_start, speed=turn.speed, size=math.degrees(turn.step),
+                                      gains="learned" if learned else "original", error=figures["iae_s"],
+                                      overshoot_pct=figures["overshoot_pct"], predicted_error=predicted,
+                                      predicted_overshoot_pct=predicted_overshoot, original_error=original,
+                                      metric=STEP_ERROR))
+
+    def _segment_flown(self, segment: FlownSegment) -> None:
+        learned = self.written is not None and segment.t_start >= self.written_at
+        predicted, original = math.nan, math.nan
+        if self.design is not None and math.isfinite(segment.speed):
+            if learned:
+                predicted = self.design.predict_rate(self.written, segment.speed, segment)
+            original = self.design.predict_rate(self.original, segment.speed, segment)
+        self.turns.append(TurnFigures(t_start=segment.t_start, speed=segment.speed, size=segment.size_deg_s,
+                                      gains="learned" if learned else "original", error=segment.error_deg_s(),
+                                      predicted_error=predicted, original_error=original, metric=RATE_ERROR))
 
     def _maybe_judge(self) -> list[Command]:
         after = [t for t in self.turns if t.gains == "learned"]
-        if len(after) < self.config.verify_turns:
+        if len(after) < (self.config.verify_segments if self.by_rate else self.config.verify_turns):
             return []
         speed = sum(t.speed for t in after) / len(after)
         width = self.config.tracking.band_width
         before = [t for t in self.turns if t.gains == "original" and abs(t.speed - speed) <= width * speed]
-        self.verdict = judge_turns(before, after, self.config.verdict)
+        self.verdict = judge_turns(before, after, self.config.verdict, flown_reference=not self.by_rate)
         self.events.append({"type": "verdict", **self.verdict.to_dict()})
         if self.verdict.keep:
             self._set(Phase.KEPT, f"verified: {self.verdict.reason}")
-            return [StatusText(f"LEARN: kept, {self.verdict.after_iae_s:.2f}s vs {self.verdict.before_iae_s:.2f}s"[:50])]
+            return [StatusText(f"LEARN: kept, {self.verdict.after_error:.2f} vs {self.verdict.before_error:.2f}"[:50])]
         self._set(Phase.WAITING_TO_REVERT, self.verdict.reason)
         return [StatusText("LEARN: verification failed, reverting"[:50], 4)]
 

@@ -52,6 +52,6 @@ def test_run_learn_tunes_a_vehicle_flying_its_own_survey(sim_factory, tmp_path):
     design = [w for w in learned["writes"] if w["why"] == "design"]
     assert design and design[0]["time_s"] < 300.0
     verdict = learned["verdict"]
-    assert verdict["after_iae_s"] < 0.8 * verdict["before_iae_s"]
+    assert verdict["after_error"] < 0.8 * verdict["before_error"]
     assert learned["mode_left_s"] < 2.0  # only the first second, before the ground station chose its mode
     assert len(station.sent) >= 10  # the survey was flown throughout

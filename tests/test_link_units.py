@@ -425,3 +425,22 @@ def test_without_an_output_stream_no_snapshot_waits():
     assembler = TelemetryAssembler(SIM)
     snapshots = _stream(assembler, [_attitude(ms) for ms in (1000, 1050, 1100)])
     assert [round(s.time_s * 1000) for s in snapshots] == [1000, 1050, 1100]
+
+
+def test_every_message_the_snapshot_reads_reaches_it():
+    """The feed subscribes the transport to each message the assembler has a handler for (a message
+    left out is silently never seen: PID_TUNING's turn rates were NaN on ArduRover)."""
+    from companion.link.telemetry import TELEMETRY_TYPES
+
+    handled = TelemetryAssembler(ARDUROVER).message_types - {"ATTITUDE", "HEARTBEAT"}
+    assert handled <= set(TELEMETRY_TYPES)
+
+
+def test_the_steering_loops_pid_tuning_is_read_as_turn_rates():
+    assembler = TelemetryAssembler(ARDUROVER)
+    steer = mavlink.MAVLink_pid_tuning_message(5, 12.0, 9.0, 0.1, 0.02, 0.0, 0.0, 0.0, 0.0)
+    roll = mavlink.MAVLink_pid_tuning_message(1, 50.0, 40.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    assembler.take(steer)
+    assembler.take(roll)  # another loop's message changes nothing
+    assert assembler._fields["turn_rate_target"] == pytest.approx(math.radians(12.0))
+    assert assembler._fields["turn_rate_achieved"] == pytest.approx(math.radians(9.0))

@@ -91,6 +91,12 @@ class AutopilotProfile:
     vehicle_kind: str = "any"
     # NAV_CONTROLLER_OUTPUT.target_bearing is the heading set-point the holding mode holds (our simulator)
     reports_heading_target: bool = False
+    # how learning during missions verifies gains (``behaviors.mission_learning``): "course_changes"
+    # (heading set-point jumps as steps) or "turn_rate" (the rate loop's tracking of the turn rate the
+    # navigation asks for, from PID_TUNING: ArduRover in AUTO)
+    learning_verification: Literal["course_changes", "turn_rate"] = "course_changes"
+    # the parameter whose bit 0 makes the autopilot send its steering loop's PID_TUNING (None: none)
+    pid_tuning_mask: str | None = None
     # how the actuator read-back behaves between samples, for the identifier's input filter:
     # "foh" a physical deflection (our simulator reports the rudder itself), "zoh" an output held
     # from one control loop to the next (ArduPilot reports its commanded output)

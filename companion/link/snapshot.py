@@ -31,6 +31,9 @@ STANDARD_GRAVITY = 9.80665
 SEA_LEVEL_PRESSURE_HPA = 1013.25
 
 
+#: PID_TUNING_AXIS of a rover's steering rate loop (MAVLink common)
+PID_TUNING_STEER = 5
+
 @dataclass(frozen=True)
 class DepthSensor:
     """Pressure → depth: ``depth = (press_abs − surface_hpa)·100 / (ρ·g)`` (PROTOCOL.md)."""
@@ -93,6 +96,7 @@ class TelemetryAssembler:
             "SCALED_PRESSURE": self._on_scaled_pressure,
             "GLOBAL_POSITION_INT": self._on_global_position_int,
             "NAV_CONTROLLER_OUTPUT": self._on_nav_controller_output,
+            "PID_TUNING": self._on_pid_tuning,
             "HEARTBEAT": self._on_heartbeat,
         }
 
@@ -267,6 +271,15 @@ class TelemetryAssembler:
         if self.profile.reports_heading_target:
             bearing = self._number(msg, "target_bearing")
             self._fields["heading_target"] = wrap_pi(math.radians(bearing)) if math.isfinite(bearing) else math.nan
+        self._fields["cross_track"] = self._number(msg, "xtrack_error")
+
+    def _on_pid_tuning(self, msg: Any) -> None:
+        """The steering rate loop's asked-for and measured turn rates (PID_TUNING axis STEER, deg/s)."""
+        if int(getattr(msg, "axis", 0)) != PID_TUNING_STEER:
+            return
+        desired, achieved = self._number(msg, "desired"), self._number(msg, "achieved")
+        self._fields["turn_rate_target"] = math.radians(desired) if math.isfinite(desired) else math.nan
+        self._fields["turn_rate_achieved"] = math.radians(achieved) if math.isfinite(achieved) else math.nan
 
     def _on_scaled_pressure(self, msg: Any) -> None:
         if not self.profile.depth_from_pressure:

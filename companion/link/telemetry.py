@@ -35,7 +35,7 @@ REORDER_HOLD_MAX_MS = 250.0
 #: ... and no longer after this many samples in a row arrived in order (the link recovered)
 REORDER_CALM_SAMPLES = 400
 TELEMETRY_TYPES = ("SERVO_OUTPUT_RAW", "LOCAL_POSITION_NED", "VFR_HUD", "SCALED_PRESSURE", "GLOBAL_POSITION_INT",
-                   "NAV_CONTROLLER_OUTPUT")
+                   "NAV_CONTROLLER_OUTPUT", "PID_TUNING")
 
 
 class TelemetryFeed:

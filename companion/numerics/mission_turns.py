@@ -1,4 +1,5 @@
-"""A mission's own course changes as heading steps, and the verdict on learned gains (eq. L.2). Pure.
+"""A mission's own course changes as heading steps, or its turn-rate requests as segments, and the
+verdict on learned gains (eq. L.2). Pure.
 
 **Turns.** A turn starts when the heading set-point the autopilot reports jumps by at least
 ``min_step_deg`` within one sample; it is complete after ``turn_s`` seconds without another jump
@@ -7,12 +8,20 @@
 integrated absolute error normalised by the change (``iae_s``, seconds), from the set-point before
 the jump to the one after.
 
+**Turn-rate segments** (a navigation that asks the rate loop for a turn rate: ArduRover in AUTO).
+Consecutive ``window_s`` windows of the asked-for and the measured turn rate; a window whose
+asked-for rate has an RMS of at least ``min_rate_deg_s`` is a segment, its figure the RMS of the
+tracking error (deg/s). Its prediction replays the asked-for rate through the rate loop on the model
+(``simulate_rate_tracking``).
+
 **eq. L.2: the verdict.** The learned gains are judged on ``after`` (turns flown on them) against
 ``before`` (turns flown on the original gains in the same speed band) and their prediction:
 
 * *not worse*: mean flown IAE after ≤ mean flown IAE before (without turns before, the original
-  gains' predicted IAE at the same changes stands in, said in the reason);
-* *as predicted*: the mean flown IAE after within ``iae_tolerance`` (relative) of its prediction,
+  gains' predicted IAE at the same changes stands in, said in the reason); for turn-rate segments the
+  original gains' replay on the same asked-for rates is the reference (other legs ask for other
+  rates: a lane-end turn asks for more than any rudder gives, a straight for almost nothing);
+* *as predicted*: the mean flown figure after within ``error_tolerance`` (relative) of its prediction,
   and the worst flown overshoot at most ``overshoot_margin_pct`` points above the worst predicted.
 
 Either failing reverts, with the figure that failed.
@@ -30,20 +39,26 @@ from .angles import wrap_pi
 from .step_response import step_metrics
 
 
+#: the figure of merit of a course change (IAE/|Δψ|) and of a turn-rate segment (RMS tracking error)
+STEP_ERROR, RATE_ERROR = "step error s", "turn-rate error deg/s"
+
+
 @dataclass(frozen=True)
 class TurnFigures:
-    """One flown turn: when, at what speed, how large, on which gains, and what it scored (flown, and
-    predicted for the gains flown and for the original gains when a prediction was made)."""
+    """One flown turn (a course change, or a turn-rate segment): when, at what speed, how large (deg,
+    or the asked-for rate's RMS in deg/s), on which gains, and its figure of merit (``metric``):
+    flown, predicted for the gains flown, and predicted for the original gains."""
 
     t_start: float
     speed: float
-    step_deg: float
+    size: float
     gains: str  # "original" or "learned"
-    iae_s: float
-    overshoot_pct: float
-    predicted_iae_s: float = math.nan
+    error: float
+    overshoot_pct: float = math.nan  # a course change's only
+    predicted_error: float = math.nan
     predicted_overshoot_pct: float = math.nan
-    original_iae_s: float = math.nan  # the original gains' predicted IAE for this change
+    original_error: float = math.nan
+    metric: str = STEP_ERROR
 
     def to_dict(self) -> dict:
         return {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in self.__dict__.items()}
@@ -132,16 +147,71 @@ class TurnRecorder:
 
 
 @dataclass(frozen=True)
+class FlownSegment:
+    """A turn-rate segment's samples (rad/s): times, asked-for and measured turn rate, mean speed."""
+
+    t_start: float
+    times: np.ndarray
+    desired: np.ndarray
+    achieved: np.ndarray
+    speed: float
+
+    @property
+    def size_deg_s(self) -> float:
+        return math.degrees(float(np.sqrt(np.mean(self.desired ** 2))))
+
+    def error_deg_s(self, achieved: np.ndarray | None = None) -> float:
+        """RMS of asked-for minus measured (or ``achieved``, a prediction) turn rate, deg/s."""
+        got = self.achieved if achieved is None else achieved
+        return math.degrees(float(np.sqrt(np.mean((self.desired - got) ** 2))))
+
+
+class RateSegmentRecorder:
+    """Streams (time, asked-for rate, measured rate, speed); :meth:`add` returns a
+    :class:`FlownSegment` when a window with enough asked-for turning closes (module docstring)."""
+
+    def __init__(self, window_s: float = 20.0, min_rate_deg_s: float = 2.0, max_gap_s: float = 1.0) -> None:
+        if not (window_s > 0 and min_rate_deg_s > 0 and max_gap_s > 0):
+            raise ValueError("RateSegmentRecorder needs a positive window, rate and gap")
+        self.window_s, self.min_rate, self.max_gap_s = window_s, math.radians(min_rate_deg_s), max_gap_s
+        self._rows: list[tuple[float, float, float, float]] = []
+        self.interrupted = 0
+
+    @property
+    def turning(self) -> bool:
+        return bool(self._rows)
+
+    def discard(self) -> None:
+        if self._rows:
+            self.interrupted += 1
+        self._rows = []
+
+    def add(self, t: float, desired: float, achieved: float, speed: float) -> FlownSegment | None:
+        if not all(math.isfinite(v) for v in (t, desired, achieved)):
+            self._rows = []
+            return None
+        if self._rows and t - self._rows[-1][0] > self.max_gap_s:
+            self._rows = []
+        self._rows.append((t, desired, achieved, speed))
+        if t - self._rows[0][0] < self.window_s:
+            return None
+        rows, self._rows = np.asarray(self._rows), []
+        segment = FlownSegment(float(rows[0, 0]), rows[:, 0], rows[:, 1], rows[:, 2],
+                               float(np.nanmean(rows[:, 3])) if np.isfinite(rows[:, 3]).any() else math.nan)
+        return segment if math.radians(segment.size_deg_s) >= self.min_rate else None
+
+
+@dataclass(frozen=True)
 class VerdictConfig:
     """eq. L.2's tolerances: the prediction's overshoot margin (points, the profile's measured
     margin) and its relative IAE tolerance."""
 
     overshoot_margin_pct: float = 3.0
-    iae_tolerance: float = 0.3
+    error_tolerance: float = 0.3
 
     def __post_init__(self) -> None:
         require_non_negative(self, "overshoot_margin_pct")
-        require_positive(self, "iae_tolerance")
+        require_positive(self, "error_tolerance")
 
 
 @dataclass(frozen=True)
@@ -150,13 +220,14 @@ class TurnVerdict:
 
     keep: bool
     reason: str
-    before_iae_s: float
-    after_iae_s: float
-    predicted_iae_s: float
+    before_error: float
+    after_error: float
+    predicted_error: float
     after_overshoot_pct: float
     predicted_overshoot_pct: float
     turns_before: int
     turns_after: int
+    metric: str = STEP_ERROR
 
     def to_dict(self) -> dict:
         return {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in self.__dict__.items()}
@@ -167,30 +238,39 @@ def _mean(values: Sequence[float]) -> float:
     return float(np.mean(finite)) if finite else math.nan
 
 
-def judge_turns(before: Sequence[TurnFigures], after: Sequence[TurnFigures], config: VerdictConfig) -> TurnVerdict:
-    """eq. L.2 (module docstring); ValueError without a turn after."""
+def judge_turns(before: Sequence[TurnFigures], after: Sequence[TurnFigures], config: VerdictConfig,
+                *, flown_reference: bool = True) -> TurnVerdict:
+    """eq. L.2 (module docstring); ValueError without a turn after. ``flown_reference`` False: the
+    original gains are judged by their prediction on the very turns flown after (turn-rate segments:
+    a navigation asks for other turn rates on other legs, so earlier segments are no like-for-like
+    reference)."""
     if not after:
         raise ValueError("no turn flown on the learned gains")
-    after_iae = _mean([t.iae_s for t in after])
-    predicted = _mean([t.predicted_iae_s for t in after])
-    worst_after = max(t.overshoot_pct for t in after)
+    unit = "s" if after[0].metric == STEP_ERROR else "deg/s"
+    name = "step error" if after[0].metric == STEP_ERROR else "turn-rate error"
+    after_error = _mean([t.error for t in after])
+    predicted = _mean([t.predicted_error for t in after])
+    worst_after = max((t.overshoot_pct for t in after if math.isfinite(t.overshoot_pct)), default=math.nan)
     worst_predicted = max((t.predicted_overshoot_pct for t in after if math.isfinite(t.predicted_overshoot_pct)),
                           default=math.nan)
-    if before:
-        reference, source = _mean([t.iae_s for t in before]), f"{len(before)} turns flown on the original gains"
+    if before and flown_reference:
+        reference, source = _mean([t.error for t in before]), f"{len(before)} flown on the original gains"
+    elif not flown_reference:
+        reference = _mean([t.original_error for t in after])
+        source = "the original gains replayed on the same turn rates"
     else:
-        reference, source = _mean([t.original_iae_s for t in after]), "the original gains' prediction (no turn before)"
-    figures = dict(before_iae_s=reference, after_iae_s=after_iae, predicted_iae_s=predicted,
+        reference, source = _mean([t.original_error for t in after]), "the original gains' prediction (none flown before)"
+    figures = dict(before_error=reference, after_error=after_error, predicted_error=predicted,
                    after_overshoot_pct=worst_after, predicted_overshoot_pct=worst_predicted,
-                   turns_before=len(before), turns_after=len(after))
-    if not after_iae <= reference:
-        return TurnVerdict(False, f"worse than the original gains: step error {after_iae:.2f} s against "
-                                  f"{reference:.2f} s ({source})", **figures)
-    if math.isfinite(predicted) and abs(after_iae - predicted) > config.iae_tolerance * predicted:
-        return TurnVerdict(False, f"not as predicted: step error {after_iae:.2f} s flown, {predicted:.2f} s "
-                                  f"predicted (tolerance {100 * config.iae_tolerance:.0f} %)", **figures)
+                   turns_before=len(before), turns_after=len(after), metric=after[0].metric)
+    if not after_error <= reference:
+        return TurnVerdict(False, f"worse than the original gains: {name} {after_error:.2f} {unit} against "
+                                  f"{reference:.2f} {unit} ({source})", **figures)
+    if math.isfinite(predicted) and abs(after_error - predicted) > config.error_tolerance * predicted:
+        return TurnVerdict(False, f"not as predicted: {name} {after_error:.2f} {unit} flown, {predicted:.2f} {unit} "
+                                  f"predicted (tolerance {100 * config.error_tolerance:.0f} %)", **figures)
     if math.isfinite(worst_predicted) and worst_after > worst_predicted + config.overshoot_margin_pct:
         return TurnVerdict(False, f"not as predicted: overshoot {worst_after:.1f} % flown, {worst_predicted:.1f} % "
                                   f"predicted (margin {config.overshoot_margin_pct:.1f} points)", **figures)
-    return TurnVerdict(True, f"step error {after_iae:.2f} s against {reference:.2f} s ({source}); predicted "
-                             f"{predicted:.2f} s", **figures)
+    return TurnVerdict(True, f"{name} {after_error:.2f} {unit} against {reference:.2f} {unit} ({source}); "
+                             f"predicted {predicted:.2f} {unit}", **figures)

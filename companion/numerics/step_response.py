@@ -164,6 +164,42 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
     return times, heading, peak
 
 
+def simulate_rate_tracking(plant: RudderPlant, gains: dict[str, float], times: Sequence[float],
+                           desired: Sequence[float], yaw_rate0: float, *, full_scale: float = 0.5236,
+                           output_scale: float = 1.0, rate_imax: float = 1.0, dt: float = 0.01,
+                           **_limits: float) -> np.ndarray:
+    """The turn rate (rad/s, at ``times``) of eq. A.2's rate loop alone on the model, asked for the
+    recorded ``desired`` turn rate (held between samples), from ``yaw_rate0`` with the integrator at
+    the rudder's trim: what the rate loop with ``gains`` makes of the turns a navigation asked for
+    (the angle loop's limits, ``_limits``, do not act here)."""
+    t = np.asarray(times, dtype=float)
+    wanted = np.asarray(desired, dtype=float)
+    rate_p, rate_i = gains.get("heading_rate_p", 0.0), gains.get("heading_rate_i", 0.0)
+    rate_ff, rate_imax = gains.get("heading_rate_ff", 0.0), gains.get("heading_rate_imax", rate_imax)
+    integral = min(max(plant.delta0 / (full_scale * output_scale), -rate_imax), rate_imax)
+    max_step = plant.rudder_rate * dt if math.isfinite(plant.rudder_rate) else math.inf
+    r, delta = yaw_rate0, plant.delta0
+    out = np.empty(t.size)
+    if t.size == 0:
+        return out
+    out[0] = r
+    for k in range(1, t.size):
+        demand_rate = wanted[k - 1] if math.isfinite(wanted[k - 1]) else 0.0
+        steps = max(1, int(round((t[k] - t[k - 1]) / dt)))
+        h = (t[k] - t[k - 1]) / steps
+        for _ in range(steps):
+            rate_error = demand_rate - r
+            output = output_scale * (rate_ff * demand_rate + rate_p * rate_error + integral)
+            if abs(output) < 1.0 or (rate_i * rate_error) * output <= 0.0:
+                integral = min(max(integral + rate_i * rate_error * h, -rate_imax), rate_imax)
+            output = output_scale * (rate_ff * demand_rate + rate_p * rate_error + integral)
+            delta = _slew(delta, min(max(output, -1.0), 1.0) * full_scale, plant.rudder_max,
+                          max_step * h / dt if math.isfinite(max_step) else math.inf)
+            r += (plant.a22 * r + plant.b2 * (delta - plant.delta0)) * h
+        out[k] = r
+    return out
+
+
 def predict_step(plant: RudderPlant, controller: str, gains: dict[str, float], step: float,
                  duration_s: float = 30.0, **limits) -> dict:
     """The figures of merit (:func:`step_metrics`) of a step flown on the model, and whether the

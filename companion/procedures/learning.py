@@ -7,9 +7,12 @@ gains, its writes through the link and its records in the store.
   ArduPilot's cascade) with the limits read from the vehicle, the original gains a candidate. The
   schedule kind's fit over the validated bands gives the gains at a speed (one band: the same gains
   at every speed); the prediction for any gains at a speed is the step on the schedule's model there.
-* **Which gains**: the heading kind's scheduled gains, never its trims. On ArduRover in AUTO the
-  navigation controller commands a turn rate, so the rate loop's FF/P/I carry the turns; the
-  cascade's angle P is written with them but only acts in the modes that hold a heading (GUIDED).
+* **Which gains, verified how**: the heading kind's scheduled gains, never its trims. On ArduRover in
+  AUTO the navigation controller asks for a turn rate, so the rate loop's FF/P/I carry the turns: they
+  are verified by how the rate loop tracks the turn rates the navigation asks for (PID_TUNING, the
+  profile's ``learning_verification = "turn_rate"``; its ``pid_tuning_mask`` parameter gets bit 0 for
+  the session and its own value back at the end). The cascade's angle P is written with them but
+  only acts in the modes that hold a heading (GUIDED).
 * **Records**: one campaign of kind ``learning`` per session. Its restore point (the original
   gains) is stored as a trail before the first write and every write is recorded before it is sent
   (:class:`companion.procedures.trail.TrailRecorder`), so a ``kill -9`` mid-learning is followed by
@@ -30,7 +33,8 @@ from behaviors.gain_scheduling import ScheduleKind
 from behaviors.mission_learning import DesignOutcome, LearningConfig, LearningResult, MissionLearner, Phase
 from companion.interface import Command, SetParameters
 from companion.numerics.identification import YawModel
-from companion.numerics.step_response import predict_step
+from companion.numerics.mission_turns import FlownSegment
+from companion.numerics.step_response import predict_step, simulate_rate_tracking
 from companion.procedures.campaign import CampaignConfig
 from companion.procedures.heading_design import choose_heading_design, optimisable, step_case, with_design
 from companion.procedures.restore import RestorePoint
@@ -75,6 +79,15 @@ class ScheduledDesign:
         case = step_case(CONTROLLERS[self.kind.name], self.schedule.model_at(speed), speed, self.limits)
         metrics = predict_step(case.plant, case.controller, dict(gains), step, PREDICTED_S, **case.limits)
         return float(metrics["iae_s"]), float(metrics["overshoot_pct"])
+
+    def predict_rate(self, gains: dict[str, float], speed: float, segment: FlownSegment) -> float:
+        """The rate loop with ``gains`` asked for the segment's turn rates on the model at its speed."""
+        low, high = self.schedule.speed_range
+        speed = min(max(speed, low), high)
+        case = step_case(CONTROLLERS[self.kind.name], self.schedule.model_at(speed), speed, self.limits)
+        achieved = simulate_rate_tracking(case.plant, dict(gains), segment.times, segment.desired,
+                                          float(segment.achieved[0]), **case.limits)
+        return segment.error_deg_s(achieved)
 
 
 class HeadingDesigner:
@@ -121,6 +134,7 @@ class LearningSession:
         self.recorder: TrailRecorder | None = None
         self.restore: RestorePoint | None = None
         self.result: LearningResult | None = None
+        self.mask: tuple[str, float] | None = None  # (neutral name, value found) of the PID_TUNING mask
 
     def start(self) -> str | None:
         """Read the original gains and open the records; the reason when learning cannot run."""
@@ -129,7 +143,8 @@ class LearningSession:
             return f"no model of this autopilot's heading controller to design with ({kind.name if kind else 'none'})"
         profile = self.link.profile
         limit_names = tuple(name for name in LIMIT_PARAMETERS if name in profile.params)
-        self.restore = RestorePoint.capture(self.link, Footprint.of(parameters=kind.scheduled + limit_names))
+        mask = (profile.pid_tuning_mask,) if profile.pid_tuning_mask in profile.params else ()
+        self.restore = RestorePoint.capture(self.link, Footprint.of(parameters=kind.scheduled + limit_names + mask))
         values = self.restore.parameters
         original = {name: values[name] for name in kind.scheduled if name in values}
         if len(original) != len(kind.scheduled):
@@ -139,7 +154,7 @@ class LearningSession:
                                             output_scale_base=self.campaign.cascade.output_scale_base
                                             if kind.name == "cascade" else None)
         margin = getattr(profile, "prediction_margin_pct", None)
-        config = self.config
+        config = replace(self.config, verification=profile.learning_verification)
         if margin is not None:  # the prediction's measured margin on this autopilot (eq. L.2)
             config = replace(config, verdict=replace(config.verdict, overshoot_margin_pct=float(margin)))
         self.learner = MissionLearner(HeadingDesigner(self.campaign, kind, original, limits), original, config)
@@ -147,6 +162,9 @@ class LearningSession:
             "original": original, "modes": list(config.modes), "heading_kind": kind.name})
         self.trail_id = self.store.save_restore_point(self.campaign_id, self.restore.as_json(), vehicle_identity(self.link))
         self.recorder = TrailRecorder(self.store, self.trail_id, self.link)
+        if mask and mask[0] in values:  # the steering loop's PID_TUNING, for the turn-rate verification
+            self.mask = (mask[0], values[mask[0]])
+            self._send([SetParameters({mask[0]: float(int(values[mask[0]]) | 1)})])
         self.link.status_text(f"LEARN: on, original {kind.name} gains recorded"[:50])
         log.info("learning on: original gains %s, limits %s", original, limits)
         return None
@@ -207,6 +225,14 @@ class LearningSession:
         if self.learner is None:
             return self.result
         learner = self.learner
+        if self.mask is not None:
+            try:
+                self._send([SetParameters({self.mask[0]: self.mask[1]})])
+                self.mask = None
+            except Exception as exc:  # noqa: BLE001 - the trail stays open: `companion recover` finishes it
+                log.error("learning: %s could not be written back: %s", self.mask[0], exc)
+                self._close(learner, "failed", f"{self.mask[0]} could not be written back: {exc}", close_trail=False)
+                return self.result
         if learner.written is not None and learner.phase is not Phase.KEPT:
             try:
                 self._send([SetParameters(dict(learner.original))])

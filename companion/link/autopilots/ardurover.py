@@ -60,6 +60,8 @@ PROFILE = AutopilotProfile(
         "system_id": "MAV_SYSID",
         # read, never written: the heading design and its predicted steps (eq. A.2)
         "turn_accel_max": "ATC_STR_ACC_MAX", "steering_scale_speed": "MOT_SPD_SCA_BASE",
+        # bit 0 sends the steering loop's PID_TUNING (learning during missions; restored after)
+        "pid_tuning_mask": "GCS_PID_MASK",
     },
     aliases={"gcs_sysid": ("SYSID_MYGCS",), "system_id": ("SYSID_THISMAV",)},
     native_scales={"cruise_thrust": NativeScale(scale=100.0)},  # CRUISE_THROTTLE is percent
@@ -72,6 +74,9 @@ PROFILE = AutopilotProfile(
     flown=True,  # campaign, gain check and restores run against ArduRover 4.7 SITL (tests/test_ardupilot_rover.py)
     heading_schedule="cascade",
     strategy="ardurover",
+    # in AUTO the navigation asks the rate loop for a turn rate: learning verifies its tracking
+    learning_verification="turn_rate",
+    pid_tuning_mask="pid_tuning_mask",
     water_speed_sensor=False,
     depth_from_pressure=False,
     vehicle_kind="surface",
@@ -91,7 +96,9 @@ PROFILE = AutopilotProfile(
 #: physics step applies: a zero-order hold for the identifier (``actuator_hold``). Pairing with the
 #: previous message instead scattered a22 and b2 by ±5 %, and same-loop pairing with a first-order
 #: hold biased them by −13 % (measured on SITL).
-STREAMS = {30: 25.0, 36: 25.0, 32: 10.0, 33: 10.0, 74: 10.0}
+#: PID_TUNING (the steering loop, once GCS_PID_MASK asks for it) and NAV_CONTROLLER_OUTPUT (cross-track)
+#: for learning during missions.
+STREAMS = {30: 25.0, 36: 25.0, 32: 10.0, 33: 10.0, 74: 10.0, 194: 25.0, 62: 5.0}
 
 
 class Strategy(ArduPilotStrategy):

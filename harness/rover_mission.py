@@ -1,0 +1,200 @@
+"""An ordinary survey on a real autopilot: a lawnmower of waypoints uploaded with the MAVLink mission
+protocol and flown in AUTO, by a ground station of its own (pymavlink, its own serial port), the
+way an operator's planner does it. For the benches and SITL tests of ``companion run --learn``.
+
+* :func:`lawnmower` — ``lanes`` lanes of ``lane_m`` metres, ``spacing_m`` apart, north and back,
+  starting ``start_m`` north of home: (north, east) offsets in metres.
+* :func:`upload_mission` — MISSION_COUNT, then a MISSION_ITEM_INT per MISSION_REQUEST(_INT), until
+  MISSION_ACK (item 0 is home, as ArduPilot numbers a mission).
+* :class:`MissionGroundStation` — connects, sets parameters, uploads, arms, switches to AUTO and
+  records what the vehicle says (mode, position, the current waypoint) until stopped, in a thread.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+from harness.mavlink_clients import connect_client
+
+log = logging.getLogger(__name__)
+
+EARTH_RADIUS_M = 6378137.0
+MAV_CMD_NAV_WAYPOINT = 16
+MAV_CMD_COMPONENT_ARM_DISARM = 400
+MAV_CMD_DO_SET_MODE = 176
+MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
+MAV_MISSION_ACCEPTED = 0
+ROVER_AUTO = 10
+
+
+def lawnmower(lanes: int = 8, lane_m: float = 120.0, spacing_m: float = 20.0, start_m: float = 10.0
+              ) -> list[tuple[float, float]]:
+    """The survey's waypoints as (north, east) metres from home (module docstring)."""
+    if lanes < 1 or lane_m <= 0 or spacing_m <= 0:
+        raise ValueError("a lawnmower needs at least one lane of positive length and spacing")
+    points = []
+    for lane in range(lanes):
+        east = lane * spacing_m
+        ends = (start_m, start_m + lane_m) if lane % 2 == 0 else (start_m + lane_m, start_m)
+        points += [(ends[0], east), (ends[1], east)]
+    return points
+
+
+def offset(lat: float, lon: float, north: float, east: float) -> tuple[float, float]:
+    """The position ``north``/``east`` metres from (lat, lon), degrees (flat earth: a survey's size)."""
+    dlat = math.degrees(north / EARTH_RADIUS_M)
+    dlon = math.degrees(east / (EARTH_RADIUS_M * math.cos(math.radians(lat))))
+    return lat + dlat, lon + dlon
+
+
+def upload_mission(conn, home: tuple[float, float], points: list[tuple[float, float]], timeout_s: float = 30.0) -> None:
+    """The waypoints (module docstring); RuntimeError when the vehicle does not accept them."""
+    items = [home] + [offset(home[0], home[1], n, e) for n, e in points]
+    conn.mav.mission_count_send(1, 1, len(items), 0)
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        msg = conn.recv_match(type=["MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"], blocking=True, timeout=1.0)
+        if msg is None:
+            continue
+        if msg.get_type() == "MISSION_ACK":
+            if msg.type != MAV_MISSION_ACCEPTED:
+                raise RuntimeError(f"the vehicle refused the mission (MISSION_ACK type {msg.type})")
+            return
+        seq = msg.seq
+        lat, lon = items[seq]
+        conn.mav.mission_item_int_send(1, 1, seq, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, MAV_CMD_NAV_WAYPOINT,
+                                       0, 1, 0.0, 0.0, 0.0, 0.0, int(round(lat * 1e7)), int(round(lon * 1e7)), 0.0, 0)
+    raise RuntimeError("the mission upload did not finish (no MISSION_ACK)")
+
+
+def set_parameter(conn, name: str, value: float, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        conn.mav.param_set_send(1, 1, name.encode(), float(value), 9)
+        msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
+        if msg is not None and msg.param_id == name and abs(msg.param_value - value) <= 1e-4 * max(1.0, abs(value)):
+            return
+    raise RuntimeError(f"{name} was never echoed as {value:g}")
+
+
+@dataclass
+class MissionTrack:
+    """What the ground station saw: (vehicle s, mode number) changes, (vehicle s, north m, east m)
+    positions, (vehicle s, waypoint) changes."""
+
+    modes: list[tuple[float, int]] = field(default_factory=list)
+    positions: list[tuple[float, float, float]] = field(default_factory=list)
+    waypoints: list[tuple[float, int]] = field(default_factory=list)
+    cross_track: list[tuple[float, float]] = field(default_factory=list)  # (vehicle s, m) NAV_CONTROLLER_OUTPUT
+    turn_rates: list[tuple[float, float, float]] = field(default_factory=list)  # (vehicle s, asked, got) deg/s
+
+    def legs(self, trim: float = 0.25) -> list[dict]:
+        """Each lane (a leg to an even waypoint: north or south), its middle (``trim`` cut from each
+        end, the turns out): start and end vehicle time, cross-track RMS (m) and turn-rate error RMS
+        (deg/s, where PID_TUNING was sent)."""
+        out = []
+        for (t0, seq), (t1, _next) in zip(self.waypoints, self.waypoints[1:]):
+            if seq < 2 or seq % 2:
+                continue
+            a, b = t0 + trim * (t1 - t0), t1 - trim * (t1 - t0)
+            xt = [x for t, x in self.cross_track if a <= t <= b]
+            rates = [(d - g) for t, d, g in self.turn_rates if a <= t <= b]
+            out.append({"waypoint": seq, "start_s": t0, "end_s": t1,
+                        "cross_track_rms_m": math.sqrt(sum(x * x for x in xt) / len(xt)) if xt else math.nan,
+                        "turn_rate_error_rms_deg_s": math.sqrt(sum(e * e for e in rates) / len(rates)) if rates else math.nan})
+        return out
+
+
+class MissionGroundStation:
+    """Upload ``points`` and fly them in AUTO (module docstring); ``track`` holds what it saw."""
+
+    def __init__(self, endpoint: str, points: list[tuple[float, float]], params: dict[str, float] | None = None,
+                 *, source_system: int = 255) -> None:
+        self.endpoint, self.points, self.params = endpoint, points, dict(params or {})
+        self.source_system = source_system
+        self.track = MissionTrack()
+        self.home: tuple[float, float] | None = None
+        self.error: BaseException | None = None
+        self.done_at_s = math.nan  # vehicle time the last waypoint was reached
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.conn = None
+
+    def command(self, command: int, *params: float) -> None:
+        values = list(params) + [0.0] * (7 - len(params))
+        self.conn.mav.command_long_send(1, 1, command, 0, *values)
+
+    def start(self, timeout_s: float = 120.0) -> "MissionGroundStation":
+        self.conn = connect_client(self.endpoint, source_system=self.source_system, timeout=timeout_s)
+        self.conn.mav.request_data_stream_send(1, 1, 0, 5, 1)  # every stream at 5 Hz for this port
+        for name, value in self.params.items():
+            set_parameter(self.conn, name, value)
+        deadline = time.monotonic() + timeout_s
+        while self.home is None and time.monotonic() < deadline:
+            msg = self.conn.recv_match(type="GLOBAL_POSITION_INT", blocking=True, timeout=1.0)
+            if msg is not None and msg.lat != 0:
+                self.home = (msg.lat / 1e7, msg.lon / 1e7)
+        if self.home is None:
+            raise RuntimeError("no position from the vehicle")
+        upload_mission(self.conn, self.home, self.points)
+        armed = False
+        while not armed and time.monotonic() < deadline:
+            self.command(MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+            msg = self.conn.recv_match(type="HEARTBEAT", blocking=True, timeout=2.0)
+            armed = msg is not None and msg.get_srcComponent() == 1 and bool(msg.base_mode & 128)
+        if not armed:
+            raise RuntimeError("the vehicle would not arm")
+        in_auto = False
+        while not in_auto and time.monotonic() < deadline:  # refused until the EKF has a position
+            self.command(MAV_CMD_DO_SET_MODE, 1.0, ROVER_AUTO)
+            msg = self.conn.recv_match(type="HEARTBEAT", blocking=True, timeout=2.0)
+            in_auto = msg is not None and msg.get_srcComponent() == 1 and msg.custom_mode == ROVER_AUTO
+        if not in_auto:
+            raise RuntimeError("the vehicle would not enter AUTO")
+        self._thread = threading.Thread(target=self._watch, name="mission ground station", daemon=True)
+        self._thread.start()
+        return self
+
+    def _watch(self) -> None:
+        try:
+            lat0, lon0 = self.home
+            while not self._stop.is_set():
+                msg = self.conn.recv_match(type=["HEARTBEAT", "GLOBAL_POSITION_INT", "MISSION_CURRENT",
+                                                 "MISSION_ITEM_REACHED", "NAV_CONTROLLER_OUTPUT", "PID_TUNING"],
+                                           blocking=True, timeout=0.5)
+                if msg is None:
+                    continue
+                kind = msg.get_type()
+                if kind == "GLOBAL_POSITION_INT":
+                    t = msg.time_boot_ms / 1000.0
+                    north = math.radians(msg.lat / 1e7 - lat0) * EARTH_RADIUS_M
+                    east = math.radians(msg.lon / 1e7 - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
+                    self.track.positions.append((t, north, east))
+                elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
+                    t = self.track.positions[-1][0] if self.track.positions else math.nan
+                    if not self.track.modes or self.track.modes[-1][1] != msg.custom_mode:
+                        self.track.modes.append((t, msg.custom_mode))
+                elif kind == "MISSION_CURRENT":
+                    t = self.track.positions[-1][0] if self.track.positions else math.nan
+                    if not self.track.waypoints or self.track.waypoints[-1][1] != msg.seq:
+                        self.track.waypoints.append((t, msg.seq))
+                elif kind == "NAV_CONTROLLER_OUTPUT" and self.track.positions:
+                    self.track.cross_track.append((self.track.positions[-1][0], msg.xtrack_error))
+                elif kind == "PID_TUNING" and msg.axis == 5 and self.track.positions:  # the steering loop
+                    self.track.turn_rates.append((self.track.positions[-1][0], msg.desired, msg.achieved))
+                elif kind == "MISSION_ITEM_REACHED" and msg.seq == len(self.points):
+                    self.done_at_s = self.track.positions[-1][0] if self.track.positions else math.nan
+        except BaseException as exc:  # noqa: BLE001 - said by stop()
+            self.error = exc
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        if self.conn is not None:
+            self.conn.close()
+        if self.error is not None:
+            raise RuntimeError(f"the mission ground station failed: {self.error}") from self.error
