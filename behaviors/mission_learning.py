@@ -40,6 +40,8 @@ from dataclasses import dataclass
 from typing import Callable, Protocol, Sequence
 
 from behaviors.base import Behaviour, Footprint
+import numpy as np
+
 from companion.checks import require_choice, require_positive
 from companion.interface import Command, SetParameters, StatusText, Telemetry
 from companion.numerics.angles import wrap_pi
@@ -55,7 +57,8 @@ log = logging.getLogger(__name__)
 class LearnedDesign(Protocol):
     """What the designer hands over: the gains at a speed, a predicted step under the autopilot's
     controller for any gains (normalised IAE s, overshoot %), and the predicted turn-rate error (RMS
-    deg/s) of its rate loop asked for a flown segment's turn rates."""
+    deg/s) of its rate loop asked for a flown segment's turn rates (``replay``: the turn rates it would
+    achieve) and the steady turn rate the rudder gives at full deflection (``rate_limit``, rad/s)."""
 
     @property
     def summary(self) -> str: ...
@@ -64,7 +67,9 @@ class LearnedDesign(Protocol):
 
     def predict(self, gains: dict[str, float], speed: float, step: float) -> tuple[float, float]: ...
 
-    def predict_rate(self, gains: dict[str, float], speed: float, segment: FlownSegment) -> float: ...
+    def replay(self, gains: dict[str, float], speed: float, segment: FlownSegment) -> np.ndarray: ...
+
+    def rate_limit(self, speed: float) -> float: ...
 
 
 @dataclass(frozen=True)
@@ -100,6 +105,10 @@ class LearningConfig:
     verify_turns: int = 3
     segment_s: float = 20.0  # a turn-rate segment
     min_segment_rate_deg_s: float = 2.0
+    # a segment is judged where it asked for at most this fraction of the rudder's full-deflection
+    # turn rate, and only if that leaves ``min_segment_s`` of it
+    rate_fraction: float = 0.8
+    min_segment_s: float = 5.0
     verify_segments: int = 4
     steady_s: float = 8.0
     max_turn_rate_deg_s: float = 1.5
@@ -348,14 +357,18 @@ class MissionLearner(Behaviour):
 
     def _segment_flown(self, segment: FlownSegment) -> None:
         learned = self.written is not None and segment.t_start >= self.written_at
-        predicted, original = math.nan, math.nan
+        predicted, original, within = math.nan, math.nan, math.inf
         if self.design is not None and math.isfinite(segment.speed):
+            within = self.config.rate_fraction * self.design.rate_limit(segment.speed)
+            if segment.seconds_within(within) < self.config.min_segment_s:
+                return  # a turn the rudder flies at its stop: no gains would change it
             if learned:
-                predicted = self.design.predict_rate(self.written, segment.speed, segment)
-            original = self.design.predict_rate(self.original, segment.speed, segment)
+                predicted = segment.error_deg_s(self.design.replay(self.written, segment.speed, segment), within)
+            original = segment.error_deg_s(self.design.replay(self.original, segment.speed, segment), within)
         self.turns.append(TurnFigures(t_start=segment.t_start, speed=segment.speed, size=segment.size_deg_s,
-                                      gains="learned" if learned else "original", error=segment.error_deg_s(),
-                                      predicted_error=predicted, original_error=original, metric=RATE_ERROR))
+                                      gains="learned" if learned else "original",
+                                      error=segment.error_deg_s(within=within), predicted_error=predicted,
+                                      original_error=original, metric=RATE_ERROR))
 
     def _maybe_judge(self) -> list[Command]:
         after = [t for t in self.turns if t.gains == "learned"]

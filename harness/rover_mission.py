@@ -119,6 +119,7 @@ class MissionGroundStation:
         self.home: tuple[float, float] | None = None
         self.error: BaseException | None = None
         self.done_at_s = math.nan  # vehicle time the last waypoint was reached
+        self.now_s = math.nan  # the vehicle's clock, from the latest message that carries it
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.conn = None
@@ -135,8 +136,10 @@ class MissionGroundStation:
         deadline = time.monotonic() + timeout_s
         while self.home is None and time.monotonic() < deadline:
             msg = self.conn.recv_match(type="GLOBAL_POSITION_INT", blocking=True, timeout=1.0)
-            if msg is not None and msg.lat != 0:
-                self.home = (msg.lat / 1e7, msg.lon / 1e7)
+            if msg is not None:
+                self.now_s = msg.time_boot_ms / 1000.0
+                if msg.lat != 0:
+                    self.home = (msg.lat / 1e7, msg.lon / 1e7)
         if self.home is None:
             raise RuntimeError("no position from the vehicle")
         upload_mission(self.conn, self.home, self.points)
@@ -154,6 +157,7 @@ class MissionGroundStation:
             in_auto = msg is not None and msg.get_srcComponent() == 1 and msg.custom_mode == ROVER_AUTO
         if not in_auto:
             raise RuntimeError("the vehicle would not enter AUTO")
+        self.track.modes.append((self.now_s, ROVER_AUTO))  # the clock of the last position: within 0.2 s
         self._thread = threading.Thread(target=self._watch, name="mission ground station", daemon=True)
         self._thread.start()
         return self
@@ -169,24 +173,24 @@ class MissionGroundStation:
                     continue
                 kind = msg.get_type()
                 if kind == "GLOBAL_POSITION_INT":
-                    t = msg.time_boot_ms / 1000.0
+                    t = self.now_s = msg.time_boot_ms / 1000.0
                     north = math.radians(msg.lat / 1e7 - lat0) * EARTH_RADIUS_M
                     east = math.radians(msg.lon / 1e7 - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
                     self.track.positions.append((t, north, east))
                 elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
-                    t = self.track.positions[-1][0] if self.track.positions else math.nan
+                    t = self.now_s
                     if not self.track.modes or self.track.modes[-1][1] != msg.custom_mode:
                         self.track.modes.append((t, msg.custom_mode))
                 elif kind == "MISSION_CURRENT":
-                    t = self.track.positions[-1][0] if self.track.positions else math.nan
+                    t = self.now_s
                     if not self.track.waypoints or self.track.waypoints[-1][1] != msg.seq:
                         self.track.waypoints.append((t, msg.seq))
-                elif kind == "NAV_CONTROLLER_OUTPUT" and self.track.positions:
-                    self.track.cross_track.append((self.track.positions[-1][0], msg.xtrack_error))
-                elif kind == "PID_TUNING" and msg.axis == 5 and self.track.positions:  # the steering loop
-                    self.track.turn_rates.append((self.track.positions[-1][0], msg.desired, msg.achieved))
+                elif kind == "NAV_CONTROLLER_OUTPUT":
+                    self.track.cross_track.append((self.now_s, msg.xtrack_error))
+                elif kind == "PID_TUNING" and msg.axis == 5:  # the steering loop
+                    self.track.turn_rates.append((self.now_s, msg.desired, msg.achieved))
                 elif kind == "MISSION_ITEM_REACHED" and msg.seq == len(self.points):
-                    self.done_at_s = self.track.positions[-1][0] if self.track.positions else math.nan
+                    self.done_at_s = self.now_s
         except BaseException as exc:  # noqa: BLE001 - said by stop()
             self.error = exc
 

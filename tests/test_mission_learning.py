@@ -307,8 +307,11 @@ def test_the_learner_verifies_turn_rate_tracking_where_the_navigation_asks_for_r
         def predict(self, gains, speed, step):
             return 1.0, 0.0
 
-        def predict_rate(self, gains, speed, segment):
-            return 0.3 if gains.get("heading_rate_ff") == 2.0 else 1.3
+        def replay(self, gains, speed, segment):  # the design predicted as flown, the original 30 % short
+            return (0.93 if gains.get("heading_rate_ff") == 2.0 else 0.7) * segment.desired
+
+        def rate_limit(self, speed):
+            return math.radians(20.0)
 
     learner = MissionLearner(lambda validated: DesignOutcome(Design(), "synthetic"), {"heading_rate_ff": 0.5},
                              LearningConfig(verification="turn_rate", verify_segments=2))

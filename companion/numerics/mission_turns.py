@@ -11,8 +11,11 @@ the jump to the one after.
 **Turn-rate segments** (a navigation that asks the rate loop for a turn rate: ArduRover in AUTO).
 Consecutive ``window_s`` windows of the asked-for and the measured turn rate; a window whose
 asked-for rate has an RMS of at least ``min_rate_deg_s`` is a segment, its figure the RMS of the
-tracking error (deg/s). Its prediction replays the asked-for rate through the rate loop on the model
-(``simulate_rate_tracking``).
+tracking error (deg/s) over the samples that asked for no more than the rudder can give (a
+fraction of the model's steady turn rate at full rudder): beyond it the rudder is at its stop
+whatever the gains, and a lane-end turn asking for 100°/s of a boat that turns at 17°/s would
+otherwise decide the verdict by its saturation alone. Its prediction replays the asked-for rate
+through the rate loop on the model (``simulate_rate_tracking``).
 
 **eq. L.2: the verdict.** The learned gains are judged on ``after`` (turns flown on them) against
 ``before`` (turns flown on the original gains in the same speed band) and their prediction:
@@ -160,10 +163,21 @@ class FlownSegment:
     def size_deg_s(self) -> float:
         return math.degrees(float(np.sqrt(np.mean(self.desired ** 2))))
 
-    def error_deg_s(self, achieved: np.ndarray | None = None) -> float:
-        """RMS of asked-for minus measured (or ``achieved``, a prediction) turn rate, deg/s."""
+    def error_deg_s(self, achieved: np.ndarray | None = None, within: float = math.inf) -> float:
+        """RMS of asked-for minus measured (or ``achieved``, a prediction) turn rate, deg/s, over the
+        samples that asked for at most ``within`` rad/s (NaN when none did)."""
         got = self.achieved if achieved is None else achieved
-        return math.degrees(float(np.sqrt(np.mean((self.desired - got) ** 2))))
+        kept = np.abs(self.desired) <= within
+        if not kept.any():
+            return math.nan
+        return math.degrees(float(np.sqrt(np.mean((self.desired[kept] - got[kept]) ** 2))))
+
+    def seconds_within(self, within: float) -> float:
+        """Vehicle seconds of the segment that asked for at most ``within`` rad/s."""
+        if self.times.size < 2:
+            return 0.0
+        step = float(np.median(np.diff(self.times)))
+        return step * int(np.count_nonzero(np.abs(self.desired) <= within))
 
 
 class RateSegmentRecorder:

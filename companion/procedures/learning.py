@@ -25,8 +25,11 @@ gains, its writes through the link and its records in the store.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, replace
 from typing import Sequence
+
+import numpy as np
 
 from behaviors.base import Footprint
 from behaviors.gain_scheduling import ScheduleKind
@@ -80,14 +83,20 @@ class ScheduledDesign:
         metrics = predict_step(case.plant, case.controller, dict(gains), step, PREDICTED_S, **case.limits)
         return float(metrics["iae_s"]), float(metrics["overshoot_pct"])
 
-    def predict_rate(self, gains: dict[str, float], speed: float, segment: FlownSegment) -> float:
-        """The rate loop with ``gains`` asked for the segment's turn rates on the model at its speed."""
+    def replay(self, gains: dict[str, float], speed: float, segment: FlownSegment) -> np.ndarray:
+        """The turn rates the rate loop with ``gains`` achieves on the model at the segment's speed,
+        asked for the segment's turn rates."""
         low, high = self.schedule.speed_range
         speed = min(max(speed, low), high)
         case = step_case(CONTROLLERS[self.kind.name], self.schedule.model_at(speed), speed, self.limits)
-        achieved = simulate_rate_tracking(case.plant, dict(gains), segment.times, segment.desired,
-                                          float(segment.achieved[0]), **case.limits)
-        return segment.error_deg_s(achieved)
+        return simulate_rate_tracking(case.plant, dict(gains), segment.times, segment.desired,
+                                      float(segment.achieved[0]), **case.limits)
+
+    def rate_limit(self, speed: float) -> float:
+        """The steady turn rate at full rudder on the model at ``speed`` (rad/s): b2·δmax/|a22| (eq. 3.6)."""
+        low, high = self.schedule.speed_range
+        model = self.schedule.model_at(min(max(speed, low), high))
+        return abs(model.b2 * self.limits.rudder_max / model.a22) if model.a22 != 0.0 else math.inf
 
 
 class HeadingDesigner:

@@ -1,0 +1,155 @@
+"""Tuning during an ordinary survey on the real ArduRover firmware: ``companion run --learn`` beside
+ArduPilot SITL flying a lawnmower in AUTO, against the same survey flown on the frame's gains alone.
+
+ArduPilot SITL (built by you; its bin folder in ``ARDUPILOT_SITL_BIN`` or ``--ardupilot-bin``) flies
+our physics through the JSON backend, on loopback: run it inside a private network namespace
+(``unshare -n``, then ``ip link set lo up``). Per hull and repeat, two runs:
+
+* **learning**: ``companion run --learn`` on SITL's serial0, while a ground station of its own
+  (:class:`harness.rover_mission.MissionGroundStation`, SITL's serial1) uploads the survey with the
+  MAVLink mission protocol (8 lanes of 120 m, 20 m apart, WP_SPEED 2), arms and switches to AUTO;
+* **baseline**: the same, with ``companion run`` only watching.
+
+Figures: vehicle time from the mission's start (AUTO) to the design's write and to the verdict,
+the verdict and its figures, reverts, whether the mission ever left AUTO, the mission's time, and
+for each lane (its middle half) flown after the write: cross-track RMS and turn-rate error RMS
+(PID_TUNING, the ground station asks for it with GCS_PID_MASK) against the same lane in the
+baseline. Never pass/fail.
+
+    python bench/bench_learning_ardurover.py --hulls boat,boat-3dof --repeats 3
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from companion.rehearsal.launcher import SimulatorProcess  # noqa: E402
+from companion.records.store import Store  # noqa: E402
+from harness.rover_mission import ROVER_AUTO, MissionGroundStation, lawnmower  # noqa: E402
+
+SITL_SERIAL1_OFFSET = 2  # SITL's serial1 (tcp:2) is its serial0 port + 2, MAVLink 2
+
+
+def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder: Path) -> dict:
+    tag = f"{hull}-{seed}-{'learn' if learn else 'base'}"
+    sim = SimulatorProcess(preset=hull, speedup=speedup, seed=seed, lockstep=False, autopilot="ardurover",
+                           ardupilot_bin=bin_dir, log_path=folder / f"sim-{tag}.log")
+    sim.start()
+    store = folder / f"store-{tag}.sqlite"
+    command = [sys.executable, "-m", "companion", "-v", "run", "--connect", sim.endpoint, "--no-health",
+               "--store", str(store), "--max-vehicle-time", "1500"] + (["--learn"] if learn else ["--no-scheduling"])
+    with open(folder / f"companion-{tag}.log", "w") as output:
+        companion = subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT)
+        station = MissionGroundStation(f"tcp:127.0.0.1:{sim.port + SITL_SERIAL1_OFFSET}", lawnmower(),
+                                       {"WP_SPEED": 2.0, "GCS_PID_MASK": 1})
+        try:
+            deadline = time.monotonic() + 60.0  # SITL opens serial1 once booted, after serial0's client came
+            while True:
+                try:
+                    station.start()
+                    break
+                except ConnectionRefusedError:
+                    if time.monotonic() > deadline:
+                        raise
+                    time.sleep(1.0)
+            deadline = time.monotonic() + 3000.0 / speedup
+            while time.monotonic() < deadline and not math.isfinite(station.done_at_s) and companion.poll() is None:
+                time.sleep(1.0)
+        finally:
+            companion.terminate()
+            companion.wait(timeout=60)
+            station.stop()
+            sim.stop()
+    track = station.track
+    auto_at = next((t for t, mode in track.modes if mode == ROVER_AUTO), math.nan)
+    out = {"hull": hull, "seed": seed, "learn": learn, "mission_s": station.done_at_s - auto_at, "auto_at_s": auto_at,
+           "left_auto": any(mode != ROVER_AUTO for t, mode in track.modes if t > auto_at), "legs": track.legs(),
+           "companion_exit": companion.returncode}
+    with Store(store) as records:
+        campaign = next((c for c in records.campaigns() if c["kind"] == "learning"), None)
+        results = records.behavior_results(campaign["id"], "learning") if campaign else []
+    if results:
+        result = results[0]["result"]
+        writes = result["writes"]
+        design = next((w["time_s"] for w in writes if w["why"] == "design"), math.nan)
+        judged = sorted(t["t_start"] for t in result["turns"] if t["gains"] == "learned")
+        out.update(phase=result["phase"], reason=result["reason"], design_s=design - auto_at,
+                   verified_s=(max(judged) + 20.0 - auto_at) if result["verdict"] else math.nan,
+                   reverts=sum(1 for w in writes if w["why"] == "revert"), verdict=result["verdict"],
+                   written=writes[0]["gains"] if writes else None, write_at=design)
+    return out
+
+
+def _clean(value):
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    return value
+
+
+def compare(learned: dict, baseline: dict) -> list[dict]:
+    """Lanes flown after the write, against the same lanes (by waypoint) in the baseline."""
+    base = {leg["waypoint"]: leg for leg in baseline["legs"]}
+    return [{"waypoint": leg["waypoint"], "learned": leg, "baseline": base.get(leg["waypoint"])}
+            for leg in learned["legs"] if leg["start_s"] >= learned.get("write_at", math.inf)]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--hulls", default="boat,boat-3dof")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--speedup", type=float, default=10.0)
+    parser.add_argument("--ardupilot-bin", default=os.environ.get("ARDUPILOT_SITL_BIN"))
+    parser.add_argument("--json", metavar="FILE", default=None, help="also write every run to FILE")
+    args = parser.parse_args()
+    if not args.ardupilot_bin:
+        parser.error("give --ardupilot-bin or set ARDUPILOT_SITL_BIN (ArduPilot's build/sitl/bin)")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bench-learning-") as name:
+        folder = Path(name)
+        for hull in args.hulls.split(","):
+            for seed in range(1, args.repeats + 1):
+                learned = fly(hull, seed, True, args.speedup, args.ardupilot_bin, folder)
+                baseline = fly(hull, seed, False, args.speedup, args.ardupilot_bin, folder)
+                rows.append({"learned": learned, "baseline": baseline, "lanes": compare(learned, baseline)})
+                print(summary(rows[-1]), flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(_clean(rows), indent=1, allow_nan=False))
+    return 0
+
+
+def summary(row: dict) -> str:
+    lrn, base = row["learned"], row["baseline"]
+    lanes = row["lanes"]
+
+    def mean(values):
+        values = [v for v in values if v is not None and math.isfinite(v)]
+        return sum(values) / len(values) if values else math.nan
+
+    xt_l = mean([lane["learned"]["cross_track_rms_m"] for lane in lanes])
+    xt_b = mean([lane["baseline"]["cross_track_rms_m"] for lane in lanes if lane["baseline"]])
+    tr_l = mean([lane["learned"]["turn_rate_error_rms_deg_s"] for lane in lanes])
+    tr_b = mean([lane["baseline"]["turn_rate_error_rms_deg_s"] for lane in lanes if lane["baseline"]])
+    verdict = lrn.get("verdict") or {}
+    return (f"{lrn['hull']:10} seed {lrn['seed']}: {lrn.get('phase', '-'):9} write {lrn.get('design_s', math.nan):6.1f} s "
+            f"verified {lrn.get('verified_s', math.nan):6.1f} s after AUTO, reverts {lrn.get('reverts', 0)}, "
+            f"left AUTO {lrn['left_auto']}/{base['left_auto']}; lanes after ({len(lanes)}): cross-track "
+            f"{xt_l:.3f}/{xt_b:.3f} m ({xt_l / xt_b:.2f}), turn-rate error {tr_l:.2f}/{tr_b:.2f} deg/s "
+            f"({tr_l / tr_b:.2f}); mission {lrn['mission_s']:.1f}/{base['mission_s']:.1f} s "
+            f"({100 * (lrn['mission_s'] / base['mission_s'] - 1):+.1f} %); verdict: {verdict.get('reason', lrn.get('reason'))}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
