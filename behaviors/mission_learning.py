@@ -140,6 +140,23 @@ class GainWrite:
 
 
 @dataclass(frozen=True)
+class BandSummary:
+    """One speed band as learned: centre speed, windows absorbed, validated, the model, validation R²s."""
+
+    speed: float
+    windows: int
+    validated: bool
+    a22: float
+    b2: float
+    delta0: float
+    validations: tuple[float, ...]
+
+    def to_dict(self) -> dict:
+        return {"speed": self.speed, "windows": self.windows, "validated": self.validated, "a22": self.a22,
+                "b2": self.b2, "delta0": self.delta0, "validations": list(self.validations)}
+
+
+@dataclass(frozen=True)
 class LearningResult:
     """Where learning ended and what it did (the store's record; ``to_dict`` is its JSON)."""
 
@@ -148,7 +165,7 @@ class LearningResult:
     writes: tuple[GainWrite, ...]
     turns: tuple[TurnFigures, ...]
     windows: tuple[WindowOutcome, ...]
-    bands: tuple[dict, ...]
+    bands: tuple[BandSummary, ...]
     verdict: TurnVerdict | None
     design: str
     mode_left_s: float  # vehicle seconds spent outside the learning modes
@@ -161,7 +178,7 @@ class LearningResult:
     def to_dict(self) -> dict:
         return {"phase": self.phase.value, "reason": self.reason, "in_force": self.in_force,
                 "writes": [w.to_dict() for w in self.writes], "turns": [t.to_dict() for t in self.turns],
-                "windows": [w.to_dict() for w in self.windows], "bands": list(self.bands),
+                "windows": [w.to_dict() for w in self.windows], "bands": [b.to_dict() for b in self.bands],
                 "verdict": self.verdict.to_dict() if self.verdict else None, "design": self.design,
                 "mode_left_s": self.mode_left_s}
 
@@ -387,9 +404,9 @@ class MissionLearner(Behaviour):
 
     # ------------------------------------------------------------------ the record
     def result(self) -> LearningResult:
-        bands = tuple({"speed": b.speed, "windows": b.tracker.windows, "validated": b.validated(self.config.tracking),
-                       "a22": b.model().a22, "b2": b.model().b2, "delta0": b.model().delta0,
-                       "validations": [r2 for _, r2 in b.validations]} for b in self.models.bands)
+        bands = tuple(BandSummary(speed=b.speed, windows=b.tracker.windows, validated=b.validated(self.config.tracking),
+                                  a22=(model := b.model()).a22, b2=model.b2, delta0=model.delta0,
+                                  validations=tuple(r2 for _, r2 in b.validations)) for b in self.models.bands)
         return LearningResult(phase=self.phase, reason=self.note, writes=tuple(self.writes), turns=tuple(self.turns),
                               windows=tuple(self.windows), bands=bands, verdict=self.verdict, design=self.design_summary,
                               mode_left_s=self._outside_s)

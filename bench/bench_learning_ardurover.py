@@ -52,18 +52,8 @@ def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder:
         station = MissionGroundStation(f"tcp:127.0.0.1:{sim.port + SITL_SERIAL1_OFFSET}", lawnmower(),
                                        {"WP_SPEED": 2.0, "GCS_PID_MASK": 1})
         try:
-            deadline = time.monotonic() + 60.0  # SITL opens serial1 once booted, after serial0's client came
-            while True:
-                try:
-                    station.start()
-                    break
-                except ConnectionRefusedError:
-                    if time.monotonic() > deadline:
-                        raise
-                    time.sleep(1.0)
-            deadline = time.monotonic() + 3000.0 / speedup
-            while time.monotonic() < deadline and not math.isfinite(station.done_at_s) and companion.poll() is None:
-                time.sleep(1.0)
+            station.start_when_open()
+            station.wait_done(companion, 3000.0 / speedup)
         finally:
             companion.terminate()
             companion.wait(timeout=60)

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
 import time
 from dataclasses import dataclass, field
 
 from harness.mavlink_clients import connect_client
+from harness.station_thread import StationThread
 
 log = logging.getLogger(__name__)
 
@@ -108,25 +108,20 @@ class MissionTrack:
         return out
 
 
-class MissionGroundStation:
+class MissionGroundStation(StationThread):
     """Upload ``points`` and fly them in AUTO (module docstring); ``track`` holds what it saw."""
+
+    what = "mission ground station"
 
     def __init__(self, endpoint: str, points: list[tuple[float, float]], params: dict[str, float] | None = None,
                  *, source_system: int = 255) -> None:
+        super().__init__()
         self.endpoint, self.points, self.params = endpoint, points, dict(params or {})
         self.source_system = source_system
         self.track = MissionTrack()
         self.home: tuple[float, float] | None = None
-        self.error: BaseException | None = None
         self.done_at_s = math.nan  # vehicle time the last waypoint was reached
         self.now_s = math.nan  # the vehicle's clock, from the latest message that carries it
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self.conn = None
-
-    def command(self, command: int, *params: float) -> None:
-        values = list(params) + [0.0] * (7 - len(params))
-        self.conn.mav.command_long_send(1, 1, command, 0, *values)
 
     def start(self, timeout_s: float = 120.0) -> "MissionGroundStation":
         self.conn = connect_client(self.endpoint, source_system=self.source_system, timeout=timeout_s)
@@ -158,47 +153,54 @@ class MissionGroundStation:
         if not in_auto:
             raise RuntimeError("the vehicle would not enter AUTO")
         self.track.modes.append((self.now_s, ROVER_AUTO))  # the clock of the last position: within 0.2 s
-        self._thread = threading.Thread(target=self._watch, name="mission ground station", daemon=True)
-        self._thread.start()
+        self._start_thread()
         return self
 
-    def _watch(self) -> None:
-        try:
-            lat0, lon0 = self.home
-            while not self._stop.is_set():
-                msg = self.conn.recv_match(type=["HEARTBEAT", "GLOBAL_POSITION_INT", "MISSION_CURRENT",
-                                                 "MISSION_ITEM_REACHED", "NAV_CONTROLLER_OUTPUT", "PID_TUNING"],
-                                           blocking=True, timeout=0.5)
-                if msg is None:
-                    continue
-                kind = msg.get_type()
-                if kind == "GLOBAL_POSITION_INT":
-                    t = self.now_s = msg.time_boot_ms / 1000.0
-                    north = math.radians(msg.lat / 1e7 - lat0) * EARTH_RADIUS_M
-                    east = math.radians(msg.lon / 1e7 - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
-                    self.track.positions.append((t, north, east))
-                elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
-                    t = self.now_s
-                    if not self.track.modes or self.track.modes[-1][1] != msg.custom_mode:
-                        self.track.modes.append((t, msg.custom_mode))
-                elif kind == "MISSION_CURRENT":
-                    t = self.now_s
-                    if not self.track.waypoints or self.track.waypoints[-1][1] != msg.seq:
-                        self.track.waypoints.append((t, msg.seq))
-                elif kind == "NAV_CONTROLLER_OUTPUT":
-                    self.track.cross_track.append((self.now_s, msg.xtrack_error))
-                elif kind == "PID_TUNING" and msg.axis == 5:  # the steering loop
-                    self.track.turn_rates.append((self.now_s, msg.desired, msg.achieved))
-                elif kind == "MISSION_ITEM_REACHED" and msg.seq == len(self.points):
-                    self.done_at_s = self.now_s
-        except BaseException as exc:  # noqa: BLE001 - said by stop()
-            self.error = exc
+    def start_when_open(self, patience_s: float = 60.0) -> "MissionGroundStation":
+        """:meth:`start` once the port listens: SITL opens serial1 only after it booted, which it does
+        once serial0's client (the companion) connected."""
+        deadline = time.monotonic() + patience_s
+        while True:
+            try:
+                return self.start()
+            except ConnectionRefusedError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(1.0)
 
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-        if self.conn is not None:
-            self.conn.close()
-        if self.error is not None:
-            raise RuntimeError(f"the mission ground station failed: {self.error}") from self.error
+    def wait_done(self, process, wall_s: float) -> bool:
+        """Wait (wall clock: a process's life, not vehicle logic) until the last waypoint is reached,
+        ``process`` ended or ``wall_s`` passed; whether the survey finished."""
+        deadline = time.monotonic() + wall_s
+        while time.monotonic() < deadline and not math.isfinite(self.done_at_s) and process.poll() is None:
+            time.sleep(1.0)
+        return math.isfinite(self.done_at_s)
+
+    def _run(self) -> None:
+        lat0, lon0 = self.home
+        while not self._stop.is_set():
+            msg = self.conn.recv_match(type=["HEARTBEAT", "GLOBAL_POSITION_INT", "MISSION_CURRENT",
+                                             "MISSION_ITEM_REACHED", "NAV_CONTROLLER_OUTPUT", "PID_TUNING"],
+                                       blocking=True, timeout=0.5)
+            if msg is None:
+                continue
+            kind = msg.get_type()
+            if kind == "GLOBAL_POSITION_INT":
+                t = self.now_s = msg.time_boot_ms / 1000.0
+                north = math.radians(msg.lat / 1e7 - lat0) * EARTH_RADIUS_M
+                east = math.radians(msg.lon / 1e7 - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
+                self.track.positions.append((t, north, east))
+            elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
+                t = self.now_s
+                if not self.track.modes or self.track.modes[-1][1] != msg.custom_mode:
+                    self.track.modes.append((t, msg.custom_mode))
+            elif kind == "MISSION_CURRENT":
+                t = self.now_s
+                if not self.track.waypoints or self.track.waypoints[-1][1] != msg.seq:
+                    self.track.waypoints.append((t, msg.seq))
+            elif kind == "NAV_CONTROLLER_OUTPUT":
+                self.track.cross_track.append((self.now_s, msg.xtrack_error))
+            elif kind == "PID_TUNING" and msg.axis == 5:  # the steering loop
+                self.track.turn_rates.append((self.now_s, msg.desired, msg.achieved))
+            elif kind == "MISSION_ITEM_REACHED" and msg.seq == len(self.points):
+                self.done_at_s = self.now_s

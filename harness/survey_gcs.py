@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
 
 from harness.mavlink_clients import connect_client
 from harness.missions import SurveyPlan
+from harness.station_thread import StationThread
 
 log = logging.getLogger(__name__)
 
@@ -27,62 +27,44 @@ MODE_HOLD = 2  # the simulator's ALT_HOLD: heading and depth held, set-points ob
 CUSTOM_MODE_ENABLED = 1
 
 
-class SurveyGroundStation:
+class SurveyGroundStation(StationThread):
     """``start()`` flies ``plan`` until ``stop()`` (module docstring); ``sent`` lists
     (vehicle time, thrust, course rad) of every set-point change sent."""
 
+    what = "survey ground station"
+
     def __init__(self, endpoint: str, plan: SurveyPlan, *, source_system: int = 255) -> None:
+        super().__init__()
         self.endpoint, self.plan, self.source_system = endpoint, plan, source_system
         self.sent: list[tuple[float, float, float]] = []
-        self.error: BaseException | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self.conn = None
 
     def start(self) -> "SurveyGroundStation":
         self.conn = connect_client(self.endpoint, source_system=self.source_system)
-        self._thread = threading.Thread(target=self._fly, name="survey ground station", daemon=True)
-        self._thread.start()
+        self._start_thread()
         return self
 
-    def command(self, command: int, *params: float) -> None:
-        values = list(params) + [0.0] * (7 - len(params))
-        self.conn.mav.command_long_send(1, 1, command, 0, *values)
-
-    def _fly(self) -> None:
-        try:
-            last: tuple[float, float] | None = None
-            armed_sent = False
-            while not self._stop.is_set():
-                msg = self.conn.recv_match(type=["ATTITUDE", "HEARTBEAT"], blocking=True, timeout=0.5)
-                if msg is None:
+    def _run(self) -> None:
+        last: tuple[float, float] | None = None
+        armed_sent = False
+        while not self._stop.is_set():
+            msg = self.conn.recv_match(type=["ATTITUDE", "HEARTBEAT"], blocking=True, timeout=0.5)
+            if msg is None:
+                continue
+            if msg.get_type() == "HEARTBEAT":
+                if msg.get_srcComponent() != 1:
                     continue
-                if msg.get_type() == "HEARTBEAT":
-                    if msg.get_srcComponent() != 1:
-                        continue
-                    if not msg.base_mode & 128 or msg.custom_mode != MODE_HOLD:
-                        if not armed_sent or not msg.base_mode & 128:
-                            self.command(MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
-                            armed_sent = True
-                        self.command(MAV_CMD_DO_SET_MODE, CUSTOM_MODE_ENABLED, MODE_HOLD)
-                        last = None  # a mode change captures the heading: say the set-points again
-                    continue
-                t = msg.time_boot_ms / 1000.0
-                setpoint = self.plan.setpoints(t)
-                if setpoint != last:
-                    thrust, course = setpoint
-                    self.command(MAV_CMD_DO_CHANGE_SPEED, 0.0, -1.0, 100.0 * thrust)
-                    self.command(MAV_CMD_CONDITION_YAW, math.degrees(course) % 360.0)
-                    self.sent.append((t, thrust, course))
-                    last = setpoint
-        except BaseException as exc:  # noqa: BLE001 - said by stop(), never lost in the thread
-            self.error = exc
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-        if self.conn is not None:
-            self.conn.close()
-        if self.error is not None:
-            raise RuntimeError(f"the survey ground station failed: {self.error}") from self.error
+                if not msg.base_mode & 128 or msg.custom_mode != MODE_HOLD:
+                    if not armed_sent or not msg.base_mode & 128:
+                        self.command(MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+                        armed_sent = True
+                    self.command(MAV_CMD_DO_SET_MODE, CUSTOM_MODE_ENABLED, MODE_HOLD)
+                    last = None  # a mode change captures the heading: say the set-points again
+                continue
+            t = msg.time_boot_ms / 1000.0
+            setpoint = self.plan.setpoints(t)
+            if setpoint != last:
+                thrust, course = setpoint
+                self.command(MAV_CMD_DO_CHANGE_SPEED, 0.0, -1.0, 100.0 * thrust)
+                self.command(MAV_CMD_CONDITION_YAW, math.degrees(course) % 360.0)
+                self.sent.append((t, thrust, course))
+                last = setpoint

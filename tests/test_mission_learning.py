@@ -330,3 +330,21 @@ def test_the_learner_verifies_turn_rate_tracking_where_the_navigation_asks_for_r
     assert written and learner.phase is Phase.KEPT, learner.note
     assert learner.verdict.after_error < learner.verdict.before_error and "replayed" in learner.verdict.reason
     assert learner.verdict.metric == "turn-rate error deg/s"
+
+
+def test_the_status_page_shows_what_learning_wrote(tmp_path):
+    """The learning section of the status page, fed by the resident loop: phase, bands, writes."""
+    import json
+
+    from companion.service.feed import StatusFeed
+    from companion.service.status import StatusBoard
+
+    link = _survey_link()
+    companion, store = _serve(link, tmp_path, 260.0)
+    board = StatusBoard()
+    feed = StatusFeed(board, link, store, endpoint="in-process")
+    feed.companion = companion
+    feed.refresh()
+    section = json.loads(board.to_json())["learning"]
+    assert section["on"] is False and section["phase"] == "kept"  # the session ended with verified gains
+    assert section["writes"][0]["why"] == "design" and "heading_p" in section["writes"][0]["gains"]

@@ -188,6 +188,7 @@ def test_the_feed_fills_every_section_from_the_loop_and_the_reports(tmp_path):
     assert gains == {"HDG_P": 0.64, "HDG_I": 0.01, "HDG_TRIM": 0.02}
     assert [a["text"] for a in during["alarms"]] == ["PreArm: compass not calibrated", "gain scheduling: write failed"]
     assert during["health"] == {"on": False, "reason": "health monitoring is off"}
+    assert during["learning"] == {"on": False, "reason": "learning is off (companion run --learn)"}
     assert after["procedure"]["state"] == "idle" and after["procedure"]["last"]["status"] == "completed"
     assert after["history"][0]["campaign_id"] == 1
     assert after["report"]["url"] == "/report/" and Path(after["report"]["path"]).is_file()

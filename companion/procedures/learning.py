@@ -11,8 +11,9 @@ gains, its writes through the link and its records in the store.
   AUTO the navigation controller asks for a turn rate, so the rate loop's FF/P/I carry the turns: they
   are verified by how the rate loop tracks the turn rates the navigation asks for (PID_TUNING, the
   profile's ``learning_verification = "turn_rate"``; its ``pid_tuning_mask`` parameter gets bit 0 for
-  the session and its own value back at the end). The cascade's angle P is written with them but
-  only acts in the modes that hold a heading (GUIDED).
+  the session and its own value back at the end), and only they are written: the cascade's angle P
+  acts in the modes that hold a heading (GUIDED), which that verification does not fly. The design
+  itself is the whole cascade's (eq. D.1), the vehicle's own gains a candidate.
 * **Records**: one campaign of kind ``learning`` per session. Its restore point (the original
   gains) is stored as a trail before the first write and every write is recorded before it is sent
   (:class:`companion.procedures.trail.TrailRecorder`), so a ``kill -9`` mid-learning is followed by
@@ -71,10 +72,12 @@ class ScheduledDesign:
     schedule: object
     limits: HeadingLimits
     summary: str
+    written: tuple[str, ...]  # the gains learning writes (the ones its verification flies)
 
     def gains_at(self, speed: float) -> dict[str, float]:
         low, high = self.schedule.speed_range
-        return self.kind.scheduled_gains(self.schedule, min(max(speed, low), high))
+        gains = self.kind.scheduled_gains(self.schedule, min(max(speed, low), high))
+        return {name: value for name, value in gains.items() if name in self.written}
 
     def predict(self, gains: dict[str, float], speed: float, step: float) -> tuple[float, float]:
         low, high = self.schedule.speed_range
@@ -103,8 +106,9 @@ class HeadingDesigner:
     """eq. D.1 over the validated bands (module docstring)."""
 
     def __init__(self, config: CampaignConfig, kind: ScheduleKind, original: dict[str, float],
-                 limits: HeadingLimits) -> None:
+                 limits: HeadingLimits, written: tuple[str, ...]) -> None:
         self.config, self.kind, self.original, self.limits = config, kind, original, limits
+        self.written = written
 
     def __call__(self, validated: Sequence[tuple[float, YawModel]]) -> DesignOutcome:
         attempts = [_BandModel(speed, model) for speed, model in validated]
@@ -123,7 +127,7 @@ class HeadingDesigner:
         best = choice.choice.chosen
         summary = (f"{best.name}: predicted step error {best.score.iae_s:.2f} s, overshoot "
                    f"{best.score.worst_overshoot_pct:.1f} %")
-        return DesignOutcome(ScheduledDesign(kind, schedule, self.limits, summary), choice.choice.reason())
+        return DesignOutcome(ScheduledDesign(kind, schedule, self.limits, summary, self.written), choice.choice.reason())
 
 
 def heading_kind_for(config: CampaignConfig) -> ScheduleKind | None:
@@ -166,7 +170,12 @@ class LearningSession:
         config = replace(self.config, verification=profile.learning_verification)
         if margin is not None:  # the prediction's measured margin on this autopilot (eq. L.2)
             config = replace(config, verdict=replace(config.verdict, overshoot_margin_pct=float(margin)))
-        self.learner = MissionLearner(HeadingDesigner(self.campaign, kind, original, limits), original, config)
+        # verified by turn-rate tracking, only the rate loop's gains are written: the angle loop's P
+        # acts in the modes that hold a heading, which that verification does not fly
+        written = tuple(name for name in kind.scheduled
+                        if config.verification != "turn_rate" or name.startswith("heading_rate_"))
+        self.learner = MissionLearner(HeadingDesigner(self.campaign, kind, original, limits, written),
+                                      {name: original[name] for name in written}, config)
         self.campaign_id = self.store.start_campaign(self.vehicle_id, "learning", {
             "original": original, "modes": list(config.modes), "heading_kind": kind.name})
         self.trail_id = self.store.save_restore_point(self.campaign_id, self.restore.as_json(), vehicle_identity(self.link))
@@ -188,7 +197,8 @@ class LearningSession:
                     "writes": [w.to_dict() for w in result.writes[-5:]]}
         result = self.learner.result()
         return {"on": True, "phase": result.phase.value, "reason": result.reason, "campaign_id": self.campaign_id,
-                "bands": [{k: band[k] for k in ("speed", "windows", "validated")} for band in result.bands],
+                "bands": [{"speed": band.speed, "windows": band.windows, "validated": band.validated}
+                          for band in result.bands],
                 "turns": len(result.turns), "writes": [w.to_dict() for w in result.writes[-5:]],
                 "verdict": result.verdict.to_dict() if result.verdict else None}
 
