@@ -137,6 +137,13 @@ class GainScheduler(Behaviour):
         self.written: dict[str, float] | None = None
         self.proposed: dict[str, float] | None = None
         self.writes: list[dict] = []
+        self.released: set[str] = set()  # parameters someone else set: no longer scheduled
+
+    def release(self, names) -> None:
+        """Stop scheduling ``names`` (neutral): someone else set them, and their value stands."""
+        self.released |= set(names)
+        if self.written is not None:
+            self.written = {k: v for k, v in self.written.items() if k not in self.released}
 
     def _filter_speed(self, telemetry: Telemetry) -> None:
         if not telemetry.finite("speed_water"):
@@ -156,8 +163,8 @@ class GainScheduler(Behaviour):
             return []
         if math.isnan(self.speed) or telemetry.time_s - self._last_write_time < self.config.min_interval_s:
             return []
-        gains = self.gains_at(self.speed)
-        if not gains_differ(gains, self.written, self.config):
+        gains = {k: v for k, v in self.gains_at(self.speed).items() if k not in self.released}
+        if not gains or not gains_differ(gains, self.written, self.config):
             return []
         self.proposed = dict(gains)
         self._last_write_time = telemetry.time_s  # rate-limits retries of a refused write too

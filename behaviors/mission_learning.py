@@ -90,6 +90,7 @@ class Phase(enum.Enum):
     KEPT = "kept"
     WAITING_TO_REVERT = "waiting to revert"
     REVERTED = "reverted"
+    OVERRIDDEN = "overridden"  # someone else changed a learned gain: theirs stands, learning stops
 
 
 @dataclass(frozen=True)
@@ -231,7 +232,7 @@ class MissionLearner(Behaviour):
     def revert(self, reason: str = "reverted by the ground station") -> None:
         """The original gains go back at the next step, at once (the operator chose the moment); a
         design not yet written is dropped. Either way this session writes nothing more."""
-        if self.phase is Phase.REVERTED:
+        if self.phase in (Phase.REVERTED, Phase.OVERRIDDEN):
             return
         if self.written is None:
             self.events.append({"type": "revert", "reason": reason, "written": False})
@@ -239,6 +240,22 @@ class MissionLearner(Behaviour):
             return
         self._revert_now = True
         self._set(Phase.WAITING_TO_REVERT, reason)
+
+    def overridden(self, names: Sequence[str], reason: str) -> list[Command]:
+        """Someone else (a ground station, a script) changed the learned gains ``names``: their values
+        stay, nothing more is written; unverified learned gains they did not touch go back to the
+        original ones at once (verified ones stay)."""
+        if self.phase in (Phase.REVERTED, Phase.OVERRIDDEN):
+            return []
+        commands: list[Command] = []
+        if self.written is not None and self.phase is not Phase.KEPT:
+            others = {k: v for k, v in self.original.items() if k not in names}
+            if others:
+                commands += self._write(self._last_t, math.nan, "revert", others)
+        self.written = None
+        self.events.append({"type": "overridden", "names": list(names), "reason": reason})
+        self._set(Phase.OVERRIDDEN, reason)
+        return commands + [StatusText(f"LEARN: stopped, {reason}"[:50], 4)]
 
     # ------------------------------------------------------------------ the step function
     def update(self, telemetry: Telemetry) -> Sequence[Command]:

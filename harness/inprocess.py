@@ -40,6 +40,7 @@ from companion.interface import (
     StatusText,
     Telemetry,
 )
+from companion.link.parameters import ForeignChange
 from companion.link.profiles import SIM as PROFILE
 from sim.autopilot import MODE_ALT_HOLD, Autopilot, pwm_from_fin
 from sim.params import ParamTable
@@ -100,20 +101,31 @@ def dispatch(host: "_AutopilotHost", command: Command) -> None:
         raise TypeError(f"unknown command {command!r}")
 
 
-class WriteHooks:
-    """The link's ``parameters.on_write`` (``companion.link.parameters``): listeners told of each
-    parameter write before it is applied (a crash trail records it)."""
+class InProcessParameters:
+    """The link's parameter channel as procedures see it (``companion.link.parameters``): listeners
+    told of each write before it is applied (a crash trail records it), the watched parameters and
+    the changes someone else made to them (``foreign``), and which values our writes asked for."""
 
     def __init__(self) -> None:
         self._listeners: list[Callable[[str, float], None]] = []
+        self.watched: set[str] = set()
+        self.foreign: dict[str, ForeignChange] = {}
+        self._asked: dict[str, list[float]] = {}
 
     def on_write(self, listener: Callable[[str, float], None]) -> Callable[[], None]:
         self._listeners.append(listener)
         return lambda: self._listeners.remove(listener) if listener in self._listeners else None
 
     def notify(self, native: str, value: float) -> None:
+        self._asked.setdefault(native, []).append(float(value))
         for listener in list(self._listeners):
             listener(native, value)
+
+    def watch(self, names) -> None:
+        self.watched, self.foreign, self._asked = set(names), {}, {}
+
+    def ours(self, name: str, value: float) -> bool:
+        return any(abs(asked - value) <= 1e-6 * max(1.0, abs(value)) for asked in self._asked.get(name, ()))
 
 
 class _AutopilotHost:
@@ -134,7 +146,7 @@ class _AutopilotHost:
         self.named_values: list[tuple[str, float]] = []
         self.param_writes: list[tuple[str, float]] = []
         self.mode_changes: list[str] = []
-        self.parameters = WriteHooks()
+        self.parameters = InProcessParameters()
 
     # ------------------------------------------------------------------ stepping
     def _step(self, dt: float) -> None:
@@ -179,6 +191,13 @@ class _AutopilotHost:
         if native not in self.autopilot.params:
             raise ParamRefused(f"no parameter {native}")
         return self.autopilot.params[native]
+
+    def set_by_someone_else(self, native: str, value: float) -> None:
+        """A ground station's PARAM_SET: applied, and seen as someone else's change where watched."""
+        before = self.autopilot.params[native]
+        self.autopilot.set_param(native, float(value))
+        if native in self.parameters.watched and before != value:
+            self.parameters.foreign[native] = ForeignChange(native, before, float(value), self.vehicle.time_s)
 
     def set_param(self, native: str, value: float) -> float:
         if native in self.refuse:

@@ -348,3 +348,30 @@ def test_the_status_page_shows_what_learning_wrote(tmp_path):
     section = json.loads(board.to_json())["learning"]
     assert section["on"] is False and section["phase"] == "kept"  # the session ended with verified gains
     assert section["writes"][0]["why"] == "design" and "heading_p" in section["writes"][0]["gains"]
+
+
+def test_a_ground_stations_change_to_a_learned_gain_stands_and_stops_learning(tmp_path):
+    """HDG_P set to 0.9 by a ground station while the learned gains are being verified: learning
+    stops, their HDG_P stays (also at the end of the session), the learned HDG_I goes back."""
+    link = _survey_link()
+    link.next_telemetry = _with_change(link, at_s=130.0, native="HDG_P", value=0.9)
+    _companion, store = _serve(link, tmp_path, 200.0)
+    campaign, result = _learning_result(store)
+    assert result["phase"] == "overridden" and "HDG_P 0.9" in result["reason"]
+    assert link.param("heading_p") == pytest.approx(0.9)  # theirs, kept on exit too
+    assert link.param("heading_i") == pytest.approx(POOR["HDG_I"])  # the unverified learned one, back
+    assert any(text.startswith("LEARN: stopped") for text in link.status_texts)
+
+
+def _with_change(link, *, at_s: float, native: str, value: float):
+    read = link.next_telemetry
+    done = []
+
+    def next_telemetry(timeout_s: float = 5.0):
+        telemetry = read(timeout_s)
+        if not done and telemetry.time_s >= at_s:
+            link.set_by_someone_else(native, value)
+            done.append(True)
+        return telemetry
+
+    return next_telemetry

@@ -129,3 +129,31 @@ def test_abort_with_nothing_running_and_second_start_are_rejected(tmp_path):
     assert (MAV_CMD_USER_4, MAV_RESULT_TEMPORARILY_REJECTED, 0) in link.acks
     assert (MAV_CMD_USER_1, MAV_RESULT_TEMPORARILY_REJECTED, 0) in link.acks
     assert [a for a in link.acks if a[0] == MAV_CMD_USER_3][-1][1] == MAV_RESULT_ACCEPTED
+
+
+def test_a_scheduled_gain_someone_else_sets_is_theirs_and_stays_on_exit(tmp_path):
+    """A ground station sets HDG_P to 0.9 during ``run``: it is no longer scheduled (HDG_I still is),
+    the ground station is told, and stopping does not restore over it."""
+    link = InProcessLink(seed=3)
+    with Store(tmp_path / "s.sqlite") as store:
+        stored_models(store)
+        config = ServeConfig(max_vehicle_s=150.0, scheduling=SchedulingConfig(min_interval_s=10.0))
+        companion = Companion(link, store, store.add_vehicle("v"), config, AbortFlag())
+        link.autopilot.set_thrust(0.6)
+        read = link.next_telemetry
+
+        def mission(timeout_s=5.0):
+            telemetry = read(timeout_s)
+            if 40.0 <= telemetry.time_s < 40.04:
+                link.set_by_someone_else("HDG_P", 0.9)
+            if telemetry.time_s > 60.0:
+                link.autopilot.set_thrust(1.0)  # the speed changes: HDG_I is rescheduled, HDG_P is not
+            return telemetry
+
+        link.next_telemetry = mission
+        companion.run()
+    later = [w for w in companion.scheduler.writes if w["time_s"] > 40.0]
+    assert later and all("heading_p" not in w for w in later) and all("heading_i" in w for w in later)
+    assert link.param("heading_p") == pytest.approx(0.9)  # theirs, after the exit's restore too
+    assert link.param("heading_i") == pytest.approx(0.05)  # scheduled by us: the unscheduled value back
+    assert any(text.startswith("scheduling stopped for HDG_P 0.9") for text in link.status_texts)

@@ -147,7 +147,7 @@ class LearningSession:
         self.recorder: TrailRecorder | None = None
         self.restore: RestorePoint | None = None
         self.result: LearningResult | None = None
-        self.mask: tuple[str, float] | None = None  # (neutral name, value found) of the PID_TUNING mask
+        self._foreign_seen: set[str] = set()
 
     def start(self) -> str | None:
         """Read the original gains and open the records; the reason when learning cannot run."""
@@ -181,7 +181,6 @@ class LearningSession:
         self.trail_id = self.store.save_restore_point(self.campaign_id, self.restore.as_json(), vehicle_identity(self.link))
         self.recorder = TrailRecorder(self.store, self.trail_id, self.link)
         if mask and mask[0] in values:  # the steering loop's PID_TUNING, for the turn-rate verification
-            self.mask = (mask[0], values[mask[0]])
             self._send([SetParameters({mask[0]: float(int(values[mask[0]]) | 1)})])
         self.link.status_text(f"LEARN: on, original {kind.name} gains recorded"[:50])
         log.info("learning on: original gains %s, limits %s", original, limits)
@@ -209,8 +208,23 @@ class LearningSession:
     def step(self, telemetry) -> None:
         if self.learner is None:
             return
+        changed = self._changed_by_others()
+        if changed:
+            natives = ", ".join(f"{c.name} {c.value:g}" for c in changed.values())
+            self._send(self.learner.overridden(tuple(changed), f"set by someone else: {natives}"))
         self._send(self.learner.tick(telemetry))
         self._drain()
+
+    def _changed_by_others(self) -> dict:
+        """neutral name → the link's record of a learned gain someone else changed, not seen before."""
+        foreign = self.link.parameters.foreign
+        found = {}
+        for neutral in self.learner.original:
+            for native in self.restore.natives_of.get(neutral, ()):
+                if native in foreign and native not in self._foreign_seen:
+                    self._foreign_seen.add(native)
+                    found[neutral] = foreign[native]
+        return found
 
     def accept(self) -> bool:
         if self.learner is None or self.learner.phase not in (Phase.VERIFYING, Phase.KEPT):
@@ -240,38 +254,34 @@ class LearningSession:
             self.store.add_behavior_result(self.campaign_id, "learning_event", event["type"], event)
 
     def finish(self) -> LearningResult | None:
-        """Unverified gains reverted, the result stored, the trail closed (idempotent)."""
+        """The vehicle put back as found except what stays on purpose — verified learned gains, and
+        what someone else set meanwhile — by the restore point (each parameter read back; the
+        PID_TUNING mask included), the result stored, the trail closed (idempotent). A restore that
+        could not finish leaves the trail open: ``companion recover`` follows it."""
         if self.learner is None:
             return self.result
         learner = self.learner
-        if self.mask is not None:
-            try:
-                self._send([SetParameters({self.mask[0]: self.mask[1]})])
-                self.mask = None
-            except Exception as exc:  # noqa: BLE001 - the trail stays open: `companion recover` finishes it
-                log.error("learning: %s could not be written back: %s", self.mask[0], exc)
-                self._close(learner, "failed", f"{self.mask[0]} could not be written back: {exc}", close_trail=False)
-                return self.result
-        if learner.written is not None and learner.phase is not Phase.KEPT:
-            try:
-                self._send([SetParameters(dict(learner.original))])
-                learner.written = None
-                learner.note = f"{learner.note}; the session ended before the verification: original gains written back"
-            except Exception as exc:  # noqa: BLE001 - the trail stays open: `companion recover` finishes it
-                log.error("learning: the original gains could not be written back: %s", exc)
-                self._close(learner, "failed", f"the original gains could not be written back: {exc}", close_trail=False)
-                return self.result
+        keep = tuple(learner.original) if learner.phase is Phase.KEPT else ()
+        if learner.phase is not Phase.KEPT and learner.written is not None:
+            learner.note = f"{learner.note}; the session ended before the verification: original gains written back"
+        problems = self.restore.restore(self.link, mode=False, keep=keep)
+        learner.written = None
+        if problems:
+            log.error("learning: the vehicle could not be put back: %s", "; ".join(problems))
+            self._close(learner, "failed", f"not put back: {'; '.join(problems)}", close_trail=False)
+            return self.result
         status = "completed" if learner.phase is Phase.KEPT else "failed"
-        self._close(learner, status, learner.note, close_trail=True)
+        self._close(learner, status, learner.note, close_trail=True, notes=self.restore.notes)
         return self.result
 
-    def _close(self, learner: MissionLearner, status: str, reason: str, *, close_trail: bool) -> None:
+    def _close(self, learner: MissionLearner, status: str, reason: str, *, close_trail: bool,
+               notes: Sequence[str] = ()) -> None:
         self.result = learner.result()
         self.store.add_behavior_result(self.campaign_id, "learning", self.result.phase.value, self.result.to_dict())
         if self.recorder is not None:
             self.recorder.close()
         if close_trail and self.trail_id is not None:
-            self.store.finish_restore(self.trail_id, [], [f"learning ended: {self.result.phase.value}"])
+            self.store.finish_restore(self.trail_id, [], [f"learning ended: {self.result.phase.value}", *notes])
         self.store.finish_campaign(self.campaign_id, status, reason)
         self.learner = None
 

@@ -264,9 +264,24 @@ class Companion:
                 self.unscheduled.restore(self.link, mode=False)
         return self.history
 
+    def _release_foreign(self) -> None:
+        """A scheduled gain someone else set (a ground station's PARAM_SET) is theirs: no longer
+        scheduled, kept on exit (the restore keeps a change it did not make), and said."""
+        foreign = self.link.parameters.foreign
+        changed = [neutral for neutral in self.scheduler.footprint.parameters - self.scheduler.released
+                   if any(native in foreign for native in self.unscheduled.natives_of.get(neutral, ()))]
+        if not changed:
+            return
+        self.scheduler.release(changed)
+        natives = ", ".join(f"{c.name} {c.value:g}" for c in foreign.values())
+        log.warning("gain scheduling: %s set by someone else (%s): no longer scheduled, their value kept",
+                    ", ".join(sorted(changed)), natives)
+        self.link.status_text(f"scheduling stopped for {natives}: theirs kept"[:50], 4)
+
     def _schedule(self, telemetry) -> None:
         """One scheduler step; a refused or lost write leaves the last good gains (rolled back if
         the failure came half-way through a set), and the loop goes on."""
+        self._release_foreign()
         commands = self.scheduler.step(telemetry)
         if not commands:
             return
@@ -278,7 +293,7 @@ class Companion:
             self.scheduler.reject()
             good = self.scheduler.written or self.unscheduled.parameters
             for name, value in good.items():  # each one on its own: one refusal must not stop the others
-                if name not in self.scheduler.footprint.parameters:
+                if name not in self.scheduler.footprint.parameters or name in self.scheduler.released:
                     continue
                 try:
                     self.link.set_params({name: value})
