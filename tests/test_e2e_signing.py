@@ -43,13 +43,15 @@ def test_signed_companion_commands_a_signing_vehicle_and_its_frames_reach_the_gc
         gcs.close()
 
 
-def test_an_unsigned_companion_cannot_command_a_signing_vehicle(signing_sim):
-    with pytest.raises(LinkError):  # it hears the vehicle, but its requests are dropped
+def test_an_unsigned_companion_cannot_command_a_signing_vehicle_and_is_told_why(signing_sim):
+    """It hears the vehicle, but its requests are dropped: the refusal names signing, not the link."""
+    with pytest.raises(LinkError, match="signs its messages") as refused:
         link = VehicleLink.connect(signing_sim.endpoint, heartbeat_timeout_s=5.0)
         try:
             link.set_param("HDG_P", 0.7)
         finally:
             link.close()
+    assert "too slow" not in str(refused.value) and "--signing-key" in str(refused.value)
 
 
 def test_a_wrong_key_is_reported_as_such(signing_sim):

@@ -153,3 +153,14 @@ def test_the_mode_goes_back_only_if_it_is_still_one_the_procedure_asked_for(fake
         assert done.complete
         assert fake.custom_mode == (hold if restored else guided)
         assert any("chosen by someone else" in note for note in done.notes) == (not restored)
+
+
+@pytest.mark.parametrize("answer, words", [(None, "nobody could be asked"), (False, "the operator declined")])
+def test_a_recovery_nobody_agreed_to_says_whether_anyone_was_asked(fake_link, tmp_path, answer, words):
+    fake, link = fake_link
+    fake.params["HDG_P"] = (0.8, fake.params["HDG_P"][1])
+    with Store(tmp_path / "s.sqlite") as store:
+        trail = _interrupted_trail(store, RestorePoint(mode=None, native={"HDG_P": 0.6}), written=0.8)
+        done = recover(link, store, trail, decide=lambda found: answer)
+    assert not done.applied and fake.params["HDG_P"][0] == pytest.approx(0.8)
+    assert done.notes == [next(n for n in done.notes if n.startswith(words))]

@@ -39,8 +39,23 @@ def detect(ports: LinkPorts) -> AutopilotProfile:
         if found:
             heartbeat = ports.announcements.last_heartbeat
             return detect_profile(found, getattr(heartbeat, "type", None))
+    heartbeat = ports.announcements.last_heartbeat
+    if vehicle_signs(heartbeat) and not ports.transport.signing:
+        raise ProfileError(f"no answer to the profile marker parameters {', '.join(markers)}: the vehicle signs its "
+                           "messages (MAVLink 2 signing) and ignores unsigned requests; give its key with "
+                           "--signing-key (or signing_key_file in the configuration file)")
     raise ProfileError(f"no answer to the profile marker parameters {', '.join(markers)}: the vehicle did not "
                        "answer parameter requests (a link too slow or one-way?); name the autopilot with --profile")
+
+
+#: MAVLink 2 incompatibility flag of a signed frame
+MAVLINK_IFLAG_SIGNED = 0x01
+
+
+def vehicle_signs(message: Any) -> bool:
+    """``message`` came in a signed MAVLink 2 frame (whether or not this link can check the signature)."""
+    header = getattr(message, "_header", None)
+    return bool(header is not None and getattr(header, "incompat_flags", 0) & MAVLINK_IFLAG_SIGNED)
 
 
 def _configured(ports: LinkPorts, chosen: AutopilotProfile, strategy: AutopilotStrategy) -> AutopilotProfile:

@@ -89,6 +89,11 @@ class Transport:
         self.last_rx_wall = time.monotonic()
         self.reconnects = 0  # connections opened again after the vehicle closed or reset one
 
+    @property
+    def signing(self) -> bool:
+        """This link signs what it sends (a MAVLink 2 signing key was given)."""
+        return self._signing_key is not None
+
     # ------------------------------------------------------------------ receiving
     def on(self, message_type: str, handler: Handler) -> None:
         """Call ``handler(msg)`` for every received message of ``message_type``, in registration order."""

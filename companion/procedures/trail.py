@@ -310,10 +310,11 @@ def _plan(link, trail: Trail, values: dict[str, float | None], rebooted: bool) -
     return plan, True, notes
 
 
-def recover(link, store, trail: Trail, decide: Callable[[list[str]], bool],
+def recover(link, store, trail: Trail, decide: Callable[[list[str]], bool | None],
             guard: RestoreGuard | None = None) -> Recovery:
     """Follow ``trail`` on the connected vehicle: say what differs, and if ``decide(differences)``
-    agrees, put it back (module docstring). When everything is back the trail is closed and the
+    agrees, put it back (module docstring); ``decide`` answers None when nobody could be asked (no
+    terminal and no ``--yes``), which is said as such, never as the operator's refusal. When everything is back the trail is closed and the
     campaign ends ``interrupted``; otherwise the trail stays open for the next start. A trail of
     another vehicle is left as it is. ``guard`` keeps a second Ctrl-C from cutting a write."""
     other = _other_vehicle(link, trail)
@@ -322,7 +323,11 @@ def recover(link, store, trail: Trail, decide: Callable[[list[str]], bool],
         return Recovery(trail.campaign_id, [], False, notes=[note], other_vehicle=True)
     values = _parameters_now(link, trail.restore) if trail.restore is not None else {}
     found = differences(link, trail, values)
-    if not decide(found):
+    answer = decide(found)
+    if answer is None:
+        return Recovery(trail.campaign_id, found, False,
+                        notes=["nobody could be asked (no terminal, no --yes): the vehicle was not changed"])
+    if not answer:
         return Recovery(trail.campaign_id, found, False, notes=["the operator declined: the vehicle was not changed"])
     rebooted, reboot_note = _rebooted_since(link, trail)
     notes = [reboot_note] if reboot_note else []

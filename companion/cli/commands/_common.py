@@ -248,13 +248,13 @@ def follow_interrupted_trails(link, store, args: argparse.Namespace, guard=None)
             print("  it had changed nothing yet (or its restore had run): closed as interrupted", file=sys.stderr)
             continue
 
-        def decide(found: list[str], trail=trail) -> bool:
+        def decide(found: list[str], trail=trail) -> bool | None:
             for line in found or ["nothing differs from how it was found"]:
                 print(f"  {line}", file=sys.stderr)
             if getattr(args, "yes", False):
                 return True
             if not sys.stdin.isatty():
-                return False
+                return None  # nobody to ask
             answer = input(f"Put the vehicle back as campaign {trail.campaign_id} found it? [y/N] ")
             return answer.strip().lower() in ("y", "yes")
 
