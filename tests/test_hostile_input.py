@@ -563,3 +563,19 @@ def test_an_eta_mapping_other_than_0_or_1_is_refused(tmp_path, capsys, mapping):
     code, out, err = run_cli(capsys, "analyze", "eta", "--input", str(path), "--json")
     assert_clear_error(code, err, "mapping", mapping)
     assert out == ""
+
+
+def test_a_refusal_with_json_is_json(capsys, tmp_path):
+    """``identify --json`` against nothing listening: one JSON object on stdout (status refused, the
+    reason), nothing else there (pymavlink's retry lines go to the log), exit 1."""
+    import socket
+
+    with socket.socket() as probe:  # a port nothing listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    code, out, _ = run_cli(capsys, "identify", "--connect", f"tcp:127.0.0.1:{port}", "--json",
+                           "--store", str(tmp_path / "s.sqlite"))
+    assert code == 1
+    refusal = json.loads(out)
+    assert refusal["status"] == "refused" and refusal["campaign_id"] is None
+    assert "cannot open" in refusal["reason"] and not refusal["reason"].startswith("error")

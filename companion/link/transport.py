@@ -12,6 +12,8 @@ attempts; every timer of the product runs on vehicle time (``companion.link.cloc
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import logging
 import os
 import time
@@ -30,6 +32,18 @@ MAV_STATE_ACTIVE = 4
 Handler = Callable[[Any], None]
 
 
+class _LogLines(io.TextIOBase):
+    """A text stream whose lines become debug log records."""
+
+    def __init__(self, logger: logging.Logger) -> None:
+        self.logger = logger
+
+    def write(self, text: str) -> int:
+        if text.strip():
+            self.logger.debug("pymavlink: %s", text.strip())
+        return len(text)
+
+
 def open_connection(endpoint: str, *, system_id: int, component: int, dialect: str,
                     signing_key: bytes | None = None, retries: int | None = None) -> Any:
     """pymavlink's connection to ``endpoint`` (any of its connection strings), with link loss
@@ -43,8 +57,11 @@ def open_connection(endpoint: str, *, system_id: int, component: int, dialect: s
     mavutil.set_dialect(dialect)
     options = {} if retries is None else {"retries": retries}
     try:
-        master = mavutil.mavlink_connection(endpoint, source_system=system_id, source_component=component,
-                                            robust_parsing=True, **options)
+        # pymavlink prints its TCP retries ("Connection refused sleeping") to stdout: they go to the
+        # log instead, so stdout holds only what the command prints (its --json stays parseable)
+        with contextlib.redirect_stdout(_LogLines(log)):
+            master = mavutil.mavlink_connection(endpoint, source_system=system_id, source_component=component,
+                                                robust_parsing=True, **options)
     except OSError as exc:  # refused TCP connection, missing serial device (SerialException), bad address
         raise EndpointError(f"cannot open {endpoint}: {exc}") from exc
     if signing_key is not None:

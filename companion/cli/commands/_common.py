@@ -195,25 +195,34 @@ def connected_vehicle(args: argparse.Namespace):
         undo()
 
 
-def link_fit_for_identification(link) -> bool:
-    """Measure what the link delivers (two vehicle seconds of telemetry); False, with the sentence
-    saying what to change, when it is too slow to identify from; a slower link than asked for is
-    said and accepted."""
+def link_unfit_for_identification(link) -> str | None:
+    """Measure what the link delivers (two vehicle seconds of telemetry); the sentence saying what to
+    change (also printed) when it is too slow to identify from, else None; a slower link than asked
+    for is said and accepted."""
     from companion.link.errors import LinkError
     from companion.procedures.readiness import measure_link_rate
 
     try:
         rate = measure_link_rate(link)
     except LinkError as exc:
-        print(f"error: the link rate could not be measured: {exc}", file=sys.stderr)
-        return False
+        reason = f"the link rate could not be measured: {exc}"
+        print(f"error: {reason}", file=sys.stderr)
+        return reason
     verdict, warning = rate.verdict(), rate.warning()
     if verdict is not None:
         print(f"error: {verdict}", file=sys.stderr)
-        return False
+        return verdict
     if warning is not None:
         print(f"warning: {warning}", file=sys.stderr)
-    return True
+    return None
+
+
+def refused(args, reason: str, code: int = 1) -> int:
+    """A command that did not start its work: with ``--json`` the refusal is JSON too (status
+    ``refused``, the reason), never an empty output; the exit code."""
+    if getattr(args, "json", False):
+        print_json({"campaign_id": None, "status": "refused", "reason": reason.removeprefix("error: ")})
+    return code
 
 
 def link_quality_record(link, campaign=None) -> dict:

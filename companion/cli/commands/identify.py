@@ -8,8 +8,8 @@ from dataclasses import replace
 from companion.cli.commands._campaign_text import loop_lines, phase_line, verification_lines
 from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_procedure_argument, apply_procedure,
                                             add_recovery_argument, add_schedules_argument, add_store_argument,
-                                            connected_vehicle, follow_interrupted_trails, link_fit_for_identification, link_quality_record,
-                                            print_json,
+                                            connected_vehicle, follow_interrupted_trails, link_unfit_for_identification, link_quality_record,
+                                            print_json, refused,
                                             thrust_list)
 
 
@@ -102,18 +102,20 @@ def run(args: argparse.Namespace) -> int:
         config = campaign_config(args)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return refused(args, str(exc), 2)
     try:
         with connected_vehicle(args) as (link, abort), Store(args.store) as store:
             try:
                 limits = SafetyLimits.for_profile(link.profile, max_distance_m=args.max_distance)
             except ValueError as exc:
                 print(f"error: {exc}", file=sys.stderr)
-                return 2
+                return refused(args, str(exc), 2)
             if not follow_interrupted_trails(link, store, args, guard=getattr(abort, "guard", None)):
-                return 1
-            if not link_fit_for_identification(link):
-                return 1
+                return refused(args, "an interrupted procedure left the vehicle changed: run `companion recover "
+                                     f"--connect {args.connect} --yes`, then start again")
+            unfit = link_unfit_for_identification(link)
+            if unfit is not None:
+                return refused(args, unfit)
             campaign, outcome, campaign_id = run_campaign(
                 link, store, config, vehicle_id=vehicle_record(store, link), abort=abort, limits=limits,
                 console=ConsoleProgress("identification", enabled=not args.json))
@@ -122,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
                 else None
     except ConnectFailed as exc:
         print(exc, file=sys.stderr)
-        return 1
+        return refused(args, str(exc))
     result = {"campaign_id": campaign_id, "status": outcome.status, "reason": outcome.reason,
               "restore_problems": outcome.restore_problems, "restore_notes": outcome.restore_notes,
               "store_problems": outcome.store_problems, "link_quality": link_quality,
