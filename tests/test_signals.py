@@ -153,3 +153,29 @@ def test_a_second_ctrl_c_still_breaks_a_blocking_call_inside_the_step_loop():
             signal.sigtimedwait([], 0.1) if hasattr(signal, "sigtimedwait") else None
     finally:
         undo()
+
+
+@pytest.mark.parametrize("protecting", [True, False])
+def test_the_countdown_to_a_forced_exit_is_said_only_where_one_happens(protecting):
+    """During a restore the second SIGTERM says one more forces the exit (the third does); with
+    nothing to protect the signals end the loop and no countdown is promised that never comes."""
+    import os
+    import signal as signals
+
+    flag, messages = AbortFlag(), io.StringIO()
+    flag.guard.active, flag.guard.restoring = (1, True) if protecting else (0, False)
+    exits = []
+    undo = install_signal_handlers(flag, stream=messages)
+    real_exit = os._exit
+    os._exit = exits.append  # the third signal during a restore exits: observed, not taken
+    try:
+        for _ in range(3):
+            os.kill(os.getpid(), signals.SIGTERM)
+    finally:
+        os._exit = real_exit
+        undo()
+    said = messages.getvalue()
+    if protecting:
+        assert "signal 1 more time(s) to exit without restoring" in said and exits == [130]
+    else:
+        assert "more time" not in said and said.count("stopping: nothing to restore") == 2 and exits == []

@@ -92,7 +92,9 @@ def install_signal_handlers(flag: AbortFlag, stream=None) -> Callable[[], None]:
         flag.request(f"signal {signal.Signals(signum).name}")
         if received[0] >= 2 and signum == signal.SIGINT and breakable:
             raise KeyboardInterrupt
-        if received[0] >= 2:
+        if received[0] >= 2 and breakable:  # nothing to protect: no countdown (none would be kept)
+            say("stopping: nothing to restore")
+        elif received[0] >= 2:
             doing = f"restoring the vehicle ({', '.join(guard.pending) or 'finishing'})" if guard.restoring \
                 else "ending the procedure and restoring the vehicle"
             say(f"{doing}; signal {FORCE_EXIT_SIGNAL - received[0]} more time(s) to exit without restoring")
