@@ -164,3 +164,24 @@ def test_a_recovery_nobody_agreed_to_says_whether_anyone_was_asked(fake_link, tm
         done = recover(link, store, trail, decide=lambda found: answer)
     assert not done.applied and fake.params["HDG_P"][0] == pytest.approx(0.8)
     assert done.notes == [next(n for n in done.notes if n.startswith(words))]
+
+
+def test_results_show_a_campaign_whose_process_died_as_interrupted(tmp_path, capsys):
+    """The store still reads ``running`` until the next start closes it; ``companion results`` says
+    what happened meanwhile (a live campaign stays ``running``)."""
+    import json
+
+    from companion.cli.main import main
+
+    path = tmp_path / "s.sqlite"
+    with Store(path) as store:
+        vehicle = store.add_vehicle("v")
+        dead = store.start_campaign(vehicle, "identification")
+        _mark_dead(store)
+        alive = store.start_campaign(vehicle, "identification")  # this process: alive
+    assert main(["results", "--store", str(path), "--json"]) == 0
+    shown = {c["id"]: c for c in json.loads(capsys.readouterr().out)["campaigns"]}
+    assert shown[dead]["status"] == "interrupted" and "companion recover" in shown[dead]["reason"]
+    assert shown[alive]["status"] == "running"
+    assert main(["results", "--store", str(path), "--campaign", str(dead)]) == 0
+    assert f"campaign {dead} (identification) on v: interrupted" in capsys.readouterr().out

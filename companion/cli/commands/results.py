@@ -47,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
                 return 1
             print(f"report: {write_report(store, campaign_id, args.report)}", file=sys.stderr)
         if campaign_id is None:
-            data = {"store": args.store, "schema_version": store.schema_version, "campaigns": store.campaigns()}
+            data = {"store": args.store, "schema_version": store.schema_version,
+                    "campaigns": [_as_seen(c, gone) for gone in (_process_gone(store),) for c in store.campaigns()]}
             if args.json:
                 print_json(data)
             else:
@@ -57,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
                           f"{c['models']:>6} {c['started_utc']}" + (f"  ({c['reason']})" if c.get("reason") else ""))
             return 0
         try:
-            campaign = store.campaign(campaign_id)
+            campaign = _as_seen(store.campaign(campaign_id), _process_gone(store))
         except KeyError as exc:
             print(f"error: {exc.args[0]}", file=sys.stderr)
             return 1
@@ -116,3 +117,23 @@ def export_command(store: str, campaign_id: int) -> str:
     import shlex
 
     return f"companion results --store {shlex.quote(store)} --campaign {campaign_id} --export gains.parm"
+
+
+#: what a campaign still marked running is shown as once the process that ran it is gone
+INTERRUPTED = "interrupted"
+
+
+def _process_gone(store) -> set[int]:
+    """Campaigns still marked ``running`` whose process is gone (a crash, a power cut): the store is
+    only closed by the next start, a reading command says what happened meanwhile."""
+    from companion.procedures.trail import interrupted
+
+    return {trail.campaign_id for trail in interrupted(store)}
+
+
+def _as_seen(campaign: dict, gone: set[int]) -> dict:
+    if campaign["status"] != "running" or campaign["id"] not in gone:
+        return campaign
+    return {**campaign, "status": INTERRUPTED,
+            "reason": "its process is gone; the next start (or `companion recover`) puts the vehicle back"}
+
