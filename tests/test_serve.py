@@ -157,3 +157,18 @@ def test_a_scheduled_gain_someone_else_sets_is_theirs_and_stays_on_exit(tmp_path
     assert link.param("heading_p") == pytest.approx(0.9)  # theirs, after the exit's restore too
     assert link.param("heading_i") == pytest.approx(0.05)  # scheduled by us: the unscheduled value back
     assert any(text.startswith("scheduling stopped for HDG_P 0.9") for text in link.status_texts)
+
+
+@pytest.mark.parametrize("found, said", [("manual", True), ("hold", False)])
+def test_a_campaign_started_in_a_hand_flown_mode_says_it_takes_the_vehicle(tmp_path, found, said):
+    from companion.procedures.app import run_campaign
+
+    link = InProcessLink(seed=3)
+    link.set_mode(found)
+    abort = AbortFlag()
+    abort.request("stopped at once: only the start is under test")
+    with Store(tmp_path / "s.sqlite") as store:
+        run_campaign(link, store, CAMPAIGN, vehicle_id=store.add_vehicle("v"), abort=abort)
+    taken = [text for text in link.status_texts if text.startswith("campaign takes the vehicle from")]
+    assert taken == (["campaign takes the vehicle from MANUAL"] if said else [])
+    assert link.mode == found  # and it is given back as found

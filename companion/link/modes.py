@@ -17,6 +17,10 @@ from companion.link.errors import CommandFailed, ModeChangeFailed, ProfileError
 from companion.link.vehicle_state import VehicleAnnouncements
 
 MAV_CMD_DO_SET_MODE = 176
+
+#: neutral modes in which a pilot drives the vehicle by hand: a procedure that starts in one takes the
+#: vehicle from the pilot (and says so)
+HAND_FLOWN_MODES = frozenset({"manual", "acro", "steering", "stabilize", "poshold"})
 MAV_CMD_COMPONENT_ARM_DISARM = 400
 
 

@@ -32,6 +32,7 @@ from companion.procedures.runner import (RestoreGuard, RestorePoint, RunOutcome,
                                          run_procedure)
 from companion.procedures.trail import TrailRecorder, vehicle_identity
 from companion.link.errors import LinkError
+from companion.link.modes import HAND_FLOWN_MODES
 from companion.records.store import Store, StoreError
 
 __all__ = ["MAV_RESULT_ACCEPTED", "MAV_RESULT_FAILED", "MAV_RESULT_IN_PROGRESS", "MAV_RESULT_TEMPORARILY_REJECTED",
@@ -238,6 +239,11 @@ def run_campaign(
         except StoreError as exc:  # the design still uses it; only an export's rebuild would miss it
             log.warning("the resolved campaign configuration could not be stored: %s", exc)
     log.info("campaign %d started; original gains %s, mode %s", campaign_id, original.parameters, original.mode)
+    if original.mode in HAND_FLOWN_MODES:  # a pilot may be driving it: taking it is said, never silent
+        text = f"campaign takes the vehicle from {original.mode.upper()}"
+        log.warning("%s: the pilot's sticks are overridden until the campaign ends (then %s again)",
+                    text, original.mode.upper())
+        _tell(link, text, 4)
     try:
         trail_id = store.save_restore_point(campaign_id, original.as_json(), vehicle_identity(link))
     except StoreError as exc:  # nothing was changed: a procedure without its trail is not started
