@@ -54,7 +54,8 @@ class RestoreGuard:
         self.pending: list[str] = []
 
 
-def _reboots(link) -> int:
+def reboots_seen(link) -> int:
+    """How many reboots of the vehicle the link has seen (a new boot time, or a sequence reset)."""
     return int(getattr(getattr(link, "clock", None), "reboots", 0) or 0)
 
 
@@ -112,7 +113,7 @@ class RestorePoint:
         if callable(watch):  # from now on a change by anyone else is seen
             watch(native)
         return cls(mode=getattr(link, "mode", None) or None, parameters=parameters, native=native,
-                   setpoints=setpoints, natives_of=natives_of, boot=_reboots(link))
+                   setpoints=setpoints, natives_of=natives_of, boot=reboots_seen(link))
 
     # ------------------------------------------------------------------ the trail's form
     def as_json(self) -> dict:
@@ -141,7 +142,7 @@ class RestorePoint:
         and logged; what was decided is in :attr:`notes`."""
         self.notes = []
         _abandon_procedure_setpoints(link)
-        rebooted = _reboots(link) > self.boot
+        rebooted = reboots_seen(link) > self.boot
         # no mode switch ends an excitation when the mode is not the companion's to change
         items = [("release overrides", lambda: _release_all(link, switch_mode=mode and not rebooted))]
         if parameters:
@@ -239,7 +240,7 @@ class RestorePoint:
         """A set-point or the mode, unless the vehicle rebooted since the restore point was taken:
         a freshly booted vehicle's mode and set-points are its own (never a mode for a vehicle that
         may be disarmed on its cradle)."""
-        if _reboots(link) > self.boot:
+        if reboots_seen(link) > self.boot:
             note = "the vehicle rebooted during the procedure: its new boot keeps its own mode and set-points"
             if note not in self.notes:
                 self.notes.append(note)

@@ -24,7 +24,7 @@ from companion.interface import (Behavior, Command, NamedValue, OverrideActuator
 from companion.errors import UserError as _UserError
 from companion.link.errors import LinkError, VehicleRebooted
 from companion.procedures.limits import SafetyLimits
-from companion.procedures.restore import RestoreGuard, RestorePoint
+from companion.procedures.restore import RestoreGuard, RestorePoint, reboots_seen
 from companion.procedures.results import ProcedureResult
 
 __all__ = ["AbortProcedure", "Link", "RestoreGuard", "RestorePoint", "RunOutcome", "SafetyLimits", "not_started",
@@ -233,6 +233,8 @@ def _run_guarded(behavior, link, limits, abort_requested, on_step, restore, rest
     elif restore is not None and restore_on_success:
         problems += restore.restore(link, guard=guard)
     notes = list(restore.notes) if restore is not None else []
+    if not rebooted and restore is not None:
+        reason = named_reboot(reason, link, restore.boot)
     status = "aborted" if reason is not None else "completed"
     if reason is None and getattr(behavior, "status", None) is Status.FAILURE:
         status, reason = "failed", getattr(behavior, "reason", None) or "the procedure did not reach its goal"
@@ -285,6 +287,8 @@ def run_procedure(
             else frozenset()
         outcome.restore_problems += restore.restore(link, mode=not outcome.pilot_has_it, keep=keep, guard=guard)
         outcome.restore_notes = list(restore.notes)
+        if outcome.status == "aborted":
+            outcome.reason = named_reboot(outcome.reason, link, restore.boot)
         return outcome
     finally:
         if guard is not None:
@@ -296,6 +300,14 @@ def run_for_result(link: Link, procedure: Behavior, *, abort_requested: Callable
     """:func:`run_procedure`, then the procedure's own :class:`ProcedureResult` as the runner saw it end."""
     outcome = run_procedure(link, procedure, limits=limits, abort_requested=abort_requested)
     return procedure.result().with_outcome(outcome)
+
+
+def named_reboot(reason: str | None, link, boot: int) -> str | None:
+    """An abort whose cause was the autopilot restarting (a crash, a power cycle: first seen as
+    silence, then, once it answers again, as its new boot) named as a reboot; otherwise unchanged."""
+    if reason is None or "rebooted" in reason or reboots_seen(link) <= boot:
+        return reason
+    return f"the autopilot rebooted during the procedure (first seen as {reason})"
 
 
 def not_started(exc: Exception) -> RunOutcome:
