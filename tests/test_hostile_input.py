@@ -579,3 +579,20 @@ def test_a_refusal_with_json_is_json(capsys, tmp_path):
     refusal = json.loads(out)
     assert refusal["status"] == "refused" and refusal["campaign_id"] is None
     assert "cannot open" in refusal["reason"] and not refusal["reason"].startswith("error")
+
+
+def test_link_quality_is_a_line_and_a_warning_beyond_five_percent():
+    from types import SimpleNamespace
+
+    from companion.cli.commands._common import link_quality_line, link_quality_record
+
+    def link(lost: int):
+        quality = {"samples": 1000, "late": 3, "late_dropped": 0, "duplicate": 0, "outputs_lost": lost,
+                   "dropped_unread": 0, "stray": 0, "hold_ms": 0.0}
+        return SimpleNamespace(telemetry=SimpleNamespace(quality=lambda: quality))
+
+    clean = link_quality_record(link(10))
+    assert clean["warning"] is None and clean["lost_fraction"] == pytest.approx(0.01)
+    assert "1.0 % lost or late" in link_quality_line(clean) and "WARNING" not in link_quality_line(clean)
+    lossy = link_quality_record(link(480))
+    assert "48.0 %" in lossy["warning"] and "WARNING" in link_quality_line(lossy)

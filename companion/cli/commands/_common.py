@@ -225,13 +225,37 @@ def refused(args, reason: str, code: int = 1) -> int:
     return code
 
 
+#: the fraction of samples lost or late beyond which the link's quality is warned about
+LINK_LOSS_WARNING = 0.05
+
+
 def link_quality_record(link, campaign=None) -> dict:
-    """What the link delivered (samples late, lost, duplicated) and how many identification records
-    were not used because the link lost too much of them."""
+    """What the link delivered (samples late, lost, duplicated), the fraction of samples that came
+    without their own output or too late to use (``lost_fraction``), a ``warning`` above
+    :data:`LINK_LOSS_WARNING` (None below), and how many identification records were not used
+    because the link lost too much of them."""
     quality = dict(link.telemetry.quality()) if hasattr(link, "telemetry") else {}
+    samples = quality.get("samples", 0)
+    lost = quality.get("outputs_lost", 0) + quality.get("late_dropped", 0) + quality.get("dropped_unread", 0)
+    if samples:
+        quality["lost_fraction"] = lost / samples
+        quality["warning"] = (f"the link lost or delayed {100 * lost / samples:.1f} % of the samples (above "
+                              f"{100 * LINK_LOSS_WARNING:.0f} %): a faster or cleaner link gives better models"
+                              if lost / samples > LINK_LOSS_WARNING else None)
     if campaign is not None:
         quality["records_rejected"] = campaign.records_rejected_for_link
     return quality
+
+
+def link_quality_line(quality: dict) -> str | None:
+    """The text summary's line on the link (None when nothing was measured)."""
+    if not quality.get("samples"):
+        return None
+    line = (f"link: {quality['samples']} samples, {quality.get('late', 0)} late, {quality.get('outputs_lost', 0)} "
+            f"without their outputs, {100 * quality.get('lost_fraction', 0.0):.1f} % lost or late")
+    if quality.get("records_rejected"):
+        line += f"; {quality['records_rejected']} identification records not used for it"
+    return line + (f" — WARNING: {quality['warning']}" if quality.get("warning") else "")
 
 
 def add_recovery_argument(parser: argparse.ArgumentParser) -> None:

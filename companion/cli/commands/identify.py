@@ -9,7 +9,7 @@ from companion.cli.commands._campaign_text import loop_lines, phase_line, verifi
 from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_procedure_argument, apply_procedure,
                                             add_recovery_argument, add_schedules_argument, add_store_argument,
                                             connected_vehicle, follow_interrupted_trails, link_unfit_for_identification, link_quality_record,
-                                            print_json, refused,
+                                            link_quality_line, print_json, refused,
                                             thrust_list)
 
 
@@ -120,6 +120,8 @@ def run(args: argparse.Namespace) -> int:
                 link, store, config, vehicle_id=vehicle_record(store, link), abort=abort, limits=limits,
                 console=ConsoleProgress("identification", enabled=not args.json))
             link_quality = link_quality_record(link, campaign)
+            if link_quality.get("warning"):
+                print(f"warning: {link_quality['warning']}", file=sys.stderr)
             report = str(write_report(store, campaign_id, args.report)) if args.report and not outcome.store_problems \
                 else None
     except ConnectFailed as exc:
@@ -156,6 +158,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {line}")
         if result["final_gains"]:
             print(f"  gains written: {result['final_gains']}")
+        line = link_quality_line(result["link_quality"] or {})
+        if line:
+            print(f"  {line}")
         if report:
             print(f"  report: {report}")
     return 0 if outcome.status == "completed" else 1
