@@ -596,3 +596,19 @@ def test_link_quality_is_a_line_and_a_warning_beyond_five_percent():
     assert "1.0 % lost or late" in link_quality_line(clean) and "WARNING" not in link_quality_line(clean)
     lossy = link_quality_record(link(480))
     assert "48.0 %" in lossy["warning"] and "WARNING" in link_quality_line(lossy)
+
+
+def test_a_store_with_damaged_pages_is_a_sentence_not_a_traceback(capsys, tmp_path):
+    path = tmp_path / "damaged.sqlite"
+    with Store(path) as store:
+        vehicle = store.add_vehicle("v")
+        for _ in range(30):
+            store.finish_campaign(store.start_campaign(vehicle, "identification", {"x": "y" * 2000}), "completed")
+    size = path.stat().st_size
+    with open(path, "r+b") as file:  # every page after the first: its header garbled
+        for page in range(1, size // 4096):
+            file.seek(4096 * page + 8)
+            file.write(b"\x13\x37" * 50)
+    code, _, err = run_cli(capsys, "results", "--store", str(path))
+    assert code == 1 and "Traceback" not in err
+    assert "could not be read" in err and "damaged" in err and ".recover" in err

@@ -10,6 +10,7 @@ import argparse
 import importlib
 import logging
 import os
+import sqlite3
 import sys
 
 from companion.errors import UserError
@@ -92,6 +93,13 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:  # bad input or an unusable file: its one sentence, no traceback
         print(f"companion {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except sqlite3.DatabaseError as exc:  # a damaged or unreadable store: a sentence and what to do
+        store = getattr(args, "store", None) or "the store"
+        damaged = "malformed" in str(exc) or "not a database" in str(exc)
+        hint = (f"; it is damaged: move it aside (a new one is made at the next start), and "
+                f"`sqlite3 {store} .recover` may save what it holds" if damaged else "")
+        print(f"companion {args.command}: error: {store} could not be read: {exc}{hint}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
