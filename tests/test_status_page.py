@@ -203,3 +203,46 @@ def test_a_feed_that_fails_never_stops_the_loop(tmp_path):
         store.close()  # every store read now fails
         link.snapshot(Telemetry(time_s=1.0, mode="hold"))  # must not raise
     assert json.loads(board.to_json())["vehicle"]["mode"] == "hold"
+
+
+def test_a_flood_of_half_open_connections_costs_bounded_threads_and_passes(served, monkeypatch):
+    """300 connections that send half a request and wait (slowloris): at most MAX_CONNECTIONS
+    threads serve them, the rest are answered 503 at once, the idle ones are closed after the idle
+    timeout, and the page answers again; malformed HTTP is a 400. (700 such connections once made
+    700 threads and starved the resident loop of telemetry.)"""
+    import socket
+    import time
+
+    from companion.service import http as page
+
+    monkeypatch.setattr(page.StatusHandler, "timeout", 0.5)  # the idle timeout, short for the test
+    board, server, _ = served
+    board.set("companion", {"version": "x"})
+    before = threading.active_count()
+    sockets = []
+    try:
+        for _ in range(300):
+            s = socket.create_connection(("127.0.0.1", server.port), timeout=2)
+            s.sendall(b"GET /status.json HTTP/1.1\r\nHost: 127.0.0.1\r\n")  # never finished
+            sockets.append(s)
+        assert threading.active_count() - before <= page.MAX_CONNECTIONS
+        answers = []
+        for s in sockets:  # each one answered 503 at once, or closed once idle: none left hanging
+            s.settimeout(2.0)
+            answers.append(s.recv(64))
+        busy = sum(answer.startswith(b"HTTP/1.1 503") for answer in answers)
+        assert busy >= 100 and all(answer == b"" or answer.startswith(b"HTTP/1.1 503") for answer in answers)
+    finally:
+        for s in sockets:
+            s.close()
+    deadline = time.monotonic() + 5.0
+    while threading.active_count() > before and time.monotonic() < deadline:  # the idle ones time out
+        time.sleep(0.05)
+    assert request(server, "GET", "/status.json")[0] == 200
+    garbage = socket.create_connection(("127.0.0.1", server.port), timeout=2)
+    garbage.sendall(b"\x16\x03\x01 not http at all\r\n\r\n")
+    answer = b""
+    while chunk := garbage.recv(4096):  # an HTTP/0.9-style error page: no status line, code in the body
+        answer += chunk
+    assert b"Error code: 400" in answer
+    garbage.close()

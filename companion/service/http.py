@@ -11,6 +11,14 @@ Read-only: GET and HEAD only, every other method is answered 405; nothing served
 Routes: ``/`` the page, ``/status.js``, ``/status.css``, ``/status.json`` the board, ``/report``
 (→ ``/report/``) the latest campaign report with its images (``/report/NAME.png``).
 
+Bounded: at most ``MAX_CONNECTIONS`` connections are served at once (one thread each); one more is
+answered 503 at once by the accepting thread and closed, and a connection idle for
+``IDLE_TIMEOUT_S`` (a half-open request, a client that stopped reading) is closed. So a flood of
+connections or a slowloris costs a bounded number of threads, never the resident loop's time (700
+half-open connections once starved it of telemetry for 5 s); the standard library's server with
+these two bounds keeps the reasons above (no dependency, no event loop), where an asynchronous
+server would add both. A handler's failure is logged at debug level, never as a traceback.
+
 Bound to loopback unless the caller allows another address (``--http-allow-remote``, logged as a
 warning: anyone who can reach the port reads the vehicle's state). On loopback, a request whose
 ``Host`` is not a loopback name is refused (403), so a web page elsewhere cannot read the status
@@ -66,9 +74,47 @@ def static_file(name: str) -> bytes:
     return resources.files("companion.service").joinpath("static", name).read_bytes()
 
 
+#: connections served at once; more are answered 503 and closed
+MAX_CONNECTIONS = 16
+#: seconds a connection may stay silent (reading a request, or a client not reading the answer)
+IDLE_TIMEOUT_S = 5.0
+_BUSY = (b"HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain; charset=utf-8\r\nContent-Length: 18\r\n"
+         b"Retry-After: 1\r\nConnection: close\r\n\r\nbusy: retry later\n")
+
+
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
     allow_reuse_address = True
+    request_queue_size = 128  # the listen backlog: a burst of connections waits here, not in SYN retries
+
+    def server_activate(self) -> None:
+        super().server_activate()
+        self._slots = threading.BoundedSemaphore(MAX_CONNECTIONS)
+
+    def process_request(self, request, client_address) -> None:
+        """A thread for the connection while a slot is free; else 503 from this thread, at once."""
+        if not self._slots.acquire(blocking=False):
+            try:
+                request.settimeout(0.2)
+                request.sendall(_BUSY)
+            except OSError:
+                pass
+            self.shutdown_request(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._slots.release()
+            raise
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._slots.release()
+
+    def handle_error(self, request, client_address) -> None:
+        log.debug("status page: connection from %s failed", client_address, exc_info=True)
 
 
 class StatusServer:
@@ -123,6 +169,7 @@ class StatusHandler(BaseHTTPRequestHandler):
     server_version = "marine-companion"
     sys_version = ""
     protocol_version = "HTTP/1.1"
+    timeout = IDLE_TIMEOUT_S  # StreamRequestHandler: the connection's socket timeout
 
     def __init__(self, *args, board: StatusBoard, report: Callable[[], Path | None], loopback_only: bool,
                  files: dict[str, tuple[bytes, str]], **kwargs) -> None:
