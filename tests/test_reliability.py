@@ -268,3 +268,50 @@ def test_an_autopilot_that_restarts_is_named_a_reboot_not_a_lost_link():
     assert outcome.status == "aborted"
     assert outcome.reason.startswith("the autopilot rebooted during the procedure")
     assert "LinkLost" in outcome.reason  # how it was first seen stays in the sentence
+
+
+def test_a_restore_the_vehicle_refused_leaves_the_trail_open_for_recover(tmp_path):
+    """The vehicle refuses the restore's writes of HDG_P (its trial value stays): the outcome lists
+    the problem, the trail stays open, and once the process is gone the next start puts HDG_P back
+    (before, the trail was closed and `recover` said there was nothing to recover)."""
+    import subprocess
+    import sys
+
+    from behaviors.base import Behaviour, Footprint
+    from companion.interface import SetParameters
+    from companion.procedures.runner import run_procedure
+    from companion.procedures.trail import TrailRecorder, interrupted, recover, vehicle_identity
+    from companion.records.store import Store
+    from harness.inprocess import InProcessLink
+
+    link = InProcessLink(seed=2)
+    found = link.param("heading_p")
+
+    class TrialGains(Behaviour):
+        footprint = Footprint.of(parameters=("heading_p",))
+
+        def update(self, telemetry):
+            if telemetry.time_s > 1.0:
+                link.refuse.add("HDG_P")  # from now on the vehicle drops every write of HDG_P
+                self.finish()
+            return [SetParameters({"heading_p": 0.9})]
+
+    with Store(tmp_path / "s.sqlite") as store:  # as run_named_procedure runs a procedure
+        procedure = TrialGains()
+        restore = RestorePoint.capture(link, procedure.footprint)
+        campaign = store.start_campaign(store.add_vehicle("v"), "trial")
+        trail_id = store.save_restore_point(campaign, restore.as_json(), vehicle_identity(link))
+        recorder = TrailRecorder(store, trail_id, link)
+        outcome = run_procedure(link, procedure, restore=restore, on_change=recorder)
+        recorder.close()
+        store.finish_restore(trail_id, outcome.restore_problems, outcome.restore_notes)
+        assert any("HDG_P" in problem for problem in outcome.restore_problems)
+        assert link.param("heading_p") == pytest.approx(0.9)
+        (open_trail,) = store.open_trails()
+        child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+        store._db.execute("UPDATE trails SET owner_pid=?, owner_started=?", (int(child.stdout), "1"))
+        store._db.commit()
+        link.refuse.clear()
+        (trail,) = interrupted(store)
+        recovery = recover(link, store, trail, decide=lambda differences: True)
+    assert recovery.complete and link.param("heading_p") == pytest.approx(found)

@@ -439,10 +439,12 @@ class Store:
                      " VALUES (?,?,?,?,?)", (trail_id, vehicle_time_s, kind, _json(detail), _now()))
 
     def finish_restore(self, trail_id: int, problems: list[str], notes: list[str]) -> None:
-        """The restore ran: what it could not do and what it decided (the trail is closed)."""
+        """The restore ran: what it could not do and what it decided. The trail is closed only when
+        nothing failed; otherwise it stays open, so the next start (or ``companion recover``) finds the
+        vehicle still differing from how it was found and puts it back."""
         with self._transaction():
             self._db.execute("UPDATE trails SET restored_utc=?, problems_json=?, notes_json=? WHERE id=?",
-                             (_now(), _json(problems), _json(notes), trail_id))
+                             (None if problems else _now(), _json(problems), _json(notes), trail_id))
 
     def open_trails(self) -> list[dict]:
         """Trails not closed, oldest first: a procedure whose restore point was stored and whose
