@@ -17,7 +17,6 @@ A twin-thruster preset (``boat-skid``) flies ArduRover with skid steering: its o
 """
 from __future__ import annotations
 
-import fcntl
 import logging
 import math
 import socket
@@ -30,6 +29,7 @@ from pathlib import Path
 
 from sim.ardupilot_json import DECODERS, SKID_DECODERS, JsonBridge, JsonPhysics
 from sim.build import build_vehicle
+from sim.instance_claim import InstanceClaim as SharedClaim
 from sim.preset import Preset, load_preset
 
 log = logging.getLogger(__name__)
@@ -87,39 +87,12 @@ def _ports_free(instance: int) -> bool:
     return True
 
 
-#: one lock file per SITL instance, held (flock) by the process that claimed it
-INSTANCE_LOCK = str(Path(tempfile.gettempdir()) / "marine-companion-ardupilot-sitl-{instance}.lock")
-
-
-class InstanceClaim:
-    """A SITL instance reserved for this process until :meth:`release` (or its death).
-
-    Free ports alone are not a reservation: SITL binds them only after it has started, so two
-    simulators started together (parallel tests) both saw instance 0 free and the second SITL
-    exited. The claim holds an exclusive ``flock`` on the instance's lock file, which the
-    operating system releases with the process, so a killed run leaves no stale claim.
-    """
+class InstanceClaim(SharedClaim):
+    """An ArduPilot SITL instance reserved for this process (:mod:`sim.instance_claim`): its
+    MAVLink ports (5760 + 10·i and neighbours) free too."""
 
     def __init__(self, limit: int = 50) -> None:
-        self._handle = None
-        for instance in range(limit):
-            handle = open(INSTANCE_LOCK.format(instance=instance), "a")  # noqa: SIM115 - held while claimed
-            try:
-                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                handle.close()
-                continue
-            if not _ports_free(instance):  # e.g. a SITL this project did not start
-                handle.close()  # closing releases the lock
-                continue
-            self.instance, self._handle = instance, handle
-            return
-        raise RuntimeError(f"no free SITL instance among the first {limit}")
-
-    def release(self) -> None:
-        if self._handle is not None:
-            self._handle.close()
-            self._handle = None
+        super().__init__("ardupilot-sitl", _ports_free, limit)
 
 
 def free_instance(limit: int = 50) -> int:

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
+from sim.instance_claim import InstanceClaim
 from sim.preset import load_preset
 from sim.px4_hil import DECODERS, HilEndpoint, HilPhysics, Home
 from sim.vehicle import Vehicle
@@ -140,13 +141,25 @@ def _lock_free(instance: int) -> bool:
     return True
 
 
+def _instance_free(instance: int) -> bool:
+    """PX4 instance ``instance``'s ports (HIL TCP 4560+I, PX4's UDP ports) and its own lock are free."""
+    return (_lock_free(instance) and _port_free(HIL_BASE_PORT + instance, socket.SOCK_STREAM)
+            and all(_port_free(base + instance, socket.SOCK_DGRAM) for base in UDP_BASE_PORTS))
+
+
+class Px4InstanceClaim(InstanceClaim):
+    """A PX4 instance reserved for this process until PX4 holds its own lock and ports (and after):
+    probing them free and starting PX4 later let two simulators started together take the same one."""
+
+    def __init__(self, limit: int = 10) -> None:
+        super().__init__("px4-sitl", _instance_free, limit)
+
+
 def free_instance(limit: int = 10) -> int:
-    """The first PX4 instance whose ports (HIL TCP 4560+I, PX4's UDP ports) and lock are free."""
-    for instance in range(limit):
-        if (_lock_free(instance) and _port_free(HIL_BASE_PORT + instance, socket.SOCK_STREAM)
-                and all(_port_free(base + instance, socket.SOCK_DGRAM) for base in UDP_BASE_PORTS)):
-            return instance
-    raise RuntimeError(f"no free PX4 instance among the first {limit}")
+    """The first PX4 instance free and claimed by no process of ours, without claiming it."""
+    claim = Px4InstanceClaim(limit)
+    claim.release()
+    return claim.instance
 
 
 def _die_with_parent() -> None:
@@ -178,7 +191,8 @@ class Px4Sitl:
         decoder = factory.for_preset(preset) if hasattr(factory, "for_preset") else factory()
         self._truth_file = open(config.truth_log, "w", encoding="utf-8") if config.truth_log else None  # noqa: SIM115
         self.physics = HilPhysics(self.vehicle, decoder, home=config.home, seed=config.seed, truth_log=self._truth_file)
-        self.instance = free_instance()
+        self._claim = Px4InstanceClaim()  # held for PX4's lifetime: released in close()
+        self.instance = self._claim.instance
         self.endpoint_hil = HilEndpoint(self.physics, port=HIL_BASE_PORT + self.instance,
                                         speedup=config.speedup)
         self.port = ONBOARD_BASE_PORT + self.instance
@@ -277,3 +291,4 @@ class Px4Sitl:
             self._truth_file.close()
         if self._tmp is not None:
             self._tmp.cleanup()
+        self._claim.release()

@@ -361,3 +361,17 @@ def test_wall_clock_pacing_at_the_speedup(endpoint):
         assert 0.25 <= time.monotonic() - start <= 1.5
     finally:
         fake.close()
+
+
+def test_a_claimed_px4_instance_is_not_claimed_again_until_released():
+    """Like ArduPilot's: the instance is held from the claim to PX4's end, not probed free and left."""
+    from sim.px4_sitl import Px4InstanceClaim
+
+    first = Px4InstanceClaim()
+    try:
+        second = Px4InstanceClaim()
+        assert second.instance != first.instance
+        second.release()
+        assert free_instance() == second.instance
+    finally:
+        first.release()
