@@ -78,6 +78,7 @@ class DesignOutcome:
 
     design: LearnedDesign | None
     reason: str
+    original_best: bool = False  # no design because the vehicle's own gains are predicted best
 
 
 Designer = Callable[[Sequence[tuple[float, YawModel]]], DesignOutcome]
@@ -171,13 +172,22 @@ class LearningResult:
     design: str
     mode_left_s: float  # vehicle seconds spent outside the learning modes
 
+    original_best: bool = False
+
     @property
     def in_force(self) -> bool:
         """Verified learned gains are on the vehicle."""
         return self.phase is Phase.KEPT
 
+    @property
+    def goal_reached(self) -> bool:
+        """The vehicle flies gains verified at least as good as its own: learned and kept, or its own
+        predicted best on a validated model (nothing to change)."""
+        return self.phase is Phase.KEPT or (self.phase is Phase.LEARNING and self.original_best)
+
     def to_dict(self) -> dict:
         return {"phase": self.phase.value, "reason": self.reason, "in_force": self.in_force,
+                "goal_reached": self.goal_reached, "original_best": self.original_best,
                 "writes": [w.to_dict() for w in self.writes], "turns": [t.to_dict() for t in self.turns],
                 "windows": [w.to_dict() for w in self.windows], "bands": [b.to_dict() for b in self.bands],
                 "verdict": self.verdict.to_dict() if self.verdict else None, "design": self.design,
@@ -220,6 +230,7 @@ class MissionLearner(Behaviour):
         self._last_t = math.nan
         self._outside_s = 0.0
         self._revert_now = False
+        self.original_best = False  # the last design found the vehicle's own gains best
 
     # ------------------------------------------------------------------ ground station
     def accept(self) -> list[Command]:
@@ -333,6 +344,7 @@ class MissionLearner(Behaviour):
         self.events.append({"type": "design", "bands": [s for s, _ in validated], "reason": outcome.reason,
                             "written": outcome.design is not None})
         if outcome.design is None:
+            self.original_best = outcome.original_best
             self.note = f"nothing to write: {outcome.reason}"
             log.info("learning: %s", self.note)
             return [StatusText(f"LEARN: keeping the gains ({outcome.reason})"[:50])]
@@ -426,4 +438,4 @@ class MissionLearner(Behaviour):
                                   validations=tuple(r2 for _, r2 in b.validations)) for b in self.models.bands)
         return LearningResult(phase=self.phase, reason=self.note, writes=tuple(self.writes), turns=tuple(self.turns),
                               windows=tuple(self.windows), bands=bands, verdict=self.verdict, design=self.design_summary,
-                              mode_left_s=self._outside_s)
+                              mode_left_s=self._outside_s, original_best=self.original_best)

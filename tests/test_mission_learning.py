@@ -375,3 +375,26 @@ def _with_change(link, *, at_s: float, native: str, value: float):
         return telemetry
 
     return next_telemetry
+
+
+def test_a_campaign_during_learning_ends_the_session_first_and_its_gains_stand(tmp_path):
+    """USER_1 while learning: the session ends first (its unverified gains back), the campaign
+    writes its verified gains, and a new session learns from them; nothing of learning undoes them."""
+    from pymavlink.dialects.v20.common import MAV_CMD_USER_1
+
+    from companion.procedures.campaign import CampaignConfig
+
+    link = _survey_link()
+    link.inject_user_command(MAV_CMD_USER_1, 120.0)  # gains learned and written near 108 s, unverified
+    companion, store = _serve(link, tmp_path, 600.0, campaign=CampaignConfig(thrusts=(0.7,), axes=("yaw",)).quick())
+    first, second = [c for c in store.campaigns() if c["kind"] == "learning"]
+    (identification,) = [c for c in store.campaigns() if c["kind"] == "identification"]
+    assert identification["status"] == "completed", identification["reason"]
+    assert first["id"] < identification["id"] < second["id"]
+    assert first["status"] == "failed" and "written back" in first["reason"]
+    (written,) = store.gains(identification["id"])
+    assert written["before"]["heading_p"] == pytest.approx(POOR["HDG_P"])  # learning's unverified gains were gone
+    assert link.param("heading_p") == pytest.approx(written["after"]["heading_p"])  # and learning left the campaign's
+    assert link.param("heading_i") == pytest.approx(written["after"]["heading_i"])
+    result = store.behavior_results(second["id"], "learning")[0]["result"]
+    assert result["original_best"] and second["status"] == "completed"  # nothing better than the campaign's

@@ -118,7 +118,8 @@ class HeadingDesigner:
         except ValueError as exc:
             return DesignOutcome(None, f"no design: {exc}")
         if choice.keeps_original:
-            return DesignOutcome(None, f"the original gains are predicted best ({choice.choice.reason()})")
+            return DesignOutcome(None, f"the original gains are predicted best ({choice.choice.reason()})",
+                                 original_best=True)
         kind = next(k for k in with_design(self.config, choice).kinds() if k.axis == "yaw")
         try:
             schedule = kind.fit([a.speed for a in attempts], [a.model for a in attempts])
@@ -270,7 +271,7 @@ class LearningSession:
             log.error("learning: the vehicle could not be put back: %s", "; ".join(problems))
             self._close(learner, "failed", f"not put back: {'; '.join(problems)}", close_trail=False)
             return self.result
-        status = "completed" if learner.phase is Phase.KEPT else "failed"
+        status = "completed" if learner.result().goal_reached else "failed"
         self._close(learner, status, learner.note, close_trail=True, notes=self.restore.notes)
         return self.result
 

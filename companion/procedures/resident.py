@@ -302,7 +302,26 @@ class Companion:
             self.link.status_text(f"gain scheduling: write failed ({exc})"[:50], 4)
 
     def _run_procedure(self, command: int, params: tuple[float, ...]) -> None:
-        """Start what the command names (``companion.procedures.registry.COMMANDS``), one runner for all."""
+        """Start what the command names (``companion.procedures.registry.COMMANDS``), one runner for all.
+        A learning session ends first (its unverified gains put back, its verified ones kept) and a
+        new one starts after, from the gains the procedure left: its restore must never undo what the
+        procedure verified and wrote."""
+        if self.learning is not None:
+            self.learning.finish()
+        try:
+            self._run_one(command, params)
+        finally:
+            if self.learning is not None:
+                self._restart_learning()
+
+    def _restart_learning(self) -> None:
+        self.learning = LearningSession(self.link, self.store, self.vehicle_id, self.config.learning, self.config.campaign)
+        refused = self.learning.start()
+        if refused is not None:
+            log.warning("learning off after the procedure: %s", refused)
+            self.learning = None
+
+    def _run_one(self, command: int, params: tuple[float, ...]) -> None:
         self.procedure_abort = AbortFlag()
         self.running = command
         name = COMMANDS[command]
