@@ -398,3 +398,12 @@ def test_a_campaign_during_learning_ends_the_session_first_and_its_gains_stand(t
     assert link.param("heading_i") == pytest.approx(written["after"]["heading_i"])
     result = store.behavior_results(second["id"], "learning")[0]["result"]
     assert result["original_best"] and second["status"] == "completed"  # nothing better than the campaign's
+
+
+def test_learning_is_refused_where_its_gains_could_not_be_verified():
+    from companion.link.profiles import ARDUROVER, ARDUSUB, SIM
+    from companion.procedures.learning import unverifiable
+
+    assert unverifiable(SIM) is None  # reports the heading set-point it holds
+    assert unverifiable(ARDUROVER) is None  # reports its steering loop's turn rates (PID_TUNING)
+    assert "could not be verified" in unverifiable(ARDUSUB) and "companion identify" in unverifiable(ARDUSUB)

@@ -135,6 +135,17 @@ def heading_kind_for(config: CampaignConfig) -> ScheduleKind | None:
     return next((k for k in config.kinds() if k.axis == "yaw"), None)
 
 
+def unverifiable(profile) -> str | None:
+    """Why learned gains could not be verified on this autopilot (None when they can): it must report
+    its heading set-point (course changes as steps) or its rate loop's turn rates (PID_TUNING)."""
+    if profile.learning_verification == "turn_rate" and profile.pid_tuning_mask in profile.params:
+        return None
+    if profile.learning_verification == "course_changes" and profile.reports_heading_target:
+        return None
+    return (f"{profile.name} reports neither the heading set-point it holds nor its rate loop's turn rates, so "
+            "learned gains could not be verified on the mission's turns; tune it with a campaign (companion identify)")
+
+
 class LearningSession:
     """One ``companion run --learn`` session: the learner, its trail and its records."""
 
@@ -152,6 +163,9 @@ class LearningSession:
 
     def start(self) -> str | None:
         """Read the original gains and open the records; the reason when learning cannot run."""
+        refused = unverifiable(self.link.profile)
+        if refused is not None:
+            return refused
         kind = heading_kind_for(self.campaign)
         if not optimisable(kind):
             return f"no model of this autopilot's heading controller to design with ({kind.name if kind else 'none'})"
