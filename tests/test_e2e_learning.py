@@ -31,7 +31,7 @@ def set_param(conn, name: str, value: float, timeout_s: float = 10.0) -> None:
 
 
 def test_run_learn_tunes_a_vehicle_flying_its_own_survey(sim_factory, tmp_path):
-    sim = sim_factory(transport="tcp", speedup=20, seed=3, lockstep=True)
+    sim = sim_factory(transport="tcp", speedup=50, seed=3, lockstep=True)
     station = SurveyGroundStation(sim.endpoint, PLAN)
     station.start()
     try:
