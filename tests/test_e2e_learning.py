@@ -39,7 +39,7 @@ def test_run_learn_tunes_a_vehicle_flying_its_own_survey(sim_factory, tmp_path):
             set_param(station.conn, name, value)
         store_path = tmp_path / "store.sqlite"
         run = subprocess.run([sys.executable, "-m", "companion", "run", "--connect", sim.endpoint, "--lockstep",
-                              "--learn", "--no-health", "--store", str(store_path), "--max-vehicle-time", "420"],
+                              "--learn", "--no-health", "--store", str(store_path), "--max-vehicle-time", "260"],
                              capture_output=True, text=True, timeout=300)
     finally:
         station.stop()
@@ -54,4 +54,4 @@ def test_run_learn_tunes_a_vehicle_flying_its_own_survey(sim_factory, tmp_path):
     verdict = learned["verdict"]
     assert verdict["after_error"] < 0.8 * verdict["before_error"]
     assert learned["mode_left_s"] < 2.0  # only the first second, before the ground station chose its mode
-    assert len(station.sent) >= 10  # the survey was flown throughout
+    assert len(station.sent) >= 8  # the survey was flown throughout (a course change every 30 s)
