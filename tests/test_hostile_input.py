@@ -612,3 +612,11 @@ def test_a_store_with_damaged_pages_is_a_sentence_not_a_traceback(capsys, tmp_pa
     code, _, err = run_cli(capsys, "results", "--store", str(path))
     assert code == 1 and "Traceback" not in err
     assert "could not be read" in err and "damaged" in err and ".recover" in err
+
+
+def test_the_profile_choices_are_the_registered_autopilots(capsys):
+    from companion.link.profiles import PROFILES
+
+    code, _, err = run_cli(capsys, "status", "--connect", "tcp:127.0.0.1:9", "--profile", "no-such-autopilot")
+    assert code == 2
+    assert all(f"'{name}'" in err for name in PROFILES)  # argparse lists the registered ones

@@ -21,10 +21,12 @@ def add_store_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def add_connect_arguments(parser: argparse.ArgumentParser, required: bool = True) -> None:
+    from companion.link.profiles import PROFILES  # the registered autopilot modules: one line each
+
     parser.add_argument("--connect", required=required, metavar="ENDPOINT", type=endpoint_argument,
                         help="pymavlink connection string, e.g. udpin:0.0.0.0:14551, udpout:127.0.0.1:14550, "
                              "tcp:127.0.0.1:5760, /dev/ttyUSB0,57600")
-    parser.add_argument("--profile", choices=("sim", "ardusub", "ardurover", "px4-rover", "px4-uuv"), default=None,
+    parser.add_argument("--profile", choices=sorted(PROFILES), default=None,
                         help="autopilot profile (default: detected from the parameter names)")
     parser.add_argument("--signing-key", metavar="HEX", default=None, type=signing_key_argument,
                         help="MAVLink 2 signing key as 64 hex characters (32 bytes)")
