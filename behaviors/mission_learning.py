@@ -20,10 +20,11 @@ Phases (:class:`Phase`):
    reports its heading set-point, the heading stayed within ``max_heading_error_deg`` of it. A turn
    whose record is still open then is dropped: it would be flown on two gain sets. Each write is announced by STATUSTEXT and queued as an event for the store.
 3. **verifying** — the next ``verify_turns`` course changes are judged against the turns flown on
-   the original gains at the same speed and against their prediction (eq. L.2). Kept: **kept**, and
-   from then on the design's gains follow the speed (rewritten at safe moments, with hysteresis).
+   the original gains at the same speed and against their prediction (eq. L.2). Kept: **kept**.
    Else **waiting to revert**, then the original gains are written at the next safe moment:
-   **reverted**, and this session writes nothing more (the reason is said and stored).
+   **reverted**, and this session writes nothing more (the reason is said and stored). Kept gains
+   are those verified at the speed flown: they are not rescheduled to speeds the turns did not
+   verify.
 
 A ground station may accept (the verification ends, the gains stay) or revert at any time
 (:meth:`MissionLearner.accept`, :meth:`MissionLearner.revert`; ``companion run`` maps them onto
@@ -116,12 +117,10 @@ class LearningConfig:
     max_turn_rate_deg_s: float = 1.5
     max_heading_error_deg: float = 5.0
     verdict: VerdictConfig = VerdictConfig()
-    relative_hysteresis: float = 0.08  # rewrite a kept design's gains when one moved by more than this
 
     def __post_init__(self) -> None:
         require_positive(self, "min_step_deg", "turn_s", "verify_turns", "segment_s", "min_segment_rate_deg_s",
-                         "verify_segments", "steady_s", "max_turn_rate_deg_s", "max_heading_error_deg",
-                         "relative_hysteresis")
+                         "verify_segments", "steady_s", "max_turn_rate_deg_s", "max_heading_error_deg")
         require_choice(self, "verification", ("course_changes", "turn_rate"))
         if not self.modes:
             raise ValueError("LearningConfig.modes: at least one mode in which the autopilot steers itself")
@@ -173,6 +172,7 @@ class LearningResult:
     mode_left_s: float  # vehicle seconds spent outside the learning modes
 
     original_best: bool = False
+    verified: tuple[str, ...] = ()  # the learned gains verified by the mission's turns (they stay)
 
     @property
     def in_force(self) -> bool:
@@ -183,11 +183,13 @@ class LearningResult:
     def goal_reached(self) -> bool:
         """The vehicle flies gains verified at least as good as its own: learned and kept, or its own
         predicted best on a validated model (nothing to change)."""
-        return self.phase is Phase.KEPT or (self.phase is Phase.LEARNING and self.original_best)
+        return (self.phase is Phase.KEPT or bool(self.verified)
+                or (self.phase is Phase.LEARNING and self.original_best))
 
     def to_dict(self) -> dict:
         return {"phase": self.phase.value, "reason": self.reason, "in_force": self.in_force,
                 "goal_reached": self.goal_reached, "original_best": self.original_best,
+                "verified": list(self.verified),
                 "writes": [w.to_dict() for w in self.writes], "turns": [t.to_dict() for t in self.turns],
                 "windows": [w.to_dict() for w in self.windows], "bands": [b.to_dict() for b in self.bands],
                 "verdict": self.verdict.to_dict() if self.verdict else None, "design": self.design,
@@ -217,6 +219,7 @@ class MissionLearner(Behaviour):
         self.design: LearnedDesign | None = None
         self.design_summary = ""
         self.written: dict[str, float] | None = None  # the learned gains on the vehicle now
+        self.verified: dict[str, float] = {}  # learned gains the mission's turns verified (they stay)
         self.written_at = math.nan
         self.writes: list[GainWrite] = []
         self.turns: list[TurnFigures] = []
@@ -237,6 +240,7 @@ class MissionLearner(Behaviour):
         """The ground station accepts the gains being verified (or kept): they stay."""
         if self.phase not in (Phase.VERIFYING, Phase.KEPT):
             return []
+        self.verified = dict(self.written or self.verified)
         self._set(Phase.KEPT, "accepted by the ground station")
         return [StatusText("LEARN: gains accepted by the ground station")]
 
@@ -245,6 +249,8 @@ class MissionLearner(Behaviour):
         design not yet written is dropped. Either way this session writes nothing more."""
         if self.phase in (Phase.REVERTED, Phase.OVERRIDDEN):
             return
+        if self.written is None and self.verified:  # kept gains: the ground station takes them back
+            self.written = dict(self.verified)
         if self.written is None:
             self.events.append({"type": "revert", "reason": reason, "written": False})
             self._set(Phase.REVERTED, reason)
@@ -263,6 +269,8 @@ class MissionLearner(Behaviour):
             others = {k: v for k, v in self.original.items() if k not in names}
             if others:
                 commands += self._write(self._last_t, math.nan, "revert", others)
+        for name in names:  # theirs now, verified or not
+            self.verified.pop(name, None)
         self.written = None
         self.events.append({"type": "overridden", "names": list(names), "reason": reason})
         self._set(Phase.OVERRIDDEN, reason)
@@ -294,7 +302,7 @@ class MissionLearner(Behaviour):
             return commands + self._write_original(t, telemetry.speed_water)
         if self.phase is Phase.LEARNING:
             commands += self._maybe_design()
-        elif self.phase is Phase.WAITING_TO_WRITE and steady:
+        elif self.phase is Phase.WAITING_TO_WRITE and steady and math.isfinite(telemetry.speed_water):
             commands += self._write_design(t, telemetry.speed_water, "design")
             what = (f"{self.config.verify_segments} turn-rate segments" if self.by_rate
                     else f"{self.config.verify_turns} course changes")
@@ -303,8 +311,6 @@ class MissionLearner(Behaviour):
             commands += self._maybe_judge()
         elif self.phase is Phase.WAITING_TO_REVERT and steady:
             commands += self._write_original(t, telemetry.speed_water)
-        elif self.phase is Phase.KEPT and steady:
-            commands += self._follow_speed(t, telemetry.speed_water)
         return commands
 
     def _set(self, phase: Phase, reason: str) -> None:
@@ -367,22 +373,12 @@ class MissionLearner(Behaviour):
 
     def _write_original(self, t: float, speed: float) -> list[Command]:
         self._revert_now = False
+        self.verified = {}
         self.events.append({"type": "revert", "reason": self.note, "written": True})
         self.written = None
         commands = self._write(t, speed, "revert", self.original)
         self._set(Phase.REVERTED, self.note)
         return commands + [StatusText(f"LEARN: reverted ({self.note})"[:50], 4)]
-
-    def _follow_speed(self, t: float, speed: float) -> list[Command]:
-        if not math.isfinite(speed) or self.written is None:
-            return []
-        gains = self.design.gains_at(speed)
-        moved = any(abs(gains[k] - self.written.get(k, 0.0)) > self.config.relative_hysteresis * max(abs(self.written.get(k, 0.0)), 1e-6)
-                    for k in gains)
-        if not moved:
-            return []
-        self.written = gains
-        return self._write(t, speed, "schedule", gains)
 
     # ------------------------------------------------------------------ turns and the verdict
     def _turn_flown(self, turn: FlownTurn) -> None:
@@ -420,12 +416,14 @@ class MissionLearner(Behaviour):
         after = [t for t in self.turns if t.gains == "learned"]
         if len(after) < (self.config.verify_segments if self.by_rate else self.config.verify_turns):
             return []
-        speed = sum(t.speed for t in after) / len(after)
+        speeds = [t.speed for t in after if math.isfinite(t.speed)]
+        speed = sum(speeds) / len(speeds) if speeds else math.nan
         width = self.config.tracking.band_width
         before = [t for t in self.turns if t.gains == "original" and abs(t.speed - speed) <= width * speed]
         self.verdict = judge_turns(before, after, self.config.verdict, flown_reference=not self.by_rate)
         self.events.append({"type": "verdict", **self.verdict.to_dict()})
         if self.verdict.keep:
+            self.verified = dict(self.written or {})
             self._set(Phase.KEPT, f"verified: {self.verdict.reason}")
             return [StatusText(f"LEARN: kept, {self.verdict.after_error:.2f} vs {self.verdict.before_error:.2f}"[:50])]
         self._set(Phase.WAITING_TO_REVERT, self.verdict.reason)
@@ -438,4 +436,5 @@ class MissionLearner(Behaviour):
                                   validations=tuple(r2 for _, r2 in b.validations)) for b in self.models.bands)
         return LearningResult(phase=self.phase, reason=self.note, writes=tuple(self.writes), turns=tuple(self.turns),
                               windows=tuple(self.windows), bands=bands, verdict=self.verdict, design=self.design_summary,
-                              mode_left_s=self._outside_s, original_best=self.original_best)
+                              mode_left_s=self._outside_s, original_best=self.original_best,
+                              verified=tuple(self.verified))

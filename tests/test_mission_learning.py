@@ -235,7 +235,7 @@ def test_a_session_ended_during_the_verification_writes_the_original_gains_back(
     link = _survey_link()
     _companion, store = _serve(link, tmp_path, 140.0)  # written near 108 s, three turns not yet flown
     campaign, result = _learning_result(store)
-    assert result["phase"] == "verifying" and campaign["status"] == "failed"
+    assert result["phase"] == "reverted" and campaign["status"] == "failed"
     assert "written back" in campaign["reason"]
     assert link.param("heading_p") == pytest.approx(POOR["HDG_P"])
     assert not store.open_trails()

@@ -160,6 +160,7 @@ class LearningSession:
         self.restore: RestorePoint | None = None
         self.result: LearningResult | None = None
         self._foreign_seen: set[str] = set()
+        self.restore_problems: list[str] = []  # what the session's end could not put back
 
     def start(self) -> str | None:
         """Read the original gains and open the records; the reason when learning cannot run."""
@@ -221,14 +222,22 @@ class LearningSession:
         return self.learner.phase if self.learner is not None else None
 
     def step(self, telemetry) -> None:
+        """One snapshot. A write the vehicle refused or lost (or any failure of a step) ends the
+        session through its restore point, said; the resident loop goes on."""
         if self.learner is None:
             return
-        changed = self._changed_by_others()
-        if changed:
-            natives = ", ".join(f"{c.name} {c.value:g}" for c in changed.values())
-            self._send(self.learner.overridden(tuple(changed), f"set by someone else: {natives}"))
-        self._send(self.learner.tick(telemetry))
-        self._drain()
+        try:
+            changed = self._changed_by_others()
+            if changed:
+                natives = ", ".join(f"{c.name} {c.value:g}" for c in changed.values())
+                self._send(self.learner.overridden(tuple(changed), f"set by someone else: {natives}"))
+            self._send(self.learner.tick(telemetry))
+            self._drain()
+        except Exception as exc:  # noqa: BLE001 - the resident loop must outlive a failed write
+            log.warning("learning stopped: %s", exc)
+            self.learner.note = f"stopped: {type(exc).__name__}: {exc}"
+            self.link.status_text(f"LEARN: stopped, {exc}"[:50], 4)
+            self.finish()
 
     def _changed_by_others(self) -> dict:
         """neutral name → the link's record of a learned gain someone else changed, not seen before."""
@@ -269,21 +278,27 @@ class LearningSession:
             self.store.add_behavior_result(self.campaign_id, "learning_event", event["type"], event)
 
     def finish(self) -> LearningResult | None:
-        """The vehicle put back as found except what stays on purpose — verified learned gains, and
-        what someone else set meanwhile — by the restore point (each parameter read back; the
-        PID_TUNING mask included), the result stored, the trail closed (idempotent). A restore that
-        could not finish leaves the trail open: ``companion recover`` follows it."""
+        """The vehicle put back as found except what stays on purpose — learned gains the mission's
+        turns verified, and what someone else set meanwhile — by the restore point (each parameter
+        read back; the PID_TUNING mask included), the result stored, the trail closed (idempotent). A
+        restore that could not finish leaves the trail open (``companion recover`` follows it) and
+        :attr:`restore_problems` says what is not back."""
         if self.learner is None:
             return self.result
         learner = self.learner
-        keep = tuple(learner.original) if learner.phase is Phase.KEPT else ()
-        if learner.phase is not Phase.KEPT and learner.written is not None:
+        try:
+            self._drain()
+        except Exception as exc:  # noqa: BLE001 - the restore below matters more than a record
+            log.error("learning: events not stored: %s", exc)
+        keep = tuple(learner.verified)
+        if learner.written is not None and set(learner.written) - set(keep):
             learner.note = f"{learner.note}; the session ended before the verification: original gains written back"
-        problems = self.restore.restore(self.link, mode=False, keep=keep)
+            learner.phase = Phase.REVERTED
+        self.restore_problems = self.restore.restore(self.link, mode=False, keep=keep)
         learner.written = None
-        if problems:
-            log.error("learning: the vehicle could not be put back: %s", "; ".join(problems))
-            self._close(learner, "failed", f"not put back: {'; '.join(problems)}", close_trail=False)
+        if self.restore_problems:
+            log.error("learning: the vehicle could not be put back: %s", "; ".join(self.restore_problems))
+            self._close(learner, "failed", f"not put back: {'; '.join(self.restore_problems)}", close_trail=False)
             return self.result
         status = "completed" if learner.result().goal_reached else "failed"
         self._close(learner, status, learner.note, close_trail=True, notes=self.restore.notes)

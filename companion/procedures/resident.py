@@ -308,6 +308,13 @@ class Companion:
         procedure verified and wrote."""
         if self.learning is not None:
             self.learning.finish()
+            if self.learning.restore_problems:  # the vehicle is not as found: nothing may build on it
+                problems = "; ".join(self.learning.restore_problems)
+                log.error("%s not started: learning could not put the vehicle back (%s)", COMMANDS[command], problems)
+                self.link.status_text("procedure refused: learning's gains not put back", 4)
+                self.link.ground.send_command_ack(command, MAV_RESULT_FAILED)
+                self.learning = None  # the trail stays open: `companion recover` puts the vehicle back
+                return
         try:
             self._run_one(command, params)
         finally:
