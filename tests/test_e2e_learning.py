@@ -50,7 +50,7 @@ def test_run_learn_tunes_a_vehicle_flying_its_own_survey(sim_factory, tmp_path):
     learned = result["result"]
     assert campaign["status"] == "completed" and learned["phase"] == "kept", campaign["reason"]
     design = [w for w in learned["writes"] if w["why"] == "design"]
-    assert design and design[0]["time_s"] < 300.0
+    assert design and design[0]["time_s"] < 150.0  # written after the first validated band, on a straight
     verdict = learned["verdict"]
     assert verdict["after_error"] < 0.8 * verdict["before_error"]
     assert learned["mode_left_s"] < 2.0  # only the first second, before the ground station chose its mode

@@ -113,8 +113,9 @@ def test_the_tracker_learns_the_hull_from_course_changes_and_validates_on_window
 
 
 def test_without_process_noise_the_filter_is_the_least_squares_over_its_windows():
-    """eq. L.1 with q = 0: the Kalman filter over the parameters is the RLS, i.e. the least squares
-    over every row it absorbed (from the first window's estimate and covariance)."""
+    """eq. L.1 with q = 0: the Kalman filter over the parameters is recursive least squares over every
+    row it absorbed, each window weighted by its own noise; on windows of similar noise that is the
+    plain least squares."""
     windows = [w for w in _flown_windows(seconds=200.0) if w.heading_span_deg > 10.0]
     models = MissionModels(TrackingConfig(process_noise=0.0, min_windows=99))
     for window in windows:
@@ -161,6 +162,8 @@ def test_the_verdict_keeps_better_gains_as_predicted_and_names_what_failed_other
     assert not overshoot.keep and "overshoot" in overshoot.reason
     alone = judge_turns([], _turns("learned", 2.8, predicted=2.6), config)
     assert alone.keep and "prediction (none flown before)" in alone.reason
+    unpredicted = judge_turns(_turns("original", 4.8), _turns("learned", 2.8), config)  # no prediction: fail safe
+    assert not unpredicted.keep and "no prediction" in unpredicted.reason
 
 
 # ---------------------------------------------------------------------------- the resident loop
@@ -171,6 +174,7 @@ def test_run_learn_writes_verified_gains_within_five_minutes_of_an_ordinary_surv
     assert campaign["status"] == "completed" and result["phase"] == "kept", campaign["reason"]
     (write,) = [w for w in result["writes"] if w["why"] == "design"]
     assert write["time_s"] < 300.0
+    assert (write["time_s"] - 30.0) % 30.0 >= 8.0  # at least steady_s after the course change before it
     verdict = result["verdict"]
     assert verdict["turns_after"] >= 3 and verdict["after_error"] < 0.8 * verdict["before_error"]
     # written on a straight: no turn recorded around the write, and the vehicle holds the written gains
@@ -200,13 +204,68 @@ def test_gains_the_vehicle_does_not_answer_as_predicted_are_reverted_on_a_straig
     assert any(text.startswith("LEARN: reverted") for text in link.status_texts)
 
 
-def test_nothing_is_written_while_the_pilot_flies_by_hand(tmp_path):
-    """MANUAL from 90 s to 200 s, when the design is ready: it waits for the holding mode and a
-    straight, and the turns flown by hand count for nothing."""
+class _ReadyDesign:
+    """A design ready at once (the tracker and designer are tested above): gains and predictions."""
+
+    summary = "ready"
+
+    def gains_at(self, speed):
+        return {"heading_p": 0.63, "heading_i": 0.001}
+
+    def predict(self, gains, speed, step):
+        return 2.6, 4.0
+
+    def replay(self, gains, speed, segment):
+        return segment.desired
+
+    def rate_limit(self, speed):
+        return 1.0
+
+
+def _ready_learner(**config):
+    from behaviors.mission_learning import DesignOutcome, LearningConfig, MissionLearner
+
+    learner = MissionLearner(lambda validated: DesignOutcome(_ReadyDesign(), "ready"),
+                             {"heading_p": 0.4, "heading_i": 0.02}, LearningConfig(**config))
+    learner.models.validated = lambda: [(1.4, None)]
+    return learner
+
+
+def _writes(learner, samples) -> list[float]:
+    """Vehicle times at which the learner wrote gains, over (time, mode, yaw, yaw target) samples."""
+    out = []
+    for t, mode, yaw, target in samples:
+        telemetry = Telemetry(time_s=t, yaw=yaw, yaw_rate=0.0, speed_water=1.4, rudder=0.0, heading_target=target,
+                              mode=mode, armed=True)
+        if any(type(c).__name__ == "SetParameters" for c in learner.tick(telemetry)):
+            out.append(t)
+    return out
+
+
+def test_nothing_is_written_while_the_pilot_flies_by_hand():
+    """A design is ready at once, but the vehicle is in MANUAL for the first 60 s on a steady
+    course: nothing is written then; in the holding mode it is written once the course has been
+    steady for ``steady_s`` (8 s) there."""
+    learner = _ready_learner()
+    samples = [(0.05 * k, "manual" if k < 1200 else "hold", 0.3, 0.3) for k in range(1600)]
+    assert _writes(learner, samples) == [pytest.approx(60.0 + 0.9 * 8.0, abs=0.1)]
+
+
+def test_nothing_is_written_in_a_turn_or_off_the_set_point():
+    """In the holding mode, ready at once: a steady turn (a net change of course) and a heading 10°
+    off its set-point both hold the write back until a straight on its set-point."""
+    learner = _ready_learner()
+    turning = [(0.05 * k, "hold", 0.05 * 0.05 * k, 0.05 * 0.05 * k) for k in range(400)]  # 2.9°/s turn, on target
+    off = [(20.0 + 0.05 * k, "hold", 1.0 + math.radians(10.0), 1.0) for k in range(400)]  # 10° off, 20 s
+    on = [(40.0 + 0.05 * k, "hold", 1.0, 1.0) for k in range(400)]
+    assert _writes(learner, turning + off + on) == [pytest.approx(40.0 + 0.9 * 8.0, abs=0.1)]
+    lax = _ready_learner(max_turn_rate_deg_s=100.0)  # the same turn counts as a straight without the rule
+    assert _writes(lax, turning)[:1] == [pytest.approx(0.9 * 8.0, abs=0.1)]
+
+
+def test_time_outside_the_learning_modes_is_counted(tmp_path):
     link = _survey_link(manual=(90.0, 200.0))
-    companion, store = _serve(link, tmp_path, 200.0)
-    _campaign, result = _learning_result(store)
-    assert result["writes"] == []
+    companion, _store = _serve(link, tmp_path, 200.0)
     assert companion.learning.result.mode_left_s == pytest.approx(110.0, abs=0.5)
 
 
@@ -295,7 +354,8 @@ def test_the_rate_loop_prediction_tracks_with_the_right_feed_forward_and_not_wit
 
 def test_the_learner_verifies_turn_rate_tracking_where_the_navigation_asks_for_rates():
     """A learner in "turn_rate" mode judges segments: kept when the flown tracking error after the
-    write is below the one before and near its prediction (a synthetic design and vehicle)."""
+    write is below the original gains' replay on the same asked-for rates and near its own
+    prediction (a synthetic design and vehicle)."""
     from behaviors.mission_learning import DesignOutcome, LearningConfig, MissionLearner
 
     class Design:
@@ -407,3 +467,40 @@ def test_learning_is_refused_where_its_gains_could_not_be_verified():
     assert unverifiable(SIM) is None  # reports the heading set-point it holds
     assert unverifiable(ARDUROVER) is None  # reports its steering loop's turn rates (PID_TUNING)
     assert "could not be verified" in unverifiable(ARDUSUB) and "companion identify" in unverifiable(ARDUSUB)
+
+
+def test_a_replay_that_starts_in_a_steady_turn_stays_in_it():
+    """A segment may begin in the middle of a turn the vehicle was already holding: the replay starts
+    in that steady turn, whatever the gains, instead of from the trim (which made weak feed-forward
+    gains look 2.6 deg/s worse than they were)."""
+    plant = RudderPlant(a22=-1.0, b2=0.5, delta0=0.01, rudder_max=0.5236)
+    times = np.arange(0.0, 10.0, 0.05)
+    held = np.full(times.size, 0.1)  # asked for the turn it is in
+    for gains in ({"heading_rate_ff": 1.0, "heading_rate_p": 0.2, "heading_rate_i": 0.2},
+                  {"heading_rate_ff": 3.8, "heading_rate_p": 0.5, "heading_rate_i": 0.5}):
+        achieved = simulate_rate_tracking(plant, gains, times, held, 0.1)
+        assert np.max(np.abs(achieved - 0.1)) < math.radians(0.2)
+
+
+def test_verified_gains_stay_when_someone_else_later_sets_another_one(tmp_path):
+    """Kept near 205 s; a ground station sets HDG_I at 240 s: their HDG_I stays, and so does the
+    verified learned HDG_P, at the end of the session too."""
+    link = _survey_link()
+    link.next_telemetry = _with_change(link, at_s=240.0, native="HDG_I", value=0.05)
+    _companion, store = _serve(link, tmp_path, 280.0)
+    campaign, result = _learning_result(store)
+    learned = next(w["gains"] for w in result["writes"] if w["why"] == "design")
+    assert result["phase"] == "overridden" and campaign["status"] == "completed", campaign["reason"]
+    assert link.param("heading_i") == pytest.approx(0.05)
+    assert link.param("heading_p") == pytest.approx(learned["heading_p"])
+
+
+def test_a_write_the_vehicle_refuses_ends_learning_and_the_loop_goes_on(tmp_path):
+    link = _survey_link()
+    link.refuse.add("HDG_I")  # the learned gains' write fails half-way (HDG_P went through)
+    companion, store = _serve(link, tmp_path, 200.0)
+    campaign, result = _learning_result(store)
+    assert campaign["status"] == "failed" and "stopped" in campaign["reason"]
+    assert link.param("heading_p") == pytest.approx(POOR["HDG_P"])  # put back by the restore point
+    assert any(text.startswith("LEARN: stopped") for text in link.status_texts)
+    assert companion.learning is None or companion.learning.learner is None  # the session ended, the loop did not

@@ -22,11 +22,12 @@ simulated from the recorded rudder, which a biased model does not reproduce.
 
 **eq. L.1: tracking.** Per speed band a Kalman filter over θ (filterpy's ``KalmanFilter``) with a
 random walk θ_k = θ_{k−1} + w, Q = diag((q·θ̂)²)·Δt, and each row a measurement
-ψ̈f,k = φ_kᵀθ + e_k. With q = 0 it is the RLS of the identifier (P0 from the first window's own
-estimate). The rows' error is coloured (the SVF correlates neighbours over ~1/λ), so R is the
-window's residual variance inflated by the ratio of its Newey–West variance to the white-noise one:
-then P after a window is that window's Newey–West covariance, not a white-noise one too small by
-that ratio.
+ψ̈f,k = φ_kᵀθ + e_k. With q = 0 it is the recursive weighted least squares over every row absorbed
+(each window's rows weighted by 1/R of that window; the first window's estimate and covariance are
+its start). The rows' error may be coloured (the SVF correlates neighbours over ~1/λ), so R is the
+window's residual variance times the ratio of its Newey–West variance to the white-noise one when
+that ratio exceeds 1 (never deflated below the white-noise variance); the first window's covariance
+follows the same rule, so no window weighs more than its noise says.
 
 **Bands.** A window joins the band whose centre speed is within ``band_width`` (relative) of its
 speed, else it opens a band. A band's model is *validated* once ``min_windows`` windows were
@@ -102,7 +103,10 @@ class ParameterTracker:
         self.process_noise = process_noise
         self.filter = KalmanFilter(dim_x=3, dim_z=1)
         self.filter.x = np.asarray(first.theta, dtype=float).reshape(3, 1)
-        self.filter.P = np.asarray(first.covariance, dtype=float) + np.diag(np.square(1e-6 * np.abs(first.theta)))
+        sigma2, ratio = _white_and_hac(first)  # the same noise rule as every later window's rows
+        record = first.record
+        self.filter.P = ratio * sigma2 * np.linalg.inv(record.phi.T @ record.phi) \
+            + np.diag(np.square(1e-6 * np.abs(first.theta)))
         self.filter.F = np.eye(3)
         self.last_t = first.t_end
         self.windows = 1

@@ -169,16 +169,20 @@ def simulate_rate_tracking(plant: RudderPlant, gains: dict[str, float], times: S
                            output_scale: float = 1.0, rate_imax: float = 1.0, dt: float = 0.01,
                            **_limits: float) -> np.ndarray:
     """The turn rate (rad/s, at ``times``) of eq. A.2's rate loop alone on the model, asked for the
-    recorded ``desired`` turn rate (held between samples), from ``yaw_rate0`` with the integrator at
-    the rudder's trim: what the rate loop with ``gains`` makes of the turns a navigation asked for
-    (the angle loop's limits, ``_limits``, do not act here)."""
+    recorded ``desired`` turn rate (held between samples): what the rate loop with ``gains`` makes
+    of the turns a navigation asked for (the angle loop's limits, ``_limits``, do not act here). It
+    starts in the steady turn at ``yaw_rate0`` — the rudder that holds it, b2·(δ − δ0) = −a22·r0, and
+    the integrator that gives that rudder — since a record may begin in the middle of a turn."""
     t = np.asarray(times, dtype=float)
     wanted = np.asarray(desired, dtype=float)
     rate_p, rate_i = gains.get("heading_rate_p", 0.0), gains.get("heading_rate_i", 0.0)
     rate_ff, rate_imax = gains.get("heading_rate_ff", 0.0), gains.get("heading_rate_imax", rate_imax)
-    integral = min(max(plant.delta0 / (full_scale * output_scale), -rate_imax), rate_imax)
+    r = yaw_rate0
+    delta = min(max(plant.delta0 - plant.a22 * r / plant.b2, -plant.rudder_max), plant.rudder_max)
+    asked = wanted[0] if wanted.size and math.isfinite(wanted[0]) else 0.0
+    integral = delta / (full_scale * output_scale) - rate_ff * asked - rate_p * (asked - r)
+    integral = min(max(integral, -rate_imax), rate_imax)
     max_step = plant.rudder_rate * dt if math.isfinite(plant.rudder_rate) else math.inf
-    r, delta = yaw_rate0, plant.delta0
     out = np.empty(t.size)
     if t.size == 0:
         return out

@@ -128,7 +128,29 @@ class HeadingDesigner:
         best = choice.choice.chosen
         summary = (f"{best.name}: predicted step error {best.score.iae_s:.2f} s, overshoot "
                    f"{best.score.worst_overshoot_pct:.1f} %")
-        return DesignOutcome(ScheduledDesign(kind, schedule, self.limits, summary, self.written), choice.choice.reason())
+        design = ScheduledDesign(kind, schedule, self.limits, summary, self.written)
+        paired = self._paired_worse(design, [a.speed for a in attempts])
+        if paired is not None:
+            return DesignOutcome(None, paired)
+        return DesignOutcome(design, choice.choice.reason())
+
+    def _paired_worse(self, design: ScheduledDesign, speeds: Sequence[float]) -> str | None:
+        """When only some of the gains are written (the rate loop's), the vehicle flies them with its
+        own others (the angle P) in the modes that hold a heading: that pairing's predicted steps must
+        be acceptable and no worse than the vehicle's own. The reason when they are not."""
+        if set(self.written) >= set(self.kind.scheduled):
+            return None
+        objective = self.config.objective
+        for speed in speeds:
+            paired = {**self.original, **design.gains_at(speed)}
+            for step in objective.step_sizes_rad:
+                error, overshoot = design.predict(paired, speed, step)
+                own, _ = design.predict(self.original, speed, step)
+                if not (overshoot <= objective.acceptable_overshoot_pct and error <= own):
+                    return (f"the rate gains with the vehicle's own {', '.join(sorted(set(self.kind.scheduled) - set(self.written)))} "
+                            f"are predicted worse in the heading-holding modes ({math.degrees(step):.0f}° at "
+                            f"{speed:.2f} m/s: {error:.2f} s, {overshoot:.1f} % against {own:.2f} s)")
+        return None
 
 
 def heading_kind_for(config: CampaignConfig) -> ScheduleKind | None:
