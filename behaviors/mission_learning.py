@@ -289,7 +289,7 @@ class MissionLearner(Behaviour):
             self.windows.append(self.models.add(window))
         if self.by_rate:
             segment = self.recorder.add(t, telemetry.turn_rate_target if allowed else math.nan,
-                                        telemetry.turn_rate_achieved, telemetry.speed_water)
+                                        telemetry.turn_rate_achieved, telemetry.speed_water, telemetry.rudder)
             if segment is not None:
                 self._segment_flown(segment)
         else:

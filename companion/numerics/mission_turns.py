@@ -151,13 +151,15 @@ class TurnRecorder:
 
 @dataclass(frozen=True)
 class FlownSegment:
-    """A turn-rate segment's samples (rad/s): times, asked-for and measured turn rate, mean speed."""
+    """A turn-rate segment's samples (rad/s): times, asked-for and measured turn rate, mean speed, and
+    the rudder at its start (rad; NaN when unknown): the state a replay starts from."""
 
     t_start: float
     times: np.ndarray
     desired: np.ndarray
     achieved: np.ndarray
     speed: float
+    rudder0: float = math.nan
 
     @property
     def size_deg_s(self) -> float:
@@ -189,6 +191,7 @@ class RateSegmentRecorder:
             raise ValueError("RateSegmentRecorder needs a positive window, rate and gap")
         self.window_s, self.min_rate, self.max_gap_s = window_s, math.radians(min_rate_deg_s), max_gap_s
         self._rows: list[tuple[float, float, float, float]] = []
+        self._rudder0 = math.nan
         self.interrupted = 0
 
     @property
@@ -200,18 +203,22 @@ class RateSegmentRecorder:
             self.interrupted += 1
         self._rows = []
 
-    def add(self, t: float, desired: float, achieved: float, speed: float) -> FlownSegment | None:
+    def add(self, t: float, desired: float, achieved: float, speed: float,
+            rudder: float = math.nan) -> FlownSegment | None:
         if not all(math.isfinite(v) for v in (t, desired, achieved)):
             self._rows = []
             return None
         if self._rows and t - self._rows[-1][0] > self.max_gap_s:
             self._rows = []
+        if not self._rows:
+            self._rudder0 = rudder
         self._rows.append((t, desired, achieved, speed))
         if t - self._rows[0][0] < self.window_s:
             return None
         rows, self._rows = np.asarray(self._rows), []
         segment = FlownSegment(float(rows[0, 0]), rows[:, 0], rows[:, 1], rows[:, 2],
-                               float(np.nanmean(rows[:, 3])) if np.isfinite(rows[:, 3]).any() else math.nan)
+                               float(np.nanmean(rows[:, 3])) if np.isfinite(rows[:, 3]).any() else math.nan,
+                               float(self._rudder0))
         return segment if math.radians(segment.size_deg_s) >= self.min_rate else None
 
 

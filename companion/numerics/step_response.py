@@ -165,20 +165,22 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
 
 
 def simulate_rate_tracking(plant: RudderPlant, gains: dict[str, float], times: Sequence[float],
-                           desired: Sequence[float], yaw_rate0: float, *, full_scale: float = 0.5236,
-                           output_scale: float = 1.0, rate_imax: float = 1.0, dt: float = 0.01,
-                           **_limits: float) -> np.ndarray:
+                           desired: Sequence[float], yaw_rate0: float, *, rudder0: float = math.nan,
+                           full_scale: float = 0.5236, output_scale: float = 1.0, rate_imax: float = 1.0,
+                           dt: float = 0.01, **_limits: float) -> np.ndarray:
     """The turn rate (rad/s, at ``times``) of eq. A.2's rate loop alone on the model, asked for the
     recorded ``desired`` turn rate (held between samples): what the rate loop with ``gains`` makes
-    of the turns a navigation asked for (the angle loop's limits, ``_limits``, do not act here). It
-    starts in the steady turn at ``yaw_rate0`` — the rudder that holds it, b2·(δ − δ0) = −a22·r0, and
-    the integrator that gives that rudder — since a record may begin in the middle of a turn."""
+    of the turns a navigation asked for (the angle loop's limits, ``_limits``, do not act here). A
+    record may begin in the middle of a turn, so it starts where the vehicle was: at ``yaw_rate0``
+    with the rudder ``rudder0`` it had (unknown: the rudder that holds that turn steadily,
+    b2·(δ − δ0) = −a22·r0) and the integrator that, with these gains, gives that rudder."""
     t = np.asarray(times, dtype=float)
     wanted = np.asarray(desired, dtype=float)
     rate_p, rate_i = gains.get("heading_rate_p", 0.0), gains.get("heading_rate_i", 0.0)
     rate_ff, rate_imax = gains.get("heading_rate_ff", 0.0), gains.get("heading_rate_imax", rate_imax)
     r = yaw_rate0
-    delta = min(max(plant.delta0 - plant.a22 * r / plant.b2, -plant.rudder_max), plant.rudder_max)
+    delta = rudder0 if math.isfinite(rudder0) else plant.delta0 - plant.a22 * r / plant.b2
+    delta = min(max(delta, -plant.rudder_max), plant.rudder_max)
     asked = wanted[0] if wanted.size and math.isfinite(wanted[0]) else 0.0
     integral = delta / (full_scale * output_scale) - rate_ff * asked - rate_p * (asked - r)
     integral = min(max(integral, -rate_imax), rate_imax)
