@@ -45,23 +45,32 @@ def test_schedule_from_the_latest_campaign(tmp_path):
         assert schedule is not None and schedule.b2_slope == pytest.approx(0.31, abs=0.03)
 
 
-def test_gains_follow_speed_between_procedures(tmp_path):
+def _speeding_up(tmp_path, seconds: float, also=None):
+    """The resident loop scheduling the stored design while the vehicle speeds up from thrust 0.6 to
+    1.0 at 60 s (``also(link, telemetry)`` runs at every snapshot); the companion and the link."""
     link = InProcessLink(seed=3)
     with Store(tmp_path / "s.sqlite") as store:
         stored_models(store)
-        config = ServeConfig(max_vehicle_s=120.0, scheduling=SchedulingConfig(min_interval_s=10.0))
+        config = ServeConfig(max_vehicle_s=seconds, scheduling=SchedulingConfig(min_interval_s=10.0))
         companion = Companion(link, store, store.add_vehicle("v"), config, AbortFlag())
         link.autopilot.set_thrust(0.6)
-        original_run = link.next_telemetry
+        read = link.next_telemetry
 
-        def speeding_up(timeout_s=5.0):
-            telemetry = original_run(timeout_s)
+        def mission(timeout_s=5.0):
+            telemetry = read(timeout_s)
+            if also is not None:
+                also(link, telemetry)
             if telemetry.time_s > 60.0:
                 link.autopilot.set_thrust(1.0)
             return telemetry
 
-        link.next_telemetry = speeding_up
+        link.next_telemetry = mission
         companion.run()
+    return companion, link
+
+
+def test_gains_follow_speed_between_procedures(tmp_path):
+    companion, link = _speeding_up(tmp_path, 120.0)
     writes = companion.scheduler.writes
     assert len(writes) >= 2, writes
     assert writes[0]["speed"] < 1.45 and writes[-1]["speed"] > 1.9  # starts at cruise (~1.39 m/s)
@@ -134,24 +143,11 @@ def test_abort_with_nothing_running_and_second_start_are_rejected(tmp_path):
 def test_a_scheduled_gain_someone_else_sets_is_theirs_and_stays_on_exit(tmp_path):
     """A ground station sets HDG_P to 0.9 during ``run``: it is no longer scheduled (HDG_I still is),
     the ground station is told, and stopping does not restore over it."""
-    link = InProcessLink(seed=3)
-    with Store(tmp_path / "s.sqlite") as store:
-        stored_models(store)
-        config = ServeConfig(max_vehicle_s=150.0, scheduling=SchedulingConfig(min_interval_s=10.0))
-        companion = Companion(link, store, store.add_vehicle("v"), config, AbortFlag())
-        link.autopilot.set_thrust(0.6)
-        read = link.next_telemetry
+    def ground_station(link, telemetry):
+        if 40.0 <= telemetry.time_s < 40.04:
+            link.set_by_someone_else("HDG_P", 0.9)  # the speed changes after: HDG_I is rescheduled, HDG_P not
 
-        def mission(timeout_s=5.0):
-            telemetry = read(timeout_s)
-            if 40.0 <= telemetry.time_s < 40.04:
-                link.set_by_someone_else("HDG_P", 0.9)
-            if telemetry.time_s > 60.0:
-                link.autopilot.set_thrust(1.0)  # the speed changes: HDG_I is rescheduled, HDG_P is not
-            return telemetry
-
-        link.next_telemetry = mission
-        companion.run()
+    companion, link = _speeding_up(tmp_path, 150.0, ground_station)
     later = [w for w in companion.scheduler.writes if w["time_s"] > 40.0]
     assert later and all("heading_p" not in w for w in later) and all("heading_i" in w for w in later)
     assert link.param("heading_p") == pytest.approx(0.9)  # theirs, after the exit's restore too
