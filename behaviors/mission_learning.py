@@ -233,6 +233,7 @@ class MissionLearner(Behaviour):
         self._last_t = math.nan
         self._outside_s = 0.0
         self._revert_now = False
+        self._overridden_revert: dict[str, float] = {}  # what goes back after someone else's change
         self.original_best = False  # the last design found the vehicle's own gains best
 
     # ------------------------------------------------------------------ ground station
@@ -260,21 +261,19 @@ class MissionLearner(Behaviour):
 
     def overridden(self, names: Sequence[str], reason: str) -> list[Command]:
         """Someone else (a ground station, a script) changed the learned gains ``names``: their values
-        stay, nothing more is written; unverified learned gains they did not touch go back to the
-        original ones at once (verified ones stay)."""
+        stay, and learning writes nothing of its own any more; unverified learned gains they did not
+        touch go back to the original ones at the next safe moment, like any revert (verified ones
+        stay; the session's end puts back whatever is still due)."""
         if self.phase in (Phase.REVERTED, Phase.OVERRIDDEN):
             return []
-        commands: list[Command] = []
         if self.written is not None and self.phase is not Phase.KEPT:
-            others = {k: v for k, v in self.original.items() if k not in names}
-            if others:
-                commands += self._write(self._last_t, math.nan, "revert", others)
+            self._overridden_revert = {k: v for k, v in self.original.items() if k not in names}
         for name in names:  # theirs now, verified or not
             self.verified.pop(name, None)
         self.written = None
         self.events.append({"type": "overridden", "names": list(names), "reason": reason})
         self._set(Phase.OVERRIDDEN, reason)
-        return commands + [StatusText(f"LEARN: stopped, {reason}"[:50], 4)]
+        return [StatusText(f"LEARN: stopped, {reason}"[:50], 4)]
 
     # ------------------------------------------------------------------ the step function
     def update(self, telemetry: Telemetry) -> Sequence[Command]:
@@ -311,6 +310,9 @@ class MissionLearner(Behaviour):
             commands += self._maybe_judge()
         elif self.phase is Phase.WAITING_TO_REVERT and steady:
             commands += self._write_original(t, telemetry.speed_water)
+        elif self.phase is Phase.OVERRIDDEN and self._overridden_revert and steady:
+            commands += self._write(t, telemetry.speed_water, "revert", self._overridden_revert)
+            self._overridden_revert = {}
         return commands
 
     def _set(self, phase: Phase, reason: str) -> None:
