@@ -75,33 +75,34 @@ class ScheduledDesign:
     schedule: object
     limits: HeadingLimits
     summary: str
-    written: tuple[str, ...]  # the gains learning writes (the ones its verification flies)
+
+    def _within(self, speed: float) -> float:
+        """``speed`` held to the validated bands' range (the schedule is not extrapolated)."""
+        low, high = self.schedule.speed_range
+        return min(max(speed, low), high)
+
+    def _case(self, speed: float):
+        speed = self._within(speed)
+        return step_case(CONTROLLERS[self.kind.name], self.schedule.model_at(speed), speed, self.limits)
 
     def gains_at(self, speed: float) -> dict[str, float]:
-        low, high = self.schedule.speed_range
-        gains = self.kind.scheduled_gains(self.schedule, min(max(speed, low), high))
-        return {name: value for name, value in gains.items() if name in self.written}
+        return self.kind.scheduled_gains(self.schedule, self._within(speed))
 
     def predict(self, gains: dict[str, float], speed: float, step: float) -> tuple[float, float]:
-        low, high = self.schedule.speed_range
-        speed = min(max(speed, low), high)
-        case = step_case(CONTROLLERS[self.kind.name], self.schedule.model_at(speed), speed, self.limits)
+        case = self._case(speed)
         metrics = predict_step(case.plant, case.controller, dict(gains), step, PREDICTED_S, **case.limits)
         return float(metrics["iae_s"]), float(metrics["overshoot_pct"])
 
     def replay(self, gains: dict[str, float], speed: float, segment: FlownSegment) -> np.ndarray:
         """The turn rates the rate loop with ``gains`` achieves on the model at the segment's speed,
         asked for the segment's turn rates."""
-        low, high = self.schedule.speed_range
-        speed = min(max(speed, low), high)
-        case = step_case(CONTROLLERS[self.kind.name], self.schedule.model_at(speed), speed, self.limits)
+        case = self._case(speed)
         return simulate_rate_tracking(case.plant, dict(gains), segment.times, segment.desired,
                                       float(segment.achieved[0]), rudder0=segment.rudder0, **case.limits)
 
     def rate_limit(self, speed: float) -> float:
         """The steady turn rate at full rudder on the model at ``speed`` (rad/s): b2·δmax/|a22| (eq. 3.6)."""
-        low, high = self.schedule.speed_range
-        model = self.schedule.model_at(min(max(speed, low), high))
+        model = self.schedule.model_at(self._within(speed))
         return abs(model.b2 * self.limits.rudder_max / model.a22) if model.a22 != 0.0 else math.inf
 
 
@@ -109,9 +110,8 @@ class HeadingDesigner:
     """eq. D.1 over the validated bands (module docstring)."""
 
     def __init__(self, config: CampaignConfig, kind: ScheduleKind, original: dict[str, float],
-                 limits: HeadingLimits, written: tuple[str, ...]) -> None:
+                 limits: HeadingLimits) -> None:
         self.config, self.kind, self.original, self.limits = config, kind, original, limits
-        self.written = written
 
     def __call__(self, validated: Sequence[tuple[float, YawModel]]) -> DesignOutcome:
         attempts = [_BandModel(speed, model) for speed, model in validated]
@@ -131,7 +131,7 @@ class HeadingDesigner:
         best = choice.choice.chosen
         summary = (f"{best.name}: predicted step error {best.score.iae_s:.2f} s, overshoot "
                    f"{best.score.worst_overshoot_pct:.1f} %")
-        return DesignOutcome(ScheduledDesign(kind, schedule, self.limits, summary, self.written), choice.choice.reason())
+        return DesignOutcome(ScheduledDesign(kind, schedule, self.limits, summary), choice.choice.reason())
 
 
 def heading_kind_for(config: CampaignConfig) -> ScheduleKind | None:
@@ -191,9 +191,7 @@ class LearningSession:
             config = replace(config, verdict=replace(config.verdict, overshoot_margin_pct=float(margin)))
         # the whole design is written (what its predictions are of); a turn-rate verification flies
         # the rate loop's part, the angle P acts where a heading is held (module docstring)
-        written = tuple(kind.scheduled)
-        self.learner = MissionLearner(HeadingDesigner(self.campaign, kind, original, limits, written),
-                                      {name: original[name] for name in written}, config)
+        self.learner = MissionLearner(HeadingDesigner(self.campaign, kind, original, limits), original, config)
         self.campaign_id = self.store.start_campaign(self.vehicle_id, "learning", {
             "original": original, "modes": list(config.modes), "heading_kind": kind.name})
         self.trail_id = self.store.save_restore_point(self.campaign_id, self.restore.as_json(), vehicle_identity(self.link))
