@@ -431,6 +431,21 @@ class MissionLearner(Behaviour):
         self._set(Phase.WAITING_TO_REVERT, self.verdict.reason)
         return [StatusText("LEARN: verification failed, reverting"[:50], 4)]
 
+    def nothing_learned(self) -> str | None:
+        """Why the session has no model to design from (None once a band is validated): the windows
+        skipped, by reason, and what would teach it."""
+        if self.models.validated():
+            return None
+        skipped: dict[str, int] = {}
+        for outcome in self.windows:
+            if outcome.reason is not None:
+                key = outcome.reason.split(" (")[0]
+                skipped[key] = skipped.get(key, 0) + 1
+        counts = ", ".join(f"{n} {why}" for why, n in sorted(skipped.items(), key=lambda item: -item[1]))
+        return (f"no model validated from {len(self.windows)} windows ({counts or 'none skipped'}): it learns from "
+                f"course changes of {self.config.tracking.min_heading_span_deg:.0f}° or more at a steady speed; "
+                "or tune it with a campaign (companion identify)")
+
     # ------------------------------------------------------------------ the record
     def result(self) -> LearningResult:
         bands = tuple(BandSummary(speed=b.speed, windows=b.tracker.windows, validated=b.validated(self.config.tracking),

@@ -504,3 +504,14 @@ def test_a_write_the_vehicle_refuses_ends_learning_and_the_loop_goes_on(tmp_path
     assert link.param("heading_p") == pytest.approx(POOR["HDG_P"])  # put back by the restore point
     assert any(text.startswith("LEARN: stopped") for text in link.status_texts)
     assert companion.learning is None or companion.learning.learner is None  # the session ended, the loop did not
+
+
+def test_a_session_that_learned_nothing_says_why_and_what_would_teach_it(tmp_path):
+    """A vehicle holding one course (no course change to learn from): the session ends failed, with
+    the windows skipped by reason and what to fly."""
+    link = _survey_link(plan=SurveyPlan(thrusts=(0.7,), seconds_per_thrust=1e9, course_changes_deg=(0.0,)))
+    _companion, store = _serve(link, tmp_path, 120.0)
+    campaign, result = _learning_result(store)
+    assert campaign["status"] == "failed" and result["writes"] == []
+    assert campaign["reason"].startswith("no model validated from 5 windows (")
+    assert "no course change" in campaign["reason"] and "companion identify" in campaign["reason"]

@@ -291,6 +291,8 @@ class LearningSession:
         except Exception as exc:  # noqa: BLE001 - the restore below matters more than a record
             log.error("learning: events not stored: %s", exc)
         keep = tuple(learner.verified)
+        if learner.phase is Phase.LEARNING and not learner.original_best:
+            learner.note = learner.nothing_learned() or learner.note
         if learner.written is not None and set(learner.written) - set(keep):
             learner.note = f"{learner.note}; the session ended before the verification: original gains written back"
             learner.phase = Phase.REVERTED
