@@ -233,9 +233,14 @@ class CaseResult:
         return [f["fault"] for f in self.faults if not f["triggered"] or not f["affected"]]
 
 
+#: ``abort_after`` = (FAULT_FIRED, k): the abort is asked once k of the case's faults have started
+FAULT_FIRED = "a fault fired"
+
+
 class _AbortAfter:
     """An abort source (polled once per snapshot) that asks for an abort once the companion has sent
-    ``count`` frames of ``message`` through the proxy; carries the flag's restore guard."""
+    ``count`` frames of ``message`` through the proxy (or ``count`` faults fired,
+    :data:`FAULT_FIRED`); carries the flag's restore guard."""
 
     def __init__(self, proxy: FaultProxy | UdpRelay, message: str, count: int) -> None:
         from companion.procedures.app import AbortFlag
@@ -245,7 +250,8 @@ class _AbortAfter:
         self.guard = self._flag.guard
 
     def __call__(self) -> str | None:
-        if self._flag.reason is None and self.proxy.count(self.message) >= self.count:
+        seen = len(self.proxy.triggered) if self.message == FAULT_FIRED else self.proxy.count(self.message)
+        if self._flag.reason is None and seen >= self.count:
             self._flag.request(f"operator abort (after {self.count} {self.message})")
         return self._flag()
 
@@ -367,10 +373,12 @@ def fault_link(sim, seed: int = 0, conditions: LinkConditions | dict | None = No
 
 
 def run_case(sim, case: Case, store_path: Path, *, transport: str | None = None, connect_timeout_s: float = 20.0,
-             conditions: LinkConditions | dict | None = None) -> CaseResult:
+             conditions: LinkConditions | dict | None = None, stay_connected_s: float = 0.0) -> CaseResult:
     """Run ``case`` against the running simulator ``sim`` (``--lockstep``) over ``transport``
     ("tcp" through the proxy, "udp" through the relay; None: the simulator's) and check it.
-    ``conditions``: link conditions of the proxy or relay besides the case's faults (none: clean)."""
+    ``conditions``: link conditions of the proxy or relay besides the case's faults (none: clean);
+    ``stay_connected_s``: wall seconds the companion keeps reading telemetry after the procedure
+    (as ``companion run`` would) before the link is closed."""
     from companion.link.vehicle import LinkTimeouts, VehicleLink
     from companion.procedures.app import AbortFlag
     from companion.records.store import Store
@@ -399,6 +407,9 @@ def run_case(sim, case: Case, store_path: Path, *, transport: str | None = None,
                 except Exception as exc:  # noqa: BLE001 - an escaping exception is the finding
                     result.crash = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}"
                     status, reason, restore_problems, restore, kept = None, None, [], None, {}
+            stay_until = time.monotonic() + stay_connected_s
+            while result.crash is None and time.monotonic() < stay_until:
+                link.next_telemetry()
             proxy.disarm()
             proxy.drain()  # what is still held or in flight reaches the vehicle, as on a real link
             result.wall_decisions = link.clock.wall_timeouts

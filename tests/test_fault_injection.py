@@ -74,6 +74,53 @@ def test_a_frame_lost_over_udp_in_a_restore_still_restores_the_vehicle(module_si
     assert result.transport == "udp" and result.link["to_vehicle"]["delivered"] > 0
 
 
+LATE_SET_POINT = [(0.08, 0.0), (1.0, 0.0), (3.0, 4.0)]  # (delay on the uplink, wall s connected after)
+
+
+@pytest.mark.slow
+@pytest.mark.e2e
+@pytest.mark.parametrize("delay_s, connected_s", LATE_SET_POINT, ids=["80ms", "1s", "3s-while-connected"])
+def test_a_set_point_landing_after_the_restore_is_put_back(lockstep_sim, delay_s, connected_s, tmp_path):
+    """The campaign's DO_CHANGE_SPEED 100 held on the uplink, the operator's abort at that moment: the
+    restore puts 70 back and confirms it, then the held 100 lands. It is put back again (within the
+    restore's end when it lands there, by the watch while the companion stays connected after)."""
+    from harness.fault_cases import FAULT_FIRED, Case
+    from harness.fault_schedule import timed_delay
+
+    late = timed_delay(Trigger("COMMAND_LONG", 2, command=178, distinct=True), delay_s, messages=("COMMAND_LONG",))
+    case = Case(f"late-set-point-{delay_s:g}s", "campaign", (late,), (), abort_after=(FAULT_FIRED, 1))
+    result = run_case(lockstep_sim, case, tmp_path / "store.sqlite", stay_connected_s=connected_s)
+    assert result.crash is None, result.crash
+    assert result.status == "aborted" and result.untriggered == []
+    assert result.thrust_delivered[-3:-1] == [70.0, 100.0], "the late set-point did land after the restore's"
+    assert result.thrust_delivered[-1] == 70.0 and result.after["thrust"] == pytest.approx(0.7, abs=0.011)
+    assert result.problems == [] and result.restore_problems == []
+
+
+def test_a_set_point_abandoned_by_a_restore_is_counted_as_landed_only_beyond_the_restores_own_answers():
+    link, _sent = _bare_link()
+    commands = link.commands
+
+    def ack(command: int, target_component: int = 191) -> None:
+        commands._on_command_ack(SimpleNamespace(command=command, result=0, progress=0, target_system=255,
+                                                 target_component=target_component, get_srcSystem=lambda: 1,
+                                                 get_srcComponent=lambda: 1))
+
+    link.transport.from_vehicle = lambda msg: True
+    link.transport.aimed_at_us = lambda system, component: component == 191
+    commands.send_setpoint(178, (0.0, -1.0, 100.0))  # the procedure's, held on the link
+    assert commands.abandon() == [178] and commands.abandoned == (178,)
+    commands.send_setpoint(178, (0.0, -1.0, 70.0))  # the restore's
+    ack(178)
+    assert commands.late_answers(178) == 0 and commands.last_setpoint(178) == (0.0, -1.0, 70.0)
+    ack(178, target_component=190)  # a ground station's own DO_CHANGE_SPEED: not ours
+    assert commands.late_answers(178) == 0
+    ack(178)  # the held one lands
+    assert commands.late_answers(178) == 1
+    commands.forget_abandoned()  # a new procedure: its business now
+    assert commands.late_answers(178) == 0 and commands.abandoned == ()
+
+
 def test_a_case_needs_a_simulator_of_its_transport():
     with pytest.raises(ValueError):
         run_case(SimpleNamespace(transport="tcp", port=1, lockstep=True), mixed_case("roll"), None, transport="udp")

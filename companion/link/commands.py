@@ -48,6 +48,12 @@ class CommandChannel:
         # long a command already sent may still be on its way (a restore waits that out)
         self._sent_wall: dict[int, float] = {}
         self.round_trips: collections.deque[float] = collections.deque(maxlen=32)
+        # every COMMAND_LONG sent and every acknowledgement aimed at us, per command: after an
+        # abandon, answers beyond the sends since then are the abandoned sends landing (late_answers)
+        self.sends_of: collections.Counter[int] = collections.Counter()
+        self.answers_of: collections.Counter[int] = collections.Counter()
+        self._abandoned_at: dict[int, tuple[int, int]] = {}  # command -> (sends, answers) when abandoned
+        self.abandon_generation = 0  # counts abandons (and forget_abandoned): a watch knows it is stale
         transport.on("COMMAND_ACK", self._on_command_ack)
 
     @property
@@ -58,6 +64,7 @@ class CommandChannel:
     def send(self, command: int, params: Sequence[float], *, confirmation: int = 0) -> int:
         """Send a COMMAND_LONG; returns the acknowledgement counter to wait from."""
         self.transport.command_long(command, tuple(params), confirmation=confirmation)
+        self.sends_of[command] += 1
         self._sent_wall[command] = time.monotonic()  # the latest send: a resend's answer is timed from it
         return self.ack_count
 
@@ -78,12 +85,39 @@ class CommandChannel:
         """Stop awaiting (and re-sending) every set-point still unanswered: a restore begins, and
         nothing of the procedure may be sent after it. Returns the commands abandoned."""
         abandoned = sorted(self._awaiting)
+        self._abandoned_at = {command: (self.sends_of[command], self.answers_of[command]) for command in abandoned}
+        self.abandon_generation += 1
         self._awaiting.clear()
         self._sends.clear()
         for command in abandoned:  # an answer to these no longer measures the link
             self._sent_wall.pop(command, None)
         self._refusals.clear()
         return abandoned
+
+    def forget_abandoned(self) -> None:
+        """A new procedure owns the set-points now: answers to the last abandoned ones are its business."""
+        self._abandoned_at = {}
+        self.abandon_generation += 1
+
+    @property
+    def abandoned(self) -> tuple[int, ...]:
+        """The set-point commands the last :meth:`abandon` left unanswered."""
+        return tuple(self._abandoned_at)
+
+    def late_answers(self, command: int) -> int:
+        """Acknowledgements of ``command`` since it was abandoned beyond one per send since then: the
+        abandoned sends that reached the vehicle after all (0 for a command not abandoned). An
+        acknowledgement carries no sequence, so this counts: a lost answer to a later send hides
+        a landing, a duplicated one shows one that did not happen — the vehicle's state decides."""
+        if command not in self._abandoned_at:
+            return 0
+        sends, answers = self._abandoned_at[command]
+        return max(0, (self.answers_of[command] - answers) - (self.sends_of[command] - sends))
+
+    def last_setpoint(self, command: int) -> tuple[float, ...] | None:
+        """The parameters of the latest set-point of ``command`` sent since the last abandon."""
+        sent = self._sends.get(command)
+        return sent[0] if sent is not None else None
 
     def answered_since(self, command: int, since: int) -> tuple[int, int] | None:
         """(result, progress) of an acknowledgement of ``command`` that arrived after counter ``since``."""
@@ -181,6 +215,7 @@ class CommandChannel:
         if not self.transport.aimed_at_us(getattr(msg, "target_system", 0), getattr(msg, "target_component", 0)):
             return
         self.ack_count += 1
+        self.answers_of[msg.command] += 1
         self.acks[msg.command] = (msg.result, getattr(msg, "progress", 0) or 0, self.ack_count)
         sent = self._sent_wall.pop(msg.command, None)
         if sent is not None:

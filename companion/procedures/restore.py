@@ -25,6 +25,7 @@ from typing import Callable, Iterable
 
 from behaviors.base import Footprint
 from companion.interface import SetHeading, SetRollingMass, SetThrust
+from companion.procedures.late_setpoints import LateSetpointWatch, WatchedSetpoint
 from companion.procedures.restore_items import Reconnector, StateCheck, set_and_confirm, try_restore_item, \
     in_flight_possible, wait_in_flight, write_if_changed
 
@@ -112,6 +113,9 @@ class RestorePoint:
         watch = getattr(getattr(link, "parameters", None), "watch", None)
         if callable(watch):  # from now on a change by anyone else is seen
             watch(native)
+        forget = getattr(getattr(link, "commands", None), "forget_abandoned", None)
+        if callable(forget):  # a late set-point of an earlier procedure is this one's to override now
+            forget()
         return cls(mode=getattr(link, "mode", None) or None, parameters=parameters, native=native,
                    setpoints=setpoints, natives_of=natives_of, boot=reboots_seen(link))
 
@@ -148,8 +152,12 @@ class RestorePoint:
         if parameters:
             items += self._parameter_items(link, keep)
             items.append(("check the parameters again", lambda: self._recheck_parameters(link, keep)))
+        watched: list[WatchedSetpoint] = []
         items += [(what, lambda what=what, action=action: self._unless_rebooted(link, what, action))
-                  for what, action in self._setpoint_items(link, mode)]
+                  for what, action in self._setpoint_items(link, mode, watched)]
+        if _late_setpoints_possible(link):
+            items.append(("put back the procedure's late set-points",
+                          lambda: LateSetpointWatch(link, watched, self.notes).settle()))
         items.append(("stop refreshing the procedure's targets", lambda: _forget_targets(link)))
         guard = guard or RestoreGuard()
         was_interruptible, guard.interruptible = guard.interruptible, False
@@ -217,7 +225,10 @@ class RestorePoint:
             return
         write_if_changed(link, name, found)
 
-    def _setpoint_items(self, link, mode: bool) -> list[tuple[str, Callable[[], None]]]:
+    def _setpoint_items(self, link, mode: bool,
+                        watched: list[WatchedSetpoint]) -> list[tuple[str, Callable[[], None]]]:
+        """The found set-points' items (and the mode's); each set-point put back and confirmed is
+        added to ``watched`` with the MAVLink command that carried it (``late_setpoints``)."""
         items = []
         found_in_setpoint_mode = self.mode in SETPOINT_MODES
         checks = (("thrust", SetThrust, StateCheck("thrust", lambda t: t.thrust_ratio, 0.0, THRUST_TOLERANCE)),
@@ -230,8 +241,9 @@ class RestorePoint:
                 continue
             target = self.setpoints[name]
             check = replace(check, target=target) if check is not None else None
-            items.append((f"restore {name.replace('_', ' ')}",
-                          lambda command=command(target), check=check: set_and_confirm(link, command, check)))
+            label = name.replace('_', ' ')
+            items.append((f"restore {label}", lambda label=label, command=command(target), check=check:
+                          _put_back(link, label, command, check, watched)))
         if mode and self.mode:
             items.append(("restore mode", lambda: link.set_mode(self.mode)))
         return items
@@ -247,6 +259,24 @@ class RestorePoint:
             log.info("%s: not done (%s)", what, note)
             return
         action()
+
+
+def _put_back(link, label: str, setpoint, check: StateCheck | None, watched: list[WatchedSetpoint]) -> None:
+    """One found set-point sent and confirmed by state; what carried it is noted for the late watch."""
+    sends = getattr(getattr(link, "commands", None), "sends_of", None)
+    before = dict(sends) if sends is not None else {}
+    set_and_confirm(link, setpoint, check)
+    if sends is None or check is None:
+        return
+    for command in [c for c in sends if sends[c] > before.get(c, 0)]:
+        watched.append(WatchedSetpoint(label, command, setpoint, check))
+
+
+def _late_setpoints_possible(link) -> bool:
+    """The link reports which set-points a restore abandoned (a MAVLink link; the in-process harness
+    applies every command at once)."""
+    commands = getattr(link, "commands", None)
+    return callable(getattr(commands, "late_answers", None)) and callable(getattr(link, "next_telemetry", None))
 
 
 def _reported(link, check: StateCheck) -> StateCheck | None:
