@@ -463,14 +463,27 @@ class IdentificationManoeuvre(Behaviour):
         elif self.attempt >= self.config.max_attempts:
             self.outcome = "rejected"
             self._enter(DONE, now)
-            self.finish(Status.FAILURE, f"no model passed validation after {self.attempt} attempts")
-            commands.append(self._status(f"no model passed validation after {self.attempt} attempts", 4))
+            reason = self._rejection_reason()
+            self.finish(Status.FAILURE, reason)
+            commands.append(self._status(reason, 4))
         else:  # repeat from the training stage after a short resettle (bounded by max_attempts)
             self._settle_s = self.config.resettle_s
             self._enter(SETTLE, now)
         return commands
 
     # ------------------------------------------------------------------ helpers
+    def _rejection_reason(self) -> str:
+        """Why no attempt gave a model, naming the real cause: when the link spoiled every record,
+        the link (what to fix), not the model."""
+        spoiled = [a.rejected_for for a in self.attempts if a.rejected_for is not None]
+        if spoiled and len(spoiled) == len(self.attempts):
+            return (f"the link spoiled all {len(spoiled)} attempts ({spoiled[-1]}): no model could be trusted; "
+                    "fix the link (a radio's range or air rate, a serial port's baud rate) and fly again")
+        reason = f"no model passed validation after {self.attempt} attempts"
+        if spoiled:
+            reason += f" ({len(spoiled)} of them spoiled by the link)"
+        return reason
+
     def _score(self, model) -> float:
         record = self._validation
         if len(record.time) < 10:

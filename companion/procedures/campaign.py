@@ -615,7 +615,15 @@ class IdentificationCampaign(Behaviour):
     def _conclude(self) -> list[Command]:
         speed_refused = self._speed_refused()
         if not self.accepted:
-            self.finish(Status.FAILURE, "no model passed validation")
+            spoiled = self.records_rejected_for_link
+            if spoiled and spoiled == len(self.attempts):  # the real cause is the link, not the vehicle
+                last = next(a.rejected_for for a in reversed(self.attempts) if a.rejected_for)
+                self.finish(Status.FAILURE, f"no model: the link spoiled all {spoiled} records ({last}); fix the "
+                                            "link (a radio's range or air rate, a serial port's baud rate) and fly "
+                                            "again")
+            else:
+                self.finish(Status.FAILURE, "no model passed validation"
+                            + (f" ({spoiled} of {len(self.attempts)} records spoiled by the link)" if spoiled else ""))
         elif self.design_errors or speed_refused is not None:
             reasons = [f"gains rejected: {v}" if k == "verification" else f"{k} design: {v}"
                        for k, v in self.design_errors.items()]
