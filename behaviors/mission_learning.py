@@ -19,8 +19,10 @@ Phases (:class:`Phase`):
    change of course; a boat weaving about a straight leg is on it) — and, where the autopilot
    reports its heading set-point, the heading stayed within ``max_heading_error_deg`` of it. A turn
    whose record is still open then is dropped: it would be flown on two gain sets. Each write is announced by STATUSTEXT and queued as an event for the store.
-3. **verifying** — the next ``verify_turns`` course changes are judged against the turns flown on
-   the original gains at the same speed and against their prediction (eq. L.2). Kept: **kept**.
+3. **verifying** — the next ``verify_turns`` course changes (``verify_segments`` turn-rate
+   segments) are judged against the turns flown on the original gains at the same speed and
+   against their prediction (eq. L.2); from ``min_verify`` on, the verdict comes early when each
+   turn alone gives the same verdict as all of them together. Kept: **kept**.
    Else **waiting to revert**, then the original gains are written at the next safe moment:
    **reverted**, and this session writes nothing more (the reason is said and stored). Kept gains
    are those verified at the speed flown: they are not rescheduled to speeds the turns did not
@@ -113,6 +115,9 @@ class LearningConfig:
     rate_fraction: float = 0.8
     min_segment_s: float = 5.0
     verify_segments: int = 4
+    # the verdict may come after this many turns or segments, when each one alone gives the same
+    # verdict as all of them together (unanimous); otherwise after verify_turns / verify_segments
+    min_verify: int = 2
     steady_s: float = 8.0
     max_turn_rate_deg_s: float = 1.5
     max_heading_error_deg: float = 5.0
@@ -120,7 +125,10 @@ class LearningConfig:
 
     def __post_init__(self) -> None:
         require_positive(self, "min_step_deg", "turn_s", "verify_turns", "segment_s", "min_segment_rate_deg_s",
-                         "verify_segments", "steady_s", "max_turn_rate_deg_s", "max_heading_error_deg")
+                         "verify_segments", "min_verify", "steady_s", "max_turn_rate_deg_s", "max_heading_error_deg")
+        if self.min_verify > min(self.verify_turns, self.verify_segments):
+            raise ValueError(f"LearningConfig.min_verify ({self.min_verify}) is at most verify_turns and "
+                             "verify_segments")
         require_choice(self, "verification", ("course_changes", "turn_rate"))
         if not self.modes:
             raise ValueError("LearningConfig.modes: at least one mode in which the autopilot steers itself")
@@ -173,6 +181,7 @@ class LearningResult:
 
     original_best: bool = False
     verified: tuple[str, ...] = ()  # the learned gains verified by the mission's turns (they stay)
+    verdict_at_s: float = math.nan  # vehicle time of the verdict (NaN: none yet)
 
     @property
     def in_force(self) -> bool:
@@ -193,7 +202,8 @@ class LearningResult:
                 "writes": [w.to_dict() for w in self.writes], "turns": [t.to_dict() for t in self.turns],
                 "windows": [w.to_dict() for w in self.windows], "bands": [b.to_dict() for b in self.bands],
                 "verdict": self.verdict.to_dict() if self.verdict else None, "design": self.design,
-                "mode_left_s": self.mode_left_s}
+                "mode_left_s": self.mode_left_s,
+                "verdict_at_s": self.verdict_at_s if math.isfinite(self.verdict_at_s) else None}
 
 
 class MissionLearner(Behaviour):
@@ -208,7 +218,8 @@ class MissionLearner(Behaviour):
         self.original = dict(original)
         self.config = config
         self.footprint = Footprint.of(parameters=tuple(original))
-        self.estimator = PassiveYawEstimator(config.window, keep_records=True)
+        self.estimator = PassiveYawEstimator(config.window, keep_records=True, speed_exponents=(
+            config.tracking.a22_speed_exponent, config.tracking.b2_speed_exponent))
         self.models = MissionModels(config.tracking)
         self.by_rate = config.verification == "turn_rate"
         self.recorder: TurnRecorder | RateSegmentRecorder = (
@@ -225,6 +236,7 @@ class MissionLearner(Behaviour):
         self.turns: list[TurnFigures] = []
         self.windows: list[WindowOutcome] = []
         self.verdict: TurnVerdict | None = None
+        self.verdict_at_s = math.nan
         self.events: list[dict] = []  # drained by the procedure into the store
         self._designed_bands = 0
         self._recent: deque[tuple[float, float]] = deque()  # (time, unwrapped heading) over steady_s
@@ -283,7 +295,7 @@ class MissionLearner(Behaviour):
         if math.isfinite(self._last_t) and not allowed:
             self._outside_s += max(0.0, t - self._last_t)
         self._last_t = t
-        window = self.estimator.add(t, telemetry.yaw, telemetry.rudder, telemetry.speed_water)
+        window = self.estimator.add(t, telemetry.yaw, telemetry.rudder, telemetry.speed_water, telemetry.yaw_rate)
         if window is not None:
             self.windows.append(self.models.add(window))
         if self.by_rate:
@@ -303,11 +315,11 @@ class MissionLearner(Behaviour):
             commands += self._maybe_design()
         elif self.phase is Phase.WAITING_TO_WRITE and steady and math.isfinite(telemetry.speed_water):
             commands += self._write_design(t, telemetry.speed_water, "design")
-            what = (f"{self.config.verify_segments} turn-rate segments" if self.by_rate
-                    else f"{self.config.verify_turns} course changes")
+            what = (f"{self.config.min_verify}–{self.config.verify_segments} turn-rate segments" if self.by_rate
+                    else f"{self.config.min_verify}–{self.config.verify_turns} course changes")
             self._set(Phase.VERIFYING, f"verifying on the next {what}")
         elif self.phase is Phase.VERIFYING:
-            commands += self._maybe_judge()
+            commands += self._maybe_judge(t)
         elif self.phase is Phase.WAITING_TO_REVERT and steady:
             commands += self._write_original(t, telemetry.speed_water)
         elif self.phase is Phase.OVERRIDDEN and self._overridden_revert and steady:
@@ -414,16 +426,27 @@ class MissionLearner(Behaviour):
                                       error=segment.error_deg_s(within=within), predicted_error=predicted,
                                       original_error=original, metric=RATE_ERROR))
 
-    def _maybe_judge(self) -> list[Command]:
+    def _maybe_judge(self, now: float) -> list[Command]:
+        """eq. L.2 over the turns (segments) flown on the learned gains: after ``verify_turns``
+        (``verify_segments``), or from ``min_verify`` on when every one of them alone gives the same
+        verdict as all of them together (the ones still to come could only outvote a unanimous
+        record, not reverse a mean every member agrees with)."""
         after = [t for t in self.turns if t.gains == "learned"]
-        if len(after) < (self.config.verify_segments if self.by_rate else self.config.verify_turns):
+        full = self.config.verify_segments if self.by_rate else self.config.verify_turns
+        if len(after) < self.config.min_verify:
             return []
         speeds = [t.speed for t in after if math.isfinite(t.speed)]
         speed = sum(speeds) / len(speeds) if speeds else math.nan
         width = self.config.tracking.band_width
         before = [t for t in self.turns if t.gains == "original" and abs(t.speed - speed) <= width * speed]
-        self.verdict = judge_turns(before, after, self.config.verdict, flown_reference=not self.by_rate)
-        self.events.append({"type": "verdict", **self.verdict.to_dict()})
+        verdict = judge_turns(before, after, self.config.verdict, flown_reference=not self.by_rate)
+        if len(after) < full:
+            alone = [judge_turns(before, [turn], self.config.verdict, flown_reference=not self.by_rate).keep
+                     for turn in after]
+            if any(keep != verdict.keep for keep in alone):
+                return []
+        self.verdict, self.verdict_at_s = verdict, now
+        self.events.append({"type": "verdict", "time_s": now, **self.verdict.to_dict()})
         if self.verdict.keep:
             self.verified = dict(self.written or {})
             self._set(Phase.KEPT, f"verified: {self.verdict.reason}")
@@ -454,4 +477,4 @@ class MissionLearner(Behaviour):
         return LearningResult(phase=self.phase, reason=self.note, writes=tuple(self.writes), turns=tuple(self.turns),
                               windows=tuple(self.windows), bands=bands, verdict=self.verdict, design=self.design_summary,
                               mode_left_s=self._outside_s, original_best=self.original_best,
-                              verified=tuple(self.verified))
+                              verified=tuple(self.verified), verdict_at_s=self.verdict_at_s)

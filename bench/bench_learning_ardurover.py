@@ -71,9 +71,9 @@ def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder:
         result = results[0]["result"]
         writes = result["writes"]
         design = next((w["time_s"] for w in writes if w["why"] == "design"), math.nan)
-        judged = sorted(t["t_start"] for t in result["turns"] if t["gains"] == "learned")
+        verdict_at = result.get("verdict_at_s")
         out.update(phase=result["phase"], reason=result["reason"], design_s=design - auto_at,
-                   verified_s=(max(judged) + 20.0 - auto_at) if result["verdict"] else math.nan,
+                   verified_s=verdict_at - auto_at if verdict_at is not None else math.nan,
                    reverts=sum(1 for w in writes if w["why"] == "revert"), verdict=result["verdict"],
                    written=writes[0]["gains"] if writes else None, write_at=design)
     return out
@@ -103,16 +103,22 @@ def main() -> int:
     parser.add_argument("--speedup", type=float, default=10.0)
     parser.add_argument("--ardupilot-bin", default=os.environ.get("ARDUPILOT_SITL_BIN"))
     parser.add_argument("--json", metavar="FILE", default=None, help="also write every run to FILE")
+    parser.add_argument("--keep", metavar="DIR", default=None,
+                        help="keep each run's store and logs in DIR (default: a temporary folder, deleted)")
+    parser.add_argument("--baseline", action=argparse.BooleanOptionalAction, default=True,
+                        help="fly the baseline (the frame's gains alone) after each learning run (default: yes)")
     args = parser.parse_args()
     if not args.ardupilot_bin:
         parser.error("give --ardupilot-bin or set ARDUPILOT_SITL_BIN (ArduPilot's build/sitl/bin)")
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-learning-") as name:
-        folder = Path(name)
+        folder = Path(args.keep or name)
+        folder.mkdir(parents=True, exist_ok=True)
         for hull in args.hulls.split(","):
             for seed in range(1, args.repeats + 1):
                 learned = fly(hull, seed, True, args.speedup, args.ardupilot_bin, folder)
-                baseline = fly(hull, seed, False, args.speedup, args.ardupilot_bin, folder)
+                baseline = (fly(hull, seed, False, args.speedup, args.ardupilot_bin, folder) if args.baseline
+                            else {**learned, "legs": [], "mission_s": math.nan, "left_auto": False})
                 rows.append({"learned": learned, "baseline": baseline, "lanes": compare(learned, baseline)})
                 print(summary(rows[-1]), flush=True)
     if args.json:

@@ -176,7 +176,7 @@ def test_run_learn_writes_verified_gains_within_five_minutes_of_an_ordinary_surv
     assert write["time_s"] < 300.0
     assert (write["time_s"] - 30.0) % 30.0 >= 8.0  # at least steady_s after the course change before it
     verdict = result["verdict"]
-    assert verdict["turns_after"] >= 3 and verdict["after_error"] < 0.8 * verdict["before_error"]
+    assert verdict["turns_after"] >= 2 and verdict["after_error"] < 0.8 * verdict["before_error"]
     # written on a straight: no turn recorded around the write, and the vehicle holds the written gains
     assert link.param("heading_p") == pytest.approx(write["gains"]["heading_p"])
     later = [t for t in result["turns"] if t["gains"] == "learned"]
@@ -515,3 +515,119 @@ def test_a_session_that_learned_nothing_says_why_and_what_would_teach_it(tmp_pat
     assert campaign["status"] == "failed" and result["writes"] == []
     assert campaign["reason"].startswith("no model validated from 5 windows (")
     assert "no course change" in campaign["reason"] and "companion identify" in campaign["reason"]
+
+
+def test_the_verdict_comes_early_only_when_every_segment_alone_agrees_with_it():
+    """From min_verify segments on, a unanimous record decides; one segment that alone would say
+    otherwise makes the learner wait for the full count."""
+    from behaviors.mission_learning import LearningConfig, MissionLearner
+    from companion.numerics.mission_turns import RATE_ERROR
+
+    def learner() -> MissionLearner:
+        made = MissionLearner(lambda validated: None, {"heading_rate_ff": 0.5},
+                              LearningConfig(verification="turn_rate", verify_segments=4, min_verify=2))
+        made.phase, made.written = Phase.VERIFYING, {"heading_rate_ff": 2.0}
+        return made
+
+    def segment(t: float, error: float) -> TurnFigures:
+        return TurnFigures(t_start=t, speed=2.0, size=10.0, gains="learned", error=error, predicted_error=3.0,
+                           original_error=7.0, metric=RATE_ERROR)
+
+    agreed = learner()
+    agreed.turns = [segment(100.0, 3.1), segment(120.0, 2.9)]
+    agreed._maybe_judge(140.0)
+    assert agreed.phase is Phase.KEPT and agreed.verdict.turns_after == 2 and agreed.verdict_at_s == 140.0
+    split = learner()
+    split.turns = [segment(100.0, 3.1), segment(120.0, 8.0)]  # the second alone: worse than the original
+    split._maybe_judge(140.0)
+    assert split.phase is Phase.VERIFYING and split.verdict is None
+    split.turns += [segment(140.0, 3.0)]
+    split._maybe_judge(160.0)
+    assert split.verdict is None  # still split, and short of the full count
+    split.turns += [segment(160.0, 3.2)]
+    split._maybe_judge(180.0)
+    assert split.verdict is not None and split.verdict.turns_after == 4 and split.verdict_at_s == 180.0
+    with pytest.raises(ValueError):
+        LearningConfig(verify_segments=2, min_verify=3)
+
+
+# ---------------------------------------------------------------------------- eq. L.3
+def _slowing_turns(seconds: float = 60.0, dt: float = 0.05, u0: float = 2.0, a0: float = -0.8, b0: float = 0.6):
+    """A hull whose a22 ∝ u and b2 ∝ u² (a rudder), slowing by 30 % in each of its turns (a rudder
+    doublet each 20 s while the speed dips), integrated finely: (time, heading, rudder, speed, yaw rate)."""
+    times = np.arange(0.0, seconds, dt)
+    heading, rate = 0.0, 0.0
+    out = []
+    for t in times:
+        phase = t % 20.0
+        rudder = 0.25 if 4.0 <= phase < 8.0 else (-0.25 if 8.0 <= phase < 11.0 else 0.0)
+        speed = u0 * (1.0 - 0.3 * math.sin(math.pi * min(max(phase - 3.0, 0.0), 10.0) / 10.0))
+        out.append((t, heading, rudder, speed, rate))
+        for _ in range(10):
+            s = speed / u0
+            rate += dt / 10 * (a0 * s * rate + b0 * s * s * rudder)
+            heading += dt / 10 * rate
+    return out
+
+
+def test_rows_written_at_one_speed_recover_the_hull_of_a_boat_that_slows_in_its_turns():
+    """eq. L.3: a window whose speed dips 30 % teaches the hull at the reference speed when its rows
+    are normalised by the speed law, and the normalised model reproduces the window's heading; taken
+    as they come (one model for the whole window) it is biased and fits worse."""
+    from companion.numerics.parameter_tracking import normalised, validate_on
+
+    estimator = PassiveYawEstimator(DriftConfig(), keep_records=True, speed_exponents=(1.0, 2.0))
+    windows = [w for t, h, r, u, rate in _slowing_turns(120.0) if (w := estimator.add(t, h, r, u, rate)) is not None]
+    window = windows[-1]
+    assert window.speed_spread > 0.25
+    config = TrackingConfig()
+    rows = normalised(window, 2.0, config)
+    assert rows.a22 == pytest.approx(-0.8, rel=0.05) and rows.b2 == pytest.approx(0.6, rel=0.05)
+    raw_error = max(abs(window.a22 / -0.8 - 1.0), abs(window.b2 / 0.6 - 1.0))
+    assert raw_error > 0.1  # one model for the whole window: biased by the dip
+    from companion.numerics.identification import YawModel
+
+    law = validate_on(YawModel(a22=rows.a22, b2=rows.b2, delta0=0.0), rows)
+    constant = validate_on(YawModel(a22=window.a22, b2=window.b2, delta0=0.0), window)
+    assert law > 0.99 and law > constant
+    unchanged = normalised(window, 2.0, TrackingConfig(a22_speed_exponent=0.0, b2_speed_exponent=0.0))
+    assert unchanged is window
+
+
+def test_a_band_reports_its_model_at_the_speeds_its_windows_were_flown_by_the_speed_law():
+    from companion.numerics.parameter_tracking import normalised
+
+    windows = []
+    for cruise in (2.0, 2.2):  # a faster leg after a slower one: the band spans both
+        estimator = PassiveYawEstimator(DriftConfig(), keep_records=True, speed_exponents=(1.0, 2.0))
+        windows += [w for t, h, r, u, rate in _slowing_turns(120.0, u0=cruise, a0=-0.8 * cruise / 2.0,
+                                                             b0=0.6 * (cruise / 2.0) ** 2)
+                    if (w := estimator.add(t, h, r, u, rate)) is not None]
+    models = MissionModels(TrackingConfig())
+    outcomes = [models.add(w) for w in windows]
+    assert all(o.used for o in outcomes[1:]), [o.reason for o in outcomes]
+    (band,) = models.bands
+    validated = models.validated()
+    assert len(validated) == 2 and validated[0][0] < validated[1][0]  # slowest and fastest window
+    for speed, model in validated:
+        ratio = speed / band.speed
+        assert model.a22 == pytest.approx(-0.8 * speed / 2.0, rel=0.05)  # the hull's own law
+        assert model.b2 == pytest.approx(0.6 * (speed / 2.0) ** 2, rel=0.05)
+        assert model.a22 == pytest.approx(band.model().a22 * ratio, rel=1e-9)
+        assert model.b2 == pytest.approx(band.model().b2 * ratio ** 2, rel=1e-9)
+        assert model.c0 == pytest.approx(band.model().c0, abs=1e-12)
+    assert normalised(windows[-1], band.speed, TrackingConfig()).record.a22_scale is not None
+
+
+def test_the_scaled_simulation_is_the_plain_one_at_constant_speed():
+    from companion.numerics.identification import YawModel
+    from companion.numerics.validation import simulate_yaw, simulate_yaw_scaled
+
+    times = np.arange(0.0, 10.0, 0.05)
+    rudder = np.where((times > 2.0) & (times < 5.0), 0.2, -0.05)
+    model = YawModel(a22=-0.7, b2=0.5, delta0=0.02)
+    ones = np.ones_like(times)
+    plain = simulate_yaw(model, times, rudder, 0.3, 0.01)
+    assert simulate_yaw_scaled(model, times, rudder, 0.3, 0.01, ones, ones) == pytest.approx(plain, abs=1e-9)
+    with pytest.raises(ValueError):
+        simulate_yaw_scaled(model, times, rudder, 0.3, 0.01, ones[:-1], ones)

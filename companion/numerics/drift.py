@@ -21,6 +21,13 @@ damping at other turn rates, closed-loop data, the fit of the speed laws) — fe
 without the information to say anything (no steady speed, no manoeuvre — too little rudder activity
 or heading change —, a relative σ above ``max_relative_sigma``, a speed outside the reference's
 range) are skipped and leave the sums unchanged.
+
+**Speed-scaled channels** (``speed_exponents`` = (p, n), for eq. L.3 of
+:mod:`companion.numerics.parameter_tracking`): the products u^p·r and uⁿ·δ (r the measured yaw rate,
+else the heading's difference quotient) pass through filters of their own, so a window's rows can be
+written at any speed: F[(u/u_b)^p·r] = u_b^(−p)·F[u^p·r] exactly, where scaling the filtered rate by
+the speed at each sample is not (the filter lags the speed's own change: on a boat slowing 30 % in
+its turns that left a22 and b2 11 % low, the filtered products 3 %).
 """
 from __future__ import annotations
 
@@ -80,11 +87,27 @@ class WindowRecord:
     heading: np.ndarray
     rudder: np.ndarray
     yaw_rate0: float
+    speed: np.ndarray | None = None  # per sample (m/s; NaN where unknown)
+    hac_lags: int = 1  # the Newey–West lags the window's covariance was computed with
+    # per-sample factors of a22 and b2 when the rows were normalised to one speed (eq. L.3), else None
+    a22_scale: np.ndarray | None = None
+    b2_scale: np.ndarray | None = None
+    # the filtered products F[u^p·r] and F[uⁿ·δ] per row, and (p, n) (speed-scaled channels), else None
+    scaled: np.ndarray | None = None
+    scaled_exponents: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.y)
         if self.phi.shape != (n, 3) or not len(self.times) == len(self.heading) == len(self.rudder) == n:
             raise ValueError("a window record's rows and series must have one length")
+        for name in ("speed", "a22_scale", "b2_scale", "scaled"):
+            series = getattr(self, name)
+            if series is not None and len(series) != n:
+                raise ValueError(f"a window record's {name} must have one value per row")
+        if (self.scaled is None) != (self.scaled_exponents is None):
+            raise ValueError("a window record's scaled channels come with their exponents")
+        if self.hac_lags < 1:
+            raise ValueError(f"a window record's Newey–West lags are at least 1, not {self.hac_lags}")
 
 
 @dataclass
@@ -133,11 +156,18 @@ class PassiveYawEstimator:
     """Streams (time, heading, rudder, speed) samples; :meth:`add` returns a :class:`WindowEstimate`
     when a window closes (else None). See the module docstring."""
 
-    def __init__(self, config: DriftConfig = DriftConfig(), *, keep_records: bool = False) -> None:
+    def __init__(self, config: DriftConfig = DriftConfig(), *, keep_records: bool = False,
+                 speed_exponents: tuple[float, float] | None = None) -> None:
         self.config = config
         self.keep_records = keep_records
+        self.speed_exponents = speed_exponents
         self._heading_filter = StateVariableFilter(config.bandwidth, hold=config.output_hold)
         self._rudder_filter = StateVariableFilter(config.bandwidth, hold=config.input_hold)
+        # the speed-scaled channels (module docstring): u^p·r and uⁿ·δ
+        self._scaled_filters = (StateVariableFilter(config.bandwidth, hold=config.output_hold),
+                                StateVariableFilter(config.bandwidth, hold=config.input_hold))
+        self._scaled: list[tuple[float, float]] = []
+        self._last_speed = math.nan
         self._last_t: float | None = None
         self._last_raw = 0.0
         self._unwrapped = 0.0
@@ -152,9 +182,19 @@ class PassiveYawEstimator:
         self._window_start: float | None = None
         self.restarts = 0
 
+    def _scaled_inputs(self, rate: float, rudder: float, speed: float) -> tuple[float, float]:
+        """u^p·r and uⁿ·δ at this sample (the last finite speed held; NaN before any)."""
+        if math.isfinite(speed):
+            self._last_speed = speed
+        p, n = self.speed_exponents or (0.0, 0.0)
+        u = max(self._last_speed, 0.0)
+        return u ** p * rate, u ** n * rudder
+
     def _restart(self, t: float, heading: float, rudder: float) -> None:
         self._heading_filter.reset(heading)
         self._rudder_filter.reset(rudder)
+        for channel, value in zip(self._scaled_filters, self._scaled_inputs(0.0, rudder, self._last_speed)):
+            channel.reset(value if math.isfinite(value) else 0.0)
         self._unwrapped = heading
         self._ready_at = t + self.config.warm_up_s
         self._clear()
@@ -162,10 +202,13 @@ class PassiveYawEstimator:
 
     def _clear(self) -> None:
         self._rows, self._targets, self._speeds, self._rudders, self._headings = [], [], [], [], []
-        self._times = []
+        self._times, self._scaled = [], []
         self._window_start = None
 
-    def add(self, t: float, heading: float, rudder: float, speed: float) -> WindowEstimate | None:
+    def add(self, t: float, heading: float, rudder: float, speed: float,
+            yaw_rate: float = math.nan) -> WindowEstimate | None:
+        """One sample (``yaw_rate`` measured, rad/s: for the speed-scaled channels, else the heading's
+        difference quotient is used); a :class:`WindowEstimate` when a window closes."""
         if not all(math.isfinite(v) for v in (t, heading, rudder)):
             self._last_t = None  # a missing value: restart at the next complete sample
             return None
@@ -176,16 +219,24 @@ class PassiveYawEstimator:
             self._restart(t, heading, rudder)
             return None
         dt = t - self._last_t
-        self._unwrapped += wrap_pi(heading - self._last_raw)
+        turned = wrap_pi(heading - self._last_raw)
+        self._unwrapped += turned
         self._last_t, self._last_raw = t, heading
         _, rate_f, acc_f = self._heading_filter.update(self._unwrapped, dt)
         rudder_f = self._rudder_filter.update(rudder, dt)[0]
+        if self.speed_exponents is not None:
+            rate = yaw_rate if math.isfinite(yaw_rate) else turned / dt
+            inputs = self._scaled_inputs(rate, rudder, speed)
+            scaled = tuple(f.update(v if math.isfinite(v) else 0.0, dt)[0]
+                           for f, v in zip(self._scaled_filters, inputs))
         if t < self._ready_at:
             return None
         if self._window_start is None:
             self._window_start = t
             self._yaw_rate0 = rate_f  # the filtered rate: the record's initial condition (eq. 3.35)
         self._rows.append((rate_f, rudder_f, -1.0))
+        if self.speed_exponents is not None:
+            self._scaled.append(scaled)
         self._targets.append(acc_f)
         self._speeds.append(speed)
         self._rudders.append(rudder)
@@ -210,8 +261,10 @@ class PassiveYawEstimator:
         except np.linalg.LinAlgError:
             return None
         record = WindowRecord(phi=phi, y=y, times=np.asarray(self._times), heading=np.asarray(self._headings),
-                              rudder=np.asarray(self._rudders, dtype=float),
-                              yaw_rate0=float(self._yaw_rate0)) if self.keep_records else None
+                              rudder=np.asarray(self._rudders, dtype=float), yaw_rate0=float(self._yaw_rate0),
+                              speed=np.asarray(self._speeds, dtype=float), hac_lags=lags,
+                              scaled=np.asarray(self._scaled) if self.speed_exponents is not None else None,
+                              scaled_exponents=self.speed_exponents) if self.keep_records else None
         return WindowEstimate(t_start=float(self._window_start), t_end=float(t_end), samples=len(y), speed=speed,
                               speed_spread=spread, rudder_std=float(np.std(self._rudders)),
                               heading_span_deg=math.degrees(max(self._headings) - min(self._headings)),

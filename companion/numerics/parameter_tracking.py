@@ -5,10 +5,25 @@ heading and the rudder through the state-variable filters and closes a window ev
 ``window_s`` seconds with its rows ψ̈f = [ψ̇f, δf, −1]·θ, θ = [a22, b2, C0] (eq. 3.14–3.15), kept
 here (``keep_records``).
 
-**Which windows.** A window is *informative* when the speed was steady, the rudder moved and the
-heading turned by at least ``min_heading_span_deg`` (a course change of the mission), its own
-least-squares estimate is physical (a22 < 0, b2 > 0) and known to ``max_relative_sigma`` by its
-Newey–West covariance. Other windows are skipped with the reason.
+**Which windows.** A window is *informative* when its speed spread (max − min over the mean) is
+within ``speed_tolerance``, the rudder moved and the heading turned by at least
+``min_heading_span_deg`` (a course change of the mission), its own least-squares estimate (of its
+rows normalised to the band's speed, eq. L.3) is physical (a22 < 0, b2 > 0) and known to
+``max_relative_sigma`` by its Newey–West covariance. Other windows are skipped with the reason.
+
+**eq. L.3: rows normalised to one speed.** A boat slows in its own turns (ArduRover in AUTO: by
+20–40 % at the end of a survey lane), so the windows that hold the mission's course changes are the
+ones whose speed is not steady. With a22 ∝ u^p (p = 1: Nomoto's T ∝ L/u) and b2 ∝ uⁿ (n from the
+vehicle's actuation, eq. S.3: 2 for a rudder, 1 for a skid pair), each row is written at the band's
+reference speed u_b with s(t) = u(t)/u_b:
+
+    ψ̈f = a22(u_b)·s^p·ψ̇f + b2(u_b)·sⁿ·δf − C0
+
+so the regressors are scaled per sample and θ = [a22(u_b), b2(u_b), C0] is estimated as before; the
+held-out validation simulates the same law on the recorded speeds
+(:func:`companion.numerics.validation.simulate_yaw_scaled`). A law that does not hold shows there,
+as a failed validation, and in the verification of the turns flown afterwards. With p = n = 0 the
+rows are the raw ones (windows then need a steady speed: set ``speed_tolerance`` to 0.08).
 
 **Closed-loop data.** On a mission the rudder is the autopilot's answer to the heading error, so
 a disturbance that turns the boat is answered by the rudder and the equation error is correlated
@@ -37,26 +52,31 @@ heading with R² ≥ ``min_r2``; a later failed validation withdraws it until on
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
 from companion.checks import require_non_negative, require_positive, require_range
-from .drift import WindowEstimate
+from .drift import WindowEstimate, hac_least_squares
 from .identification import YawModel
-from .validation import simulate_yaw, r_squared
+from .validation import r_squared, simulate_yaw, simulate_yaw_scaled
 
 
 @dataclass(frozen=True)
 class TrackingConfig:
     """Which windows teach, how fast θ may wander, when a band's model is validated (module docstring)."""
 
-    band_width: float = 0.12  # relative half-width of a speed band
+    # relative half-width of a speed band: its rows are written at its reference speed by eq. L.3,
+    # which is trusted across a window's own speed_tolerance, so a band spans a lane's straights and
+    # the slower turns at its ends (ArduRover in AUTO: 1.7–2.0 m/s at WP_SPEED 2)
+    band_width: float = 0.25
     process_noise: float = 0.003  # q: relative σ of θ's random walk per √s
     min_windows: int = 2
     min_r2: float = 0.9
-    speed_tolerance: float = 0.08  # (max − min)/mean speed of a steady window
+    speed_tolerance: float = 0.5  # (max − min)/mean speed of a window normalised by eq. L.3
+    a22_speed_exponent: float = 1.0  # p in a22 ∝ u^p (eq. L.3)
+    b2_speed_exponent: float = 2.0  # n in b2 ∝ uⁿ (eq. L.3; the vehicle's actuation, eq. S.3)
     min_rudder_std: float = 0.005  # rad
     min_heading_span_deg: float = 10.0
     max_relative_sigma: float = 0.15
@@ -65,23 +85,56 @@ class TrackingConfig:
         require_positive(self, "band_width", "min_windows", "speed_tolerance", "min_rudder_std",
                          "min_heading_span_deg", "max_relative_sigma")
         require_range(self, "min_r2", 0.0, 1.0)
-        require_non_negative(self, "process_noise")
+        require_range(self, "speed_tolerance", 0.0, 1.0)  # beyond 1 the slowest sample may be at rest
+        require_non_negative(self, "process_noise", "a22_speed_exponent", "b2_speed_exponent")
 
 
 def skip_reason(window: WindowEstimate, config: TrackingConfig) -> str | None:
-    """Why a window cannot teach the model (module docstring), None when it can."""
+    """Why a window cannot teach the model (module docstring), None when it can. The estimate is
+    judged as the window holds it: pass it through :func:`normalised` first."""
     if window.record is None:
         return "no samples kept"
     if not window.speed_spread <= config.speed_tolerance:
         return f"speed not steady ({100 * window.speed_spread:.0f} %)"
     if window.rudder_std < config.min_rudder_std or window.heading_span_deg < config.min_heading_span_deg:
         return f"no course change (rudder σ {window.rudder_std:.4f} rad, heading span {window.heading_span_deg:.1f}°)"
+    return estimate_reason(window, config)
+
+
+def estimate_reason(window: WindowEstimate, config: TrackingConfig) -> str | None:
+    """Why a window's own estimate cannot teach the model (not physical, too uncertain), else None."""
     if not (window.a22 < 0.0 and window.b2 > 0.0):
         return f"not a physical model (a22 {window.a22:.3g}, b2 {window.b2:.3g})"
     relative = max(window.sigma(0) / abs(window.a22), window.sigma(1) / abs(window.b2))
     if not relative <= config.max_relative_sigma:
         return f"too little information (σ {100 * relative:.0f} % of the estimate)"
     return None
+
+
+def normalised(window: WindowEstimate, speed: float, config: TrackingConfig) -> WindowEstimate:
+    """``window`` with its rows written at ``speed`` (eq. L.3) and its own estimate and Newey–West
+    covariance computed again from them; unchanged without per-sample speeds or with p = n = 0."""
+    record = window.record
+    if (record is None or record.speed is None or not speed > 0.0
+            or config.a22_speed_exponent == config.b2_speed_exponent == 0.0):
+        return window
+    ratio = np.asarray(record.speed, dtype=float) / speed
+    ratio = np.where(np.isfinite(ratio) & (ratio > 0.0), ratio, window.speed / speed if window.speed > 0 else 1.0)
+    a_scale, b_scale = ratio ** config.a22_speed_exponent, ratio ** config.b2_speed_exponent
+    phi = record.phi.copy()
+    exponents = (config.a22_speed_exponent, config.b2_speed_exponent)
+    if record.scaled is not None and record.scaled_exponents == exponents:  # the products filtered
+        phi[:, 0] = record.scaled[:, 0] / speed ** exponents[0]
+        phi[:, 1] = record.scaled[:, 1] / speed ** exponents[1]
+    else:  # the filtered signals scaled at each sample: the filter's lag of the speed is not undone
+        phi[:, 0] *= a_scale
+        phi[:, 1] *= b_scale
+    try:
+        theta, covariance = hac_least_squares(phi, record.y, record.hac_lags)
+    except np.linalg.LinAlgError:
+        return window
+    rows = replace(record, phi=phi, a22_scale=a_scale, b2_scale=b_scale)
+    return replace(window, theta=[float(v) for v in theta], covariance=covariance.tolist(), record=rows)
 
 
 def _white_and_hac(window: WindowEstimate) -> tuple[float, float]:
@@ -141,13 +194,18 @@ class ParameterTracker:
 def validate_on(model: YawModel, window: WindowEstimate) -> float:
     """R² (eq. 3.35) of ``model``'s heading simulated on the window's recorded rudder."""
     record = window.record
-    simulated = simulate_yaw(model, record.times, record.rudder, float(record.heading[0]), record.yaw_rate0)
+    if record.a22_scale is not None and record.b2_scale is not None:  # rows at the band's speed (eq. L.3)
+        simulated = simulate_yaw_scaled(model, record.times, record.rudder, float(record.heading[0]),
+                                        record.yaw_rate0, record.a22_scale, record.b2_scale)
+    else:
+        simulated = simulate_yaw(model, record.times, record.rudder, float(record.heading[0]), record.yaw_rate0)
     return float(r_squared(simulated, record.heading))
 
 
 @dataclass
 class SpeedBand:
-    """One band's tracker, its centre speed and its validations (time, R²)."""
+    """One band's tracker, its reference speed (its first window's mean speed: every row it absorbs
+    is written at it, eq. L.3), the mean speeds of its windows and its validations (time, R²)."""
 
     speed: float
     tracker: ParameterTracker
@@ -160,6 +218,23 @@ class SpeedBand:
 
     def model(self) -> YawModel:
         return self.tracker.model()
+
+    def model_at(self, speed: float, config: TrackingConfig) -> YawModel:
+        """The band's model at ``speed`` by eq. L.3: a22·s^p, b2·sⁿ, C0 kept (so δ0 = C0/b2 moves),
+        the covariance of [a22, b2, C0] scaled alike; s = speed / the band's reference speed."""
+        model = self.model()
+        ratio = speed / self.speed
+        a_scale, b_scale = ratio ** config.a22_speed_exponent, ratio ** config.b2_speed_exponent
+        scale = np.diag([a_scale, b_scale, 1.0])
+        covariance = None if model.covariance is None else scale @ np.asarray(model.covariance) @ scale
+        b2 = model.b2 * b_scale
+        return YawModel(a22=model.a22 * a_scale, b2=b2, delta0=model.c0 / b2 if b2 != 0.0 else 0.0,
+                        covariance=covariance)
+
+    def speeds_spanned(self) -> list[float]:
+        """The slowest and fastest of its windows' mean speeds (one speed when they are within 2 %)."""
+        low, high = min(self.speeds), max(self.speeds)
+        return [low, high] if high > 1.02 * low else [self.speed]
 
 
 @dataclass(frozen=True)
@@ -195,24 +270,27 @@ class MissionModels:
         return min(near)[1] if near else None
 
     def add(self, window: WindowEstimate) -> WindowOutcome:
-        reason = skip_reason(window, self.config)
+        index = self._band_for(window.speed)
+        reference = self.bands[index].speed if index is not None else window.speed
+        rows = normalised(window, reference, self.config)  # eq. L.3
+        reason = skip_reason(rows, self.config)
         if reason is not None:
             return WindowOutcome(window.t_end, window.speed, reason=reason)
-        index = self._band_for(window.speed)
         if index is None:
-            self.bands.append(SpeedBand(speed=window.speed, tracker=ParameterTracker(window, self.config.process_noise),
+            self.bands.append(SpeedBand(speed=reference, tracker=ParameterTracker(rows, self.config.process_noise),
                                         speeds=[window.speed]))
             return WindowOutcome(window.t_end, window.speed, band=len(self.bands) - 1)
         band = self.bands[index]
         r2 = math.nan
         if band.tracker.windows >= self.config.min_windows:
-            r2 = validate_on(band.model(), window)  # held out: judged before it is absorbed
+            r2 = validate_on(band.model(), rows)  # held out: judged before it is absorbed
             band.validations.append((window.t_end, r2))
-        band.tracker.absorb(window)
+        band.tracker.absorb(rows)
         band.speeds.append(window.speed)
-        band.speed = float(np.mean(band.speeds))
         return WindowOutcome(window.t_end, window.speed, band=index, r2=r2)
 
     def validated(self) -> list[tuple[float, YawModel]]:
-        """(centre speed, model) of every validated band, slowest first."""
-        return sorted(((b.speed, b.model()) for b in self.bands if b.validated(self.config)), key=lambda p: p[0])
+        """(speed, model) of every validated band at the slowest and fastest speed its windows were
+        flown at (eq. L.3: the band's model is validated across them), slowest first."""
+        return sorted(((speed, band.model_at(speed, self.config)) for band in self.bands
+                       if band.validated(self.config) for speed in band.speeds_spanned()), key=lambda p: p[0])

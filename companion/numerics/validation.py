@@ -61,6 +61,38 @@ def simulate_yaw(
     return _simulate_linear(a, b, times, effective, np.array([heading0, yaw_rate0]))[:, 0]
 
 
+def simulate_yaw_scaled(model: YawModel, times: ArrayLike, rudder: ArrayLike, heading0: float, yaw_rate0: float,
+                        a22_scale: ArrayLike, b2_scale: ArrayLike) -> np.ndarray:
+    """Heading of ψ̇ = r, ṙ = a22·sₐ(t)·r + b2·s_b(t)·δr − C0 (eq. L.3, C0 = b2·δ0): the model of one
+    reference speed flown at the recorded speeds, the factors held like the rudder from each sample
+    to the next (zero-order hold, exact per interval)."""
+    times = np.asarray(times, dtype=float)
+    rudder = np.asarray(rudder, dtype=float)
+    a_scale, b_scale = np.asarray(a22_scale, dtype=float), np.asarray(b2_scale, dtype=float)
+    if not len(times) == len(rudder) == len(a_scale) == len(b_scale):
+        raise ValueError("times, rudder and the speed factors must have one length")
+    headings = np.empty(times.size)
+    if times.size == 0:
+        return headings
+    x = np.array([heading0, yaw_rate0], dtype=float)
+    headings[0] = heading0
+    c0 = model.b2 * model.delta0
+    finite = np.flatnonzero(np.isfinite(rudder))
+    held = rudder[finite[0]] if finite.size else 0.0
+    for k in range(1, times.size):
+        dt = times[k] - times[k - 1]
+        if not dt > 0.0:
+            raise ValueError(f"times must be strictly increasing (index {k})")
+        a = np.array([[0.0, 1.0], [0.0, model.a22 * a_scale[k - 1]]])
+        b = np.array([[0.0], [model.b2 * b_scale[k - 1] * held - c0]])
+        ad, bd, *_ = cont2discrete((a, b, np.eye(2), np.zeros((2, 1))), float(dt), method="zoh")
+        x = ad @ x + bd[:, 0]
+        headings[k] = x[0]
+        if math.isfinite(rudder[k]):
+            held = rudder[k]
+    return headings
+
+
 def simulate_pitch(
     model: PitchModel, times: ArrayLike, elevator: ArrayLike, pitch0: float, pitch_rate0: float = 0.0
 ) -> np.ndarray:

@@ -41,6 +41,7 @@ from behaviors.mission_learning import DesignOutcome, LearningConfig, LearningRe
 from companion.interface import Command, SetParameters
 from companion.numerics.identification import YawModel
 from companion.numerics.mission_turns import FlownSegment
+from companion.numerics.speed_law import LAW_EXPONENTS
 from companion.numerics.step_response import predict_step, simulate_rate_tracking
 from companion.procedures.campaign import CampaignConfig
 from companion.procedures.heading_design import choose_heading_design, optimisable, step_case, with_design
@@ -187,6 +188,10 @@ class LearningSession:
                                             if kind.name == "cascade" else None)
         margin = getattr(profile, "prediction_margin_pct", None)
         config = replace(self.config, verification=profile.learning_verification)
+        # the windows' rows are written at their band's speed by the vehicle's own speed law of b2
+        # (eq. L.3; the actuation read from the vehicle: a rudder's u², a skid pair's u, eq. S.3)
+        law = self.campaign.speed_law or "u2"
+        config = replace(config, tracking=replace(config.tracking, b2_speed_exponent=LAW_EXPONENTS[law]))
         if margin is not None:  # the prediction's measured margin on this autopilot (eq. L.2)
             config = replace(config, verdict=replace(config.verdict, overshoot_margin_pct=float(margin)))
         # the whole design is written (what its predictions are of); a turn-rate verification flies
