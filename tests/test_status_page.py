@@ -246,3 +246,36 @@ def test_a_flood_of_half_open_connections_costs_bounded_threads_and_passes(serve
         answer += chunk
     assert b"Error code: 400" in answer
     garbage.close()
+
+
+def test_a_request_head_that_trickles_is_closed_at_its_deadline(served, monkeypatch):
+    """A slowloris that sends one more byte of a header before each idle timeout never lets a read
+    time out; the head's deadline closes it all the same, and the slot serves a complete request."""
+    import socket
+    import time
+
+    from companion.service import http as page
+
+    monkeypatch.setattr(page.StatusHandler, "timeout", 0.5)  # the idle timeout, short for the test
+    monkeypatch.setattr(page, "REQUEST_HEAD_S", 1.0)
+    _, server, _ = served
+    slow = socket.create_connection(("127.0.0.1", server.port), timeout=2)
+    began = time.monotonic()
+    slow.sendall(b"GET /status.json HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
+    slow.settimeout(0.2)
+    closed_after = None
+    while time.monotonic() - began < 3.0:  # a byte every 0.2 s: well inside the idle timeout
+        try:
+            if slow.recv(4096) == b"":
+                closed_after = time.monotonic() - began
+                break
+        except socket.timeout:
+            pass
+        try:
+            slow.send(b"a")
+        except OSError:
+            closed_after = time.monotonic() - began
+            break
+    slow.close()
+    assert closed_after is not None and 0.9 <= closed_after < 2.0, closed_after
+    assert request(server, "GET", "/status.json")[0] == 200

@@ -12,12 +12,18 @@ Routes: ``/`` the page, ``/status.js``, ``/status.css``, ``/status.json`` the bo
 (→ ``/report/``) the latest campaign report with its images (``/report/NAME.png``).
 
 Bounded: at most ``MAX_CONNECTIONS`` connections are served at once (one thread each); one more is
-answered 503 at once by the accepting thread and closed, and a connection idle for
-``IDLE_TIMEOUT_S`` (a half-open request, a client that stopped reading) is closed. So a flood of
-connections or a slowloris costs a bounded number of threads, never the resident loop's time (700
-half-open connections once starved it of telemetry for 5 s); the standard library's server with
-these two bounds keeps the reasons above (no dependency, no event loop), where an asynchronous
-server would add both. A handler's failure is logged at debug level, never as a traceback.
+answered 503 at once by the accepting thread and closed, a connection idle for ``IDLE_TIMEOUT_S``
+(a half-open request, a client that stopped reading) is closed, and so is one whose request head
+(request line and headers) has not arrived whole ``REQUEST_HEAD_S`` after the wait for it began,
+however it trickles (a slowloris sending a byte every few seconds never lets a read time out). So a
+flood of connections or a slowloris costs a bounded number of threads, never the resident loop's
+time (700 half-open connections once starved it of telemetry for 5 s), and a slot held by a request
+that never completes is free again within ``REQUEST_HEAD_S``; the standard library's server with
+these bounds keeps the reasons above (no dependency, no event loop), where an asynchronous server
+would add both. What it costs: while a slowloris keeps all the slots, complete requests are mostly
+answered 503 (a share of them 200, each time the deadline frees the slots); the vehicle loop does
+not notice (``tests/test_status_page_under_attack.py``). A handler's failure is logged at debug
+level, never as a traceback.
 
 Bound to loopback unless the caller allows another address (``--http-allow-remote``, logged as a
 warning: anyone who can reach the port reads the vehicle's state). On loopback, a request whose
@@ -26,11 +32,13 @@ through a DNS name rebound to 127.0.0.1.
 """
 from __future__ import annotations
 
+import io
 import ipaddress
 import logging
 import re
 import socket
 import threading
+import time
 from functools import partial
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -78,6 +86,8 @@ def static_file(name: str) -> bytes:
 MAX_CONNECTIONS = 16
 #: seconds a connection may stay silent (reading a request, or a client not reading the answer)
 IDLE_TIMEOUT_S = 5.0
+#: seconds a request's head (request line and headers) may take to arrive whole, however it trickles
+REQUEST_HEAD_S = 5.0
 _BUSY = (b"HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain; charset=utf-8\r\nContent-Length: 18\r\n"
          b"Retry-After: 1\r\nConnection: close\r\n\r\nbusy: retry later\n")
 
@@ -163,8 +173,42 @@ class StatusServer:
         self.close()
 
 
+class _HeadDeadlineReader(io.RawIOBase):
+    """The connection's reads, each bounded by the idle timeout and, while a request's head is being
+    read, by that head's deadline.
+
+    Why: a socket timeout bounds one read, not a request. A slowloris client that sends one more
+    byte of a header every few seconds never lets a read time out, so with the idle timeout alone it
+    held its connection's slot for as long as it liked, and ``MAX_CONNECTIONS`` such clients made
+    the page answer everyone else 503 for good (measured: not one complete request answered 200 in
+    the 20 s of a campaign against 300 trickling connections). With the deadline a slot is held at
+    most ``REQUEST_HEAD_S`` by a request that never completes."""
+
+    def __init__(self, sock: socket.socket, idle_s: float | None) -> None:
+        super().__init__()
+        self.sock, self.idle_s = sock, idle_s
+        self.deadline: float | None = None  # time.monotonic() by which the current head must be whole
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        timeout = self.idle_s
+        if self.deadline is not None:
+            remaining = self.deadline - time.monotonic()
+            if remaining <= 0:
+                raise TimeoutError("the request's head did not arrive in time")
+            timeout = remaining if timeout is None else min(timeout, remaining)
+        self.sock.settimeout(timeout)
+        try:
+            return self.sock.recv_into(buffer)
+        finally:
+            self.sock.settimeout(self.idle_s)  # writes keep the idle timeout
+
+
 class StatusHandler(BaseHTTPRequestHandler):
-    """GET/HEAD of the routes in the module docstring; 405 for every other method."""
+    """GET/HEAD of the routes in the module docstring; 405 for every other method. A request's head
+    must arrive whole within ``REQUEST_HEAD_S`` (:class:`_HeadDeadlineReader`)."""
 
     server_version = "marine-companion"
     sys_version = ""
@@ -175,6 +219,25 @@ class StatusHandler(BaseHTTPRequestHandler):
                  files: dict[str, tuple[bytes, str]], **kwargs) -> None:
         self.board, self.report, self.loopback_only, self.files = board, report, loopback_only, files
         super().__init__(*args, **kwargs)
+
+    def setup(self) -> None:
+        super().setup()
+        self.rfile.close()  # the standard library's reader, replaced by one that keeps the head's deadline
+        self._reader = _HeadDeadlineReader(self.connection, self.timeout)
+        self.rfile = io.BufferedReader(self._reader)
+
+    def handle_one_request(self) -> None:
+        """One request, its head read under the deadline (lifted once the head is parsed)."""
+        self._reader.deadline = time.monotonic() + REQUEST_HEAD_S
+        try:
+            super().handle_one_request()
+        finally:
+            self._reader.deadline = None
+
+    def parse_request(self) -> bool:
+        parsed = super().parse_request()
+        self._reader.deadline = None
+        return parsed
 
     def __getattr__(self, name: str):
         # http.server answers a method without a do_<METHOD> with 501; every method but GET and HEAD is 405 here
