@@ -295,7 +295,9 @@ class MissionLearner(Behaviour):
         if math.isfinite(self._last_t) and not allowed:
             self._outside_s += max(0.0, t - self._last_t)
         self._last_t = t
-        window = self.estimator.add(t, telemetry.yaw, telemetry.rudder, telemetry.speed_water, telemetry.yaw_rate)
+        # the rate channel of eq. L.3 is the heading's own difference quotient (the signal the target
+        # ψ̈f is made of), not a gyro that may read another frame or lag otherwise
+        window = self.estimator.add(t, telemetry.yaw, telemetry.rudder, telemetry.speed_water)
         if window is not None:
             self.windows.append(self.models.add(window))
         if self.by_rate:

@@ -23,8 +23,8 @@ or heading change —, a relative σ above ``max_relative_sigma``, a speed outsi
 range) are skipped and leave the sums unchanged.
 
 **Speed-scaled channels** (``speed_exponents`` = (p, n), for eq. L.3 of
-:mod:`companion.numerics.parameter_tracking`): the products u^p·r and uⁿ·δ (r the measured yaw rate,
-else the heading's difference quotient) pass through filters of their own, so a window's rows can be
+:mod:`companion.numerics.parameter_tracking`): the products u^p·r and uⁿ·δ (r the measured yaw rate when given,
+else the heading's difference quotient, which mission learning uses) pass through filters of their own, so a window's rows can be
 written at any speed: F[(u/u_b)^p·r] = u_b^(−p)·F[u^p·r] exactly, where scaling the filtered rate by
 the speed at each sample is not (the filter lags the speed's own change: on a boat slowing 30 % in
 its turns that left a22 and b2 11 % low, the filtered products 3 %).
