@@ -15,6 +15,11 @@
   :mod:`harness.delivery_log` (what the vehicle was last told). :mod:`harness.fault_cases` runs a
   procedure through either and checks that the vehicle and the store come back as found
   (``tests/test_fault_injection.py``, ``bench/bench_faults.py``).
+* :mod:`harness.serial_bridge` — a serial link: a pseudo-terminal pair at 57600 baud (the companion
+  connects ``/dev/pts/N,57600``) bridged to the simulator's TCP port through a telemetry radio model
+  each way (byte rate, a buffer that drops what does not fit, bytes lost on the air in runs), counting
+  what it dropped; :mod:`harness.serial_campaign` runs ``companion identify`` over it and checks the
+  vehicle afterwards (``tests/test_serial_link.py``, ``bench/bench_serial_link.py``).
 * :mod:`harness.datasets` — synthetic data sets (ROMEO regime points and surge, steady-state
   squares and turns).
 

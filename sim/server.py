@@ -40,6 +40,7 @@ from sim.autopilot import (  # noqa: E402
     wrap_pi,
 )
 from sim.build import build_vehicle  # noqa: E402
+from sim.frame_parser import ResyncParser  # noqa: E402
 from sim.lockstep import Lockstep  # noqa: E402
 from sim.params import ParamTable  # noqa: E402
 from sim.preset import load_preset  # noqa: E402
@@ -223,12 +224,14 @@ class SimServer:
             self._tcp = TcpClients(self.conn.listen, self._client_parser, on_drop=self.lockstep.client_left)
 
     def _client_parser(self):
-        """A MAVLink parser of one TCP client's bytes, sharing the endpoint's signing state."""
+        """A MAVLink parser of one TCP client's bytes, sharing the endpoint's signing state, that
+        resynchronises after a damaged frame (sim/frame_parser.py: a serial link bridged to the port
+        loses bytes, and in lockstep nothing would come to complete a false frame)."""
         mav = self.conn.mav
         parser = type(mav)(None, srcSystem=mav.srcSystem, srcComponent=mav.srcComponent)
         parser.robust_parsing = True
         parser.signing = mav.signing
-        return parser
+        return ResyncParser(parser)
 
     def bound_endpoint(self) -> str:
         """The listen endpoint with the port actually bound (``…:0`` asks the OS for a free one)."""

@@ -25,6 +25,7 @@ log = logging.getLogger(__name__)
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 MSG_ID_AUTOPILOT_VERSION = 148
+MSG_ID_ATTITUDE = 30
 
 
 def detect(ports: LinkPorts) -> AutopilotProfile:
@@ -72,9 +73,12 @@ def _configured(ports: LinkPorts, chosen: AutopilotProfile, strategy: AutopilotS
 
 
 def request_streams(ports: LinkPorts, rates: dict[int, float]) -> None:
-    """MAV_CMD_SET_MESSAGE_INTERVAL for each message id → Hz (0 or less: stop it)."""
+    """MAV_CMD_SET_MESSAGE_INTERVAL for each message id → Hz (0 or less: stop it); the attitude
+    period asked for is the clock's (a stalled lockstep steps on by it)."""
     for message_id, rate_hz in rates.items():
         ports.commands.send(MAV_CMD_SET_MESSAGE_INTERVAL, (message_id, 1e6 / rate_hz if rate_hz > 0 else -1))
+    if rates.get(MSG_ID_ATTITUDE, 0) > 0:
+        ports.clock.requested_period_ms = 1000.0 / rates[MSG_ID_ATTITUDE]
 
 
 @dataclasses.dataclass

@@ -218,7 +218,9 @@ class TelemetryFeed:
                 raise LinkLost(f"no telemetry snapshot for {timeout_s:g} s of wall clock "
                                f"(last message of any kind {silent:.1f} s ago)")
             if self.clock.lockstep:  # wake in time to notice a stall
-                self.transport.pump(min(remaining, 0.5, self.clock.timeouts.lockstep_stall_s / 2.0))
+                timeouts = self.clock.timeouts
+                self.transport.pump(min(remaining, 0.5, timeouts.lockstep_stall_s / 2.0,
+                                        timeouts.lockstep_lossy_stall_s / 2.0))
                 self.clock.unstall()
             else:
                 self.transport.pump(min(remaining, 0.5))
@@ -254,12 +256,16 @@ class TelemetryFeed:
 
     def quality(self) -> dict:
         """Link quality as the attitude samples arrived: accepted, late (reordered), duplicated, and
-        snapshots released without their own output sample (it was lost)."""
+        snapshots released without their own output sample (it was lost); and as the vehicle's frames
+        arrived (``companion.link.frame_loss``): received, lost on the link (sequence gaps), late,
+        repeated, discarded as corrupt (and their bytes), and the fraction lost."""
         lost_outputs = self.assembler.released_without_outputs if self.assembler is not None else 0
+        frame_loss = getattr(self.transport, "frame_loss", None)
         return {"samples": self.samples_accepted, "late": self.samples_late,
                 "late_dropped": self.samples_dropped_late, "duplicate": self.samples_duplicate,
                 "outputs_lost": lost_outputs, "dropped_unread": self.snapshots_dropped, "stray": self.samples_stray,
-                "hold_ms": self.assembler.hold_ms if self.assembler is not None else 0.0}
+                "hold_ms": self.assembler.hold_ms if self.assembler is not None else 0.0,
+                **(frame_loss.counts() if frame_loss is not None else {})}
 
     def servo_pwm(self) -> list[float]:
         """The latest SERVO_OUTPUT_RAW, outputs 1..16 in µs (empty before the first one)."""

@@ -16,11 +16,13 @@ import contextlib
 import io
 import logging
 import os
+import sys
 import time
 from collections import defaultdict
 from typing import Any, Callable
 
 from companion.link.errors import EndpointError, HeartbeatTimeout, LinkLost
+from companion.link.frame_loss import FrameLoss, frame_check, next_whole_frame
 
 log = logging.getLogger(__name__)
 
@@ -105,6 +107,11 @@ class Transport:
         self._reconnect_listeners: list[Callable[[], None]] = []
         self.last_rx_wall = time.monotonic()
         self.reconnects = 0  # connections opened again after the vehicle closed or reset one
+        # the vehicle's frames lost on the link (sequence gaps) and discarded as corrupt (frame_loss)
+        self.frame_loss = FrameLoss()
+        # the vehicle time of the autopilot's latest frame that carries one (whatever its type): what
+        # a stalled lockstep link knows of the vehicle's clock when the samples themselves were lost
+        self.heard_time_ms: int | None = None
 
     @property
     def signing(self) -> bool:
@@ -122,9 +129,29 @@ class Transport:
         if msg is None:
             return None
         self.last_rx_wall = time.monotonic()
+        self._count_frame(msg)
         for handler in self._handlers.get(msg.get_type(), ()):
             handler(msg)
         return msg
+
+    def _count_frame(self, msg: Any) -> None:
+        """The link's frame counts (``companion.link.frame_loss``): what the parser discarded, and the
+        sequence number of every frame from the vehicle's system but not our own component."""
+        if msg.get_type() == "BAD_DATA":
+            raw = getattr(msg, "data", None)
+            self.frame_loss.discarded(len(raw) if raw is not None else 0)
+            return
+        seq = getattr(msg, "get_seq", None)
+        if seq is None or not self.from_vehicle(msg) or msg.get_srcComponent() == self.component:
+            return
+        sender = (msg.get_srcSystem(), msg.get_srcComponent())
+        if msg.get_type().startswith("UNKNOWN"):  # not CRC-checked: maybe a damaged frame
+            self.frame_loss.unchecked_frame(sender, seq())
+            return
+        self.frame_loss.frame(sender, seq())
+        stamp = getattr(msg, "time_boot_ms", None)
+        if isinstance(stamp, int) and sender[1] == self.autopilot_component:
+            self.heard_time_ms = stamp
 
     def from_vehicle(self, msg: Any) -> bool:
         """Sent by the vehicle's system (any of its components)."""
@@ -162,13 +189,36 @@ class Transport:
     @property
     def bytes_received(self) -> int:
         """Bytes received on this connection so far (pymavlink's count)."""
-        return int(getattr(self._master.mav, "total_bytes_received", 0) or 0)
+        count = getattr(self._master.mav, "total_bytes_received", 0)
+        return count if isinstance(count, int) else 0  # 0: not pymavlink's parser
 
     @property
     def unparsed_bytes(self) -> int:
         """Bytes received but not yet parsed into messages (how far the reader lags the stream)."""
         mav = self._master.mav
-        return len(getattr(mav, "buf", b"")) - getattr(mav, "buf_index", 0)
+        buffer, index = getattr(mav, "buf", None), getattr(mav, "buf_index", 0)
+        if not isinstance(buffer, (bytes, bytearray)) or not isinstance(index, int):
+            return 0  # not pymavlink's parser
+        return len(buffer) - index
+
+    def resynchronise(self) -> bool:
+        """Part of a frame waits in pymavlink's parser while nothing more arrives (a lockstep link
+        stalled after a radio lost bytes of it): pymavlink trusts the damaged frame's length byte and
+        would take the next frames' bytes as its own, so frames that did arrive whole stay hidden
+        behind it. Move the parser on to the first whole frame after its start that passes its checks
+        (``frame_loss.next_whole_frame``; the bytes skipped are counted as discarded); True when one
+        was found (the next :meth:`pump` returns it), False when there is none (it is left waiting)."""
+        mav = self._master.mav
+        buffer, index = getattr(mav, "buf", None), getattr(mav, "buf_index", 0)
+        if not isinstance(buffer, bytearray) or not isinstance(index, int) or len(buffer) - index < 2:
+            return False
+        offset = next_whole_frame(bytes(buffer[index:]), frame_check(sys.modules[type(mav).__module__]))
+        if offset is None:
+            return False
+        mav.buf_index = index + offset
+        self.frame_loss.discarded(offset)
+        log.debug("resynchronised after a damaged frame: %d bytes skipped", offset)
+        return True
 
     def record_to(self, path: str) -> Any:
         """Write every received frame to a telemetry log (tlog) at ``path``; returns the open file."""
@@ -211,6 +261,7 @@ class Transport:
                 continue
             self._master = master
             self.reconnects += 1
+            self.frame_loss.forget_senders()  # a new connection numbers its frames afresh
             self.last_rx_wall = time.monotonic()
             for handler in self._handlers.get("HEARTBEAT", ()):
                 handler(heartbeat)

@@ -219,11 +219,12 @@ def link_unfit_for_identification(link) -> str | None:
     return None
 
 
-def refused(args, reason: str, code: int = 1) -> int:
+def refused(args, reason: str, code: int = 1, **details) -> int:
     """A command that did not start its work: with ``--json`` the refusal is JSON too (status
-    ``refused``, the reason), never an empty output; the exit code."""
+    ``refused``, the reason, and any ``details``: the link quality of a link refused as unfit),
+    never an empty output; the exit code."""
     if getattr(args, "json", False):
-        print_json({"campaign_id": None, "status": "refused", "reason": reason.removeprefix("error: ")})
+        print_json({"campaign_id": None, "status": "refused", "reason": reason.removeprefix("error: "), **details})
     return code
 
 
@@ -232,18 +233,29 @@ LINK_LOSS_WARNING = 0.05
 
 
 def link_quality_record(link, campaign=None) -> dict:
-    """What the link delivered (samples late, lost, duplicated), the fraction of samples that came
-    without their own output or too late to use (``lost_fraction``), a ``warning`` above
-    :data:`LINK_LOSS_WARNING` (None below), and how many identification records were not used
-    because the link lost too much of them."""
+    """What the link delivered (samples late, lost, duplicated; the vehicle's frames received, lost on
+    the link and discarded as corrupt), the fraction of samples that came without their own output or
+    too late to use (``lost_fraction``) and of frames lost (``frame_loss_fraction``), a ``warning``
+    when either is above :data:`LINK_LOSS_WARNING` (None below), and how many identification records
+    were not used because the link lost too much of them."""
     quality = dict(link.telemetry.quality()) if hasattr(link, "telemetry") else {}
     samples = quality.get("samples", 0)
     lost = quality.get("outputs_lost", 0) + quality.get("late_dropped", 0) + quality.get("dropped_unread", 0)
+    frames_sent = quality.get("frames", 0) + quality.get("frames_lost", 0)
+    parts = []
     if samples:
         quality["lost_fraction"] = lost / samples
-        quality["warning"] = (f"the link lost or delayed {100 * lost / samples:.1f} % of the samples (above "
-                              f"{100 * LINK_LOSS_WARNING:.0f} %): a faster or cleaner link gives better models"
-                              if lost / samples > LINK_LOSS_WARNING else None)
+        if lost / samples > LINK_LOSS_WARNING:
+            parts.append(f"lost or delayed {100 * lost / samples:.1f} % of the samples")
+    if frames_sent:
+        fraction = quality["frames_lost"] / frames_sent
+        quality["frame_loss_fraction"] = fraction
+        if fraction > LINK_LOSS_WARNING:
+            parts.append(f"lost {100 * fraction:.1f} % of the vehicle's frames ({quality['frames_lost']} of "
+                         f"{frames_sent}; {quality.get('frames_corrupt', 0)} discarded as corrupt)")
+    if samples or frames_sent:
+        quality["warning"] = (f"the link {' and '.join(parts)} (above {100 * LINK_LOSS_WARNING:.0f} %): a faster or "
+                              "cleaner link gives better models" if parts else None)
     if campaign is not None:
         quality["records_rejected"] = campaign.records_rejected_for_link
     return quality
@@ -255,6 +267,10 @@ def link_quality_line(quality: dict) -> str | None:
         return None
     line = (f"link: {quality['samples']} samples, {quality.get('late', 0)} late, {quality.get('outputs_lost', 0)} "
             f"without their outputs, {100 * quality.get('lost_fraction', 0.0):.1f} % lost or late")
+    if "frames" in quality:
+        line += (f"; frames: {quality['frames']} received, {quality.get('frames_lost', 0)} lost on the link "
+                 f"({100 * quality.get('frame_loss_fraction', 0.0):.1f} %), {quality.get('frames_corrupt', 0)} "
+                 "discarded as corrupt")
     if quality.get("records_rejected"):
         line += f"; {quality['records_rejected']} identification records not used for it"
     return line + (f" — WARNING: {quality['warning']}" if quality.get("warning") else "")

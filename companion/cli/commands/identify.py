@@ -114,8 +114,12 @@ def run(args: argparse.Namespace) -> int:
                 return refused(args, "an interrupted procedure left the vehicle changed: run `companion recover "
                                      f"--connect {args.connect} --yes`, then start again")
             unfit = link_unfit_for_identification(link)
-            if unfit is not None:
-                return refused(args, unfit)
+            if unfit is not None:  # what the link delivered while it was measured, frames lost included
+                quality = link_quality_record(link)
+                line = link_quality_line(quality)
+                if line and not args.json:
+                    print(line, file=sys.stderr)
+                return refused(args, unfit, link_quality=quality)
             campaign, outcome, campaign_id = run_campaign(
                 link, store, config, vehicle_id=vehicle_record(store, link), abort=abort, limits=limits,
                 console=ConsoleProgress("identification", enabled=not args.json))
