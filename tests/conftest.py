@@ -25,6 +25,18 @@ from harness.mavlink_clients import connect_client  # noqa: E402
 from harness.simulator import SimPool, SimulatorProcess  # noqa: E402
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The modules that hold a slow test run first, each kept whole (its module-scoped fixtures set
+    up once), the rest in their collected order: the two workers take the long tests while the many
+    short ones are still left to balance them (longest first), instead of one worker running the
+    serial radio's campaign (45 s of wall clock, collected late) alone at the end."""
+    slow_modules = {item.module.__name__ for item in items
+                    if item.get_closest_marker("slow") is not None and getattr(item, "module", None) is not None}
+    order = {id(item): index for index, item in enumerate(items)}
+    items.sort(key=lambda item: (getattr(getattr(item, "module", None), "__name__", "") not in slow_modules,
+                                 order[id(item)]))
+
+
 @pytest.fixture
 def sim_factory() -> Iterator[Callable[..., SimulatorProcess]]:
     """``sim_factory(transport="udp"|"tcp", speedup=30, preset=..., seed=..., extra_args=())``;
