@@ -38,3 +38,30 @@ def connect_client(endpoint: str, source_system: int = 255, source_component: in
             return conn
     conn.close()
     raise TimeoutError(f"no HEARTBEAT from the simulator at {endpoint}")
+
+
+def wait_for_line(path, prefix: str, process, timeout_s: float = 30.0) -> str:
+    """The rest of the first line of ``path`` (a process's stderr file) that starts with ``prefix``;
+    RuntimeError when ``process`` ends or ``timeout_s`` of wall clock passes without one."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for line in path.read_text().splitlines():
+            if line.startswith(prefix):
+                return line[len(prefix):].strip()
+        if process.poll() is not None:
+            break
+        time.sleep(0.1)
+    raise RuntimeError(f"no {prefix!r} line: {path.read_text()[-2000:]}")
+
+
+def arm_and_see_it(gcs, timeout_s: float = 20.0) -> None:
+    """Arm, and wait for the vehicle's HEARTBEAT to show it, as a ground station does before it
+    starts anything: the companion hears the same heartbeat before the command routed after it
+    (a start sent at once raced the companion's view of the armed flag)."""
+    gcs.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # MAV_CMD_COMPONENT_ARM_DISARM
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        msg = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
+        if msg is not None and msg.get_srcComponent() == 1 and msg.base_mode & 128:  # SAFETY_ARMED
+            return
+    raise RuntimeError("the vehicle's heartbeat never showed it armed")

@@ -24,7 +24,7 @@ import urllib.request
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from harness.mavlink_clients import connect_client
+from harness.mavlink_clients import arm_and_see_it, connect_client, wait_for_line
 from harness.page_attack import AttackCounts, AttackPlan, AttackProcess
 
 log = logging.getLogger(__name__)
@@ -58,18 +58,6 @@ class PageCampaign:
         return bool(self.acks) and self.acks[-1] == (ACCEPTED, 100)
 
 
-def _wait_for_line(path: Path, prefix: str, process: subprocess.Popen, timeout_s: float = 30.0) -> str:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        for line in path.read_text().splitlines():
-            if line.startswith(prefix):
-                return line[len(prefix):].strip()
-        if process.poll() is not None:
-            break
-        time.sleep(0.1)
-    raise RuntimeError(f"companion run printed no {prefix!r} line: {path.read_text()[-2000:]}")
-
-
 def _heartbeat_of_companion(gcs, timeout_s: float = 30.0) -> None:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -77,18 +65,6 @@ def _heartbeat_of_companion(gcs, timeout_s: float = 30.0) -> None:
         if msg is not None and msg.get_srcComponent() == COMPANION:
             return
     raise RuntimeError("no HEARTBEAT from the companion (component 191) through the simulator")
-
-
-def _arm(gcs, timeout_s: float = 20.0) -> None:
-    """Arm, and wait for the vehicle's heartbeat to show it (the companion hears the same heartbeat
-    before the command that follows)."""
-    gcs.mav.command_long_send(1, 1, MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        msg = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
-        if msg is not None and msg.get_srcComponent() == 1 and msg.base_mode & 128:  # SAFETY_ARMED
-            return
-    raise RuntimeError("the vehicle's heartbeat never showed it armed")
 
 
 def _acks(gcs, command: int, seen: list[tuple[int, int]], until, timeout_s: float) -> None:
@@ -144,10 +120,10 @@ def campaign_beside_the_page(endpoint: str, workdir: Path, plan: AttackPlan | No
     with open(stderr_path, "w") as stderr:
         process = subprocess.Popen(command, cwd=workdir, stdout=subprocess.DEVNULL, stderr=stderr, env=env)
     try:
-        url = _wait_for_line(stderr_path, "status page: ", process)
+        url = wait_for_line(stderr_path, "status page: ", process)
         port = int(url.rstrip("/").rsplit(":", 1)[1])
         _heartbeat_of_companion(gcs)
-        _arm(gcs)
+        arm_and_see_it(gcs)
         attack = AttackProcess("127.0.0.1", port, plan).start() if plan is not None else None
         began = time.monotonic()
         try:

@@ -12,6 +12,8 @@ from pymavlink.dialects.v20.common import MAV_RESULT_ACCEPTED as ACCEPTED
 from pymavlink.dialects.v20.common import MAV_RESULT_FAILED as FAILED
 from pymavlink.dialects.v20.common import MAV_RESULT_IN_PROGRESS as IN_PROGRESS
 
+from harness.mavlink_clients import arm_and_see_it
+
 pytestmark = pytest.mark.e2e
 
 MAV_CMD_USER_1, MAV_CMD_USER_3, MAV_CMD_USER_4 = 31010, 31012, 31013
@@ -56,17 +58,7 @@ def start(gcs, command: int, param1: float = 0.0, timeout_s: float = 30.0) -> li
     return []
 
 
-def arm(gcs, timeout_s: float = 20.0) -> None:
-    """Arm, and wait for the vehicle's HEARTBEAT to show it, as a ground station does before it
-    starts anything: the companion hears the same heartbeat before the command routed after it
-    (a start sent at once raced the companion's view of the armed flag)."""
-    gcs.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # MAV_CMD_COMPONENT_ARM_DISARM
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        msg = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
-        if msg is not None and msg.get_srcComponent() == 1 and msg.base_mode & 128:  # SAFETY_ARMED
-            return
-    raise AssertionError("the vehicle's heartbeat never showed it armed")
+arm = arm_and_see_it  # the shared step (harness.mavlink_clients)
 
 
 def wait_for_companion(gcs, timeout_s: float = 20.0) -> None:

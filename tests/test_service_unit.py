@@ -31,6 +31,7 @@ from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
 from companion.procedures.resident import ServeConfig
 from companion.records.store import Store
 from companion.service.stop_budget import stop_budget
+from harness.mavlink_clients import wait_for_line
 from tests.test_e2e_gcs import acks_for, arm, start, wait_for_companion
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -115,16 +116,7 @@ def _status(url: str) -> dict:
         return json.loads(response.read())
 
 
-def _wait_for_line(path: Path, prefix: str, process: subprocess.Popen, timeout_s: float = 30.0) -> str:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        for line in path.read_text().splitlines():
-            if line.startswith(prefix):
-                return line[len(prefix):].strip()
-        if process.poll() is not None:
-            break
-        time.sleep(0.1)
-    raise AssertionError(f"no {prefix!r} line: {path.read_text()[-2000:]}")
+_wait_for_line = wait_for_line  # the shared step (harness.mavlink_clients)
 
 
 def _servo_after(gcs, vehicle_s: float, wall_limit_s: float = 60.0):
