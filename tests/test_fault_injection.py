@@ -414,3 +414,21 @@ def test_a_restore_reconnects_a_closed_link_and_says_what_it_could_not_do_when_i
     assert _try_restore_item("restore mode", lost, reconnect) == \
         "restore mode: not tried: the link was lost and did not come back"
     assert link.reconnects == 1
+
+
+def test_a_late_set_point_watch_stops_listening_once_a_new_procedure_owns_the_set_points():
+    from companion.interface import SetThrust, Telemetry
+    from companion.procedures.late_setpoints import LateSetpointWatch, WatchedSetpoint
+    from companion.procedures.restore_items import StateCheck
+
+    link, _sent = _bare_link()
+    link.commands.send_setpoint(178, (0.0, -1.0, 100.0))
+    link.commands.abandon()
+    check = StateCheck("thrust", lambda t: t.thrust_ratio, 0.7, 0.011)
+    watch = LateSetpointWatch(link, [WatchedSetpoint("thrust", 178, SetThrust(0.7), check)], [])
+    link.telemetry.after_snapshot(watch._after_snapshot)
+    link.telemetry.assembler = SimpleNamespace(latest=Telemetry(time_s=1.0, thrust_ratio=0.7))
+    assert watch.active and watch._after_snapshot in link.telemetry._after_snapshot
+    link.commands.forget_abandoned()  # a new procedure's restore point
+    watch._after_snapshot()
+    assert not watch.active and watch._after_snapshot not in link.telemetry._after_snapshot

@@ -73,6 +73,11 @@ class TelemetryFeed:
         """Call ``listener()`` after each snapshot is queued (override refresh...)."""
         self._after_snapshot.append(listener)
 
+    def stop_calling(self, listener: Callable[[], None]) -> None:
+        """No longer call ``listener`` (a no-op when it is not listening)."""
+        if listener in self._after_snapshot:
+            self._after_snapshot.remove(listener)
+
     def on_reboot(self, listener: Callable[[], None]) -> None:
         """Call ``listener()`` when a reboot of the vehicle is recognised (before it is reported)."""
         self._reboot_listeners.append(listener)
@@ -200,7 +205,7 @@ class TelemetryFeed:
             if self.snapshots_dropped == 1 or self.snapshots_dropped % 1000 == 0:
                 log.warning("telemetry not read: %d old snapshots dropped", self.snapshots_dropped)
         self._unread.append(snapshot)
-        for listener in self._after_snapshot:
+        for listener in list(self._after_snapshot):  # a listener may stop listening while called
             listener()
 
     # ------------------------------------------------------------------ reading

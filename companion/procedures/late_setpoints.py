@@ -114,8 +114,11 @@ class LateSetpointWatch:
         return landed()
 
     def _after_snapshot(self) -> None:
-        """A landing after the restore's end: put the set-point back while the state shows it left."""
+        """A landing after the restore's end: put the set-point back while the state shows it left.
+        A watch made stale by a later restore or procedure stops listening (a long ``companion run``
+        would otherwise keep one listener per restore)."""
         if not self.active:
+            self.link.telemetry.stop_calling(self._after_snapshot)
             return
         telemetry = self.link.latest_telemetry
         if telemetry is None:
