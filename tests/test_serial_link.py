@@ -182,6 +182,15 @@ def _lockstep_link():
     return link, mav
 
 
+def _link_acknowledged_at_1000_ms():
+    """A lockstep link that took samples at 900, 950 and 1000 ms and acknowledged the last."""
+    link, mav = _lockstep_link()
+    for time_ms in (900, 950, 1000):
+        link.clock.sample(time_ms)
+    link.clock.acknowledge(1000)
+    return link, mav
+
+
 def _acks(mav: _Mav) -> list[int]:
     return [args[1] for name, *args in mav.sent if name == "system_time_send"]
 
@@ -202,11 +211,8 @@ def test_a_stall_steps_on_by_the_period_asked_for_else_by_the_samples_spacing():
 
 
 def test_on_a_damaging_link_a_stall_skips_the_lost_sample_at_once():
-    link, mav = _lockstep_link()
+    link, mav = _link_acknowledged_at_1000_ms()
     clock, transport = link.clock, link.transport
-    for time_ms in (900, 950, 1000):
-        clock.sample(time_ms)
-    clock.acknowledge(1000)
     transport.last_rx_wall = time.monotonic() - 0.5  # quiet for 0.5 s: below the 1 s of a clean link
     clock.unstall()
     assert _acks(mav) == [1000]
@@ -217,11 +223,8 @@ def test_on_a_damaging_link_a_stall_skips_the_lost_sample_at_once():
 
 
 def test_unanswered_acknowledgements_go_no_further_than_a_period_past_the_vehicle_time_heard():
-    link, mav = _lockstep_link()
+    link, mav = _link_acknowledged_at_1000_ms()
     clock, transport = link.clock, link.transport
-    for time_ms in (900, 950, 1000):
-        clock.sample(time_ms)
-    clock.acknowledge(1000)
     transport.frame_loss.discarded(40)  # a damaging link; nothing more arrives
     for _ in range(5):
         transport.last_rx_wall = clock._last_nudge_wall = time.monotonic() - 10.0
