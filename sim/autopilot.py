@@ -26,7 +26,7 @@ from sim.controllers import DepthPitchCascade, HeadingPI
 from sim.params import FULL_SCALE_RAD, ParamTable, SetResult
 from sim.skid_mixer import pilot_skid_limit, skid_mix
 from sim.vehicle import ActuatorDemand, Vehicle
-from sim.vehicle import wrap_angle as wrap_pi  # the simulator's one wrap (sim.server imports it from here)
+from sim.vehicle import wrap_angle as wrap_pi  # the simulator's one wrap (sim.telemetry imports it from here)
 
 log = logging.getLogger(__name__)
 

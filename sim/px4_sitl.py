@@ -24,8 +24,8 @@ How PX4 is started (``ROMFS/px4fmu_common/init.d-posix/rcS`` and ``px4-rc.*``):
   on); its first datagram makes it PX4's partner.
 
 Everything is on loopback (UDP binds are PX4's ``INADDR_ANY``: run it in a private network
-namespace to keep them off other interfaces). A free instance I is chosen (its ports and PX4's
-``/tmp/px4_lock-I`` free).
+namespace to keep them off other interfaces). A free instance I (its ports and PX4's
+``/tmp/px4_lock-I`` free) is claimed for PX4's lifetime (:class:`Px4InstanceClaim`, sim/instance_claim.py).
 """
 from __future__ import annotations
 
