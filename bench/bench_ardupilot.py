@@ -24,6 +24,7 @@ wind off unless ``--waves``), which has no truth to score against: it runs
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -77,6 +78,9 @@ def main() -> int:
                              "the frame's, 3 m/s)")
     parser.add_argument("--procedure", choices=("quick", "thesis"), default="quick",
                         help="the campaign procedure (default: quick, what identify --connect flies)")
+    parser.add_argument("--keep", default=None, metavar="DIR",
+                        help="our physics: keep each run's rehearsal folder (its store, with the flown steps) in "
+                             "DIR/run-N")
     parser.add_argument("--full-comparison", action="store_true",
                         help="fly the defaults, QuickTune's rule and the design at every speed (identify "
                              "--full-comparison) instead of verifying the design with two steps")
@@ -115,7 +119,7 @@ def ours(args, preset: str) -> int:
     print(f"{args.autopilot} SITL + our {preset} physics, {args.repeats} runs at {args.speedup:g}x, {args.procedure} "
           f"procedure, ±{args.step_deg:g}° heading steps")
     for repeat in range(args.repeats):
-        with tempfile.TemporaryDirectory() as out:
+        with _run_folder(args.keep, repeat) as out:
             config = RehearsalConfig(preset=preset, speedup=args.speedup, seed=repeat + 1, out_dir=out,
                                      campaign=campaign, behaviors=(), progress=False, report=False,
                                      current=preset_defaults(preset)["current"], autopilot=args.autopilot,
@@ -144,6 +148,18 @@ def ours(args, preset: str) -> int:
           + f"); wall time median {fmt(med(walls), '.0f')} s at {args.speedup:g}x")
     print(f"outcomes: {[s.get('status') for s in summaries]}")
     return 0
+
+
+@contextlib.contextmanager
+def _run_folder(keep: str | None, repeat: int):
+    """A run's rehearsal folder: DIR/run-N, kept, with ``--keep``; else a temporary one."""
+    if keep is None:
+        with tempfile.TemporaryDirectory() as out:
+            yield out
+        return
+    folder = Path(keep) / f"run-{repeat + 1}"
+    folder.mkdir(parents=True, exist_ok=True)
+    yield str(folder)
 
 
 def identification_table(summaries) -> None:

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from companion.cli.main import main as cli_main
-from companion.numerics.cascade_gains import CascadeRules, quicktune_feed_forward, quicktune_gains
+from companion.numerics.cascade_gains import CascadeRules
+from companion.numerics.quicktune import quicktune_feed_forward, quicktune_gains
 from companion.numerics.gains import GainBounds
 from companion.numerics.identification import YawModel
 from companion.numerics.step_design import (Candidate, DesignObjective, StepScore, cascade_case, cascade_family,
@@ -140,7 +141,7 @@ def test_design_takes_the_vehicles_own_gains_and_keeps_them_when_nothing_is_bett
 
 
 @pytest.mark.parametrize("argv, words", [
-    (["--autopilot", "px4-uuv", "--speed", "1.5"], "has no step model"),
+    (["--autopilot", "px4-rover", "--speed", "0"], "needs a speed > 0"),
     (["--autopilot", "ardurover"], "needs --speed"),
     (["--autopilot", "ardurover", "--speed", "2", "--original", "HDG_P=1"], "not a heading parameter"),
     (["--autopilot", "ardurover", "--speed", "2", "--original", "ATC_STR_RAT_P=abc"], "is not a number"),

@@ -11,13 +11,17 @@ with û = throttle·RO_MAX_THR_SPEED, PX4's speed estimate. The steady turn need
 the feed-forward is exact with CORR = 1 and the **equivalent wheel base** L = (−a22/b2)·u (P.1): the
 bicycle model's L/u is the boat's steady-turn ratio. The same L makes PX4's feasible-yaw-rate limit
 u·tan(δmax)/L the boat's steady turn rate at full rudder. P = (ωr + a22)/b2 (P.2), I = ωr_a/(N·b2)
-(P.3), RO_YAW_P = ωr_a/2 (P.4), as the cascade rule. b2 ∝ u² makes L ∝ 1/u: the schedule supplies it.
+(P.3), RO_YAW_P = ρ·ωr_a (P.4, ρ = 0.5), as the cascade rule. b2 ∝ u² makes L ∝ 1/u: the schedule
+supplies it. The cascade's feed-forward scale κ (``CascadeRules.ff_scale``, 1 by default) is PX4's own
+correction factor of that feed-forward, RO_YAW_RATE_CORR = κ: L stays the boat's, and so does the
+feasible-yaw-rate limit it sets.
 
 **UUV** (``uuv_att_control``; eq. P.5–P.6): the yaw torque τ ∈ [−1, 1] is −UUV_YAW_P·sin(ψ − ψd)
 − UUV_YAW_D·(r − r_d), and δ = τ·δfs (δfs the equivalent rudder of full torque), so with b = b2·δfs
 the heading loop is s² + (−a22 + b·D)·s + b·P. D = (ωr + a22)/b places the rate pole at −ωr (P.5),
-P = ωr_a²/(2b) puts the heading loop at ζ = 0.7071 (P.6). PX4's UUV loop has no integrator: a
-rudder offset δ0 leaves a heading error b2·δ0/(b·P) (0.3° at P = 4 on our AUV, 0.05° at the design).
+P = ρ·ωr_a²/b puts the heading loop at ζ = 1/(2√ρ) (P.6; ρ = 0.5: ζ = 0.7071). PX4's UUV loop has
+no integrator: a rudder offset δ0 leaves a heading error b2·δ0/(b·P) (0.3° at P = 4 on our AUV,
+0.05° at the design).
 
 Every gain is kept inside the profile's ranges (``CascadeRules`` fields: RO_YAW_P, RO_YAW_RATE_P/I
 and RA_WHEEL_BASE 0–100 as PX4 documents them; UUV_YAW_P ≤ 40 and UUV_YAW_D ≤ 20, ten times the
@@ -73,7 +77,8 @@ def _plant(model: YawModel) -> tuple[float, float]:
 
 
 def design_ackermann_gains(model: YawModel, speed: float, rules: CascadeRules = CascadeRules()) -> AckermannGains:
-    """Eq. P.1–P.4 at water speed ``speed`` (m/s, > 0); ValueError for a model without a22 < 0 and b2 > 0."""
+    """Eq. P.1–P.4 at water speed ``speed`` (m/s, > 0), RO_YAW_P = ``rules.angle_ratio``·ωr_a and
+    RO_YAW_RATE_CORR = ``rules.ff_scale``; ValueError for a model without a22 < 0 and b2 > 0."""
     a22, b2 = _plant(model)
     if not (math.isfinite(speed) and speed > 0.0):
         raise ValueError(f"the Ackermann feed-forward needs a speed > 0, got {speed!r}")
@@ -82,21 +87,22 @@ def design_ackermann_gains(model: YawModel, speed: float, rules: CascadeRules = 
     rate_p = _clamp("rate_p", max(0.0, (rules.rate_bandwidth + a22) / b2), rules.rate_p_range, clamped)
     achieved = -a22 + b2 * rate_p
     rate_i = _clamp("rate_i", achieved / (rules.integral_ratio * b2), rules.rate_i_range, clamped)
-    angle_p = _clamp("angle_p", achieved / 2.0, rules.angle_p_range, clamped)
+    angle_p = _clamp("angle_p", rules.angle_ratio * achieved, rules.angle_p_range, clamped)
     damping = achieved / (2.0 * math.sqrt(achieved * angle_p)) if angle_p > 0.0 else math.inf
     return AckermannGains(angle_p=angle_p, rate_p=rate_p, rate_i=rate_i, ff_length=ff_length,
-                          rate_bandwidth=achieved, heading_damping=damping, speed=float(speed), clamped=tuple(clamped))
+                          rate_bandwidth=achieved, heading_damping=damping, ff_correction=rules.ff_scale,
+                          speed=float(speed), clamped=tuple(clamped))
 
 
 def design_uuv_gains(model: YawModel, rules: CascadeRules = CascadeRules(), speed: float | None = None) -> UuvGains:
-    """Eq. P.5–P.6 with ``rules.full_scale`` the equivalent rudder of full yaw torque; ValueError for
-    a model without a22 < 0 and b2 > 0."""
+    """Eq. P.5–P.6 with ``rules.full_scale`` the equivalent rudder of full yaw torque and
+    UUV_YAW_P = ``rules.angle_ratio``·ωr_a²/b; ValueError for a model without a22 < 0 and b2 > 0."""
     a22, b2 = _plant(model)
     b = b2 * rules.full_scale
     clamped: list[str] = []
     rate_d = _clamp("rate_d", max(0.0, (rules.rate_bandwidth + a22) / b), rules.rate_p_range, clamped)
     achieved = -a22 + b * rate_d
-    angle_p = _clamp("angle_p", achieved ** 2 / (2.0 * b), rules.angle_p_range, clamped)
+    angle_p = _clamp("angle_p", rules.angle_ratio * achieved ** 2 / b, rules.angle_p_range, clamped)
     damping = achieved / (2.0 * math.sqrt(b * angle_p)) if angle_p > 0.0 else math.inf
     return UuvGains(angle_p=angle_p, rate_d=rate_d, rate_bandwidth=achieved, heading_damping=damping,
                     speed=speed, clamped=tuple(clamped))

@@ -1,12 +1,13 @@
 """Heading gains chosen by optimising their predicted steps (eq. D.1).
 
-A design rule (eq. 3.57, the cascade's bandwidth rule) is one point of a family: the rule's own
-parameters — the pair's damping and the integral ratio of the PI; the rate bandwidth, the angle-P
-ratio, the integral ratio and the feed-forward scale of a cascade — map a yaw model and a speed to
-the autopilot's gains. Which point of the family is best depends on what the rule does not see: the
-rudder's limit and slew rate, the integrator clamp, the turn-rate and turn-acceleration limits and
-the output's speed scaling. Those are all in the predicted step (``companion.numerics.step_response``,
-eq. A.1 / A.2), so the family is searched on it:
+A design rule (eq. 3.57, the cascade's bandwidth rule, PX4's eq. P.1–P.6) is one point of a family:
+the rule's own parameters — the pair's damping and the integral ratio of the PI; the rate bandwidth,
+the angle-P ratio, the integral ratio and the feed-forward scale of a cascade (PX4's Ackermann rover
+the same four, its FF scale being RO_YAW_RATE_CORR; PX4's UUV the bandwidth and the angle-P ratio) —
+map a yaw model and a speed to the autopilot's gains. Which point of the family is best depends on
+what the rule does not see: the rudder's limit and slew rate, the integrator clamp, the turn-rate and
+turn-acceleration limits and the output's speed scaling. Those are all in the predicted step
+(``companion.numerics.step_response``, eq. A.1 / A.2 / A.4 / A.5), so the family is searched on it:
 
     minimise    J(x) = mean over speeds u_i and step sizes s_j of IAE(x; u_i, s_j)      [s]
     subject to  overshoot(x; u_i, s_j) ≤ target,  reversals ≤ max_reversals,  settled in the record
@@ -47,8 +48,11 @@ from companion.checks import require_non_negative, require_positive
 from .cascade_gains import CascadeRules, design_cascade_gains, output_speed_scale
 from .gains import GainBounds, design_heading_gains
 from .identification import YawModel
+from .px4_gains import design_ackermann_gains, design_uuv_gains
 from .step_response import RudderPlant, simulate_step, step_metrics
 
+#: the highest rate bandwidth searched on PX4's Ackermann rover, rad/s (``px4_rover_family``)
+PX4_ROVER_MAX_BANDWIDTH = 6.0
 #: seconds of cost per unit of violated constraint (a point of overshoot, a reversal, an unsettled step)
 PENALTY_S = 10.0
 #: the margin between the keep rule's overshoot limit and the design's target when the autopilot states
@@ -176,8 +180,11 @@ def score(cases: Sequence[StepCase], gains: Sequence[Gains], objective: DesignOb
     target = objective.target_overshoot_pct if target is None else target
     for case, case_gains in zip(cases, gains):
         for size in objective.step_sizes_rad:
-            times, heading, _ = simulate_step(case.plant, case.controller, dict(case_gains), size,
-                                              objective.duration_s, dt=objective.dt, **case.limits)
+            try:
+                times, heading, _ = simulate_step(case.plant, case.controller, dict(case_gains), size,
+                                                  objective.duration_s, dt=objective.dt, **case.limits)
+            except ValueError:  # a configuration the autopilot refuses to fly (PX4: no wheel base): never settles
+                times, heading = np.array([0.0, objective.duration_s]), np.zeros(2)
             metrics = step_metrics(times, heading, 0.0, size, smooth=False)
             overshoot, reversals = metrics["overshoot_pct"], int(metrics["oscillations"])
             iae = metrics["iae_s"] if math.isfinite(metrics["iae_s"]) else objective.duration_s
@@ -244,6 +251,33 @@ def pi_family(base: GainBounds) -> RuleFamily:
 
     x0 = np.array([base.damping, math.log(base.integral_ratio)])
     bounds = ((0.45, 1.5), (math.log(10.0), math.log(400.0)))
+    return RuleFamily(make, gains, x0, bounds)
+
+
+def px4_rover_family(base: CascadeRules) -> RuleFamily:
+    """PX4's Ackermann rover rule (eq. P.1–P.4, ``companion.numerics.px4_gains``) over the cascade's
+    x = (ln ωr, RO_YAW_P ratio ρ, ln N, κ = RO_YAW_RATE_CORR); its default point is eq. P.1–P.4."""
+    def gains(rules: object, model: YawModel, speed: float) -> Gains:
+        return design_ackermann_gains(model, speed, rules).params()  # type: ignore[arg-type]
+
+    family = cascade_family(base)
+    # ωr ≤ 6 rad/s: beyond it the predicted step ends in a rudder limit cycle (~0.04 rad peak to peak)
+    # through RO_YAW_RATE_TH's dead band, which the IAE does not see
+    bounds = ((family.bounds[0][0], math.log(PX4_ROVER_MAX_BANDWIDTH)),) + family.bounds[1:]
+    return replace(family, gains=gains, bounds=bounds)
+
+
+def px4_uuv_family(base: CascadeRules) -> RuleFamily:
+    """PX4's UUV rule (eq. P.5–P.6) over x = (ln ωr, ρ): UUV_YAW_D = (ωr + a22)/b, UUV_YAW_P =
+    ρ·ωr_a²/b (the loop has no integrator and no feed-forward); its default point is eq. P.5–P.6."""
+    def make(x: np.ndarray) -> CascadeRules:
+        return replace(base, rate_bandwidth=float(math.exp(x[0])), angle_ratio=float(x[1]))
+
+    def gains(rules: object, model: YawModel, speed: float) -> Gains:
+        return design_uuv_gains(model, rules, speed=speed).params()  # type: ignore[arg-type]
+
+    x0 = np.array([math.log(base.rate_bandwidth), base.angle_ratio])
+    bounds = ((math.log(0.3), math.log(12.0)), (0.15, 1.2))
     return RuleFamily(make, gains, x0, bounds)
 
 
@@ -329,12 +363,37 @@ def design_by_prediction(family: RuleFamily, cases: Sequence[StepCase], design_m
 
 def cascade_case(model: YawModel, speed: float, *, rudder_max: float, rudder_rate: float, full_scale: float,
                  rate_max: float, rate_accel_max: float, output_scale_base: float | None,
-                 rate_imax: float = 1.0) -> StepCase:
-    """A case under ArduPilot's cascade (eq. A.2) at ``speed``."""
+                 rate_imax: float = 1.0, input_tc: float = 0.0, yaw_slew_max: float = math.inf) -> StepCase:
+    """A case under ArduPilot's cascade (eq. A.2) at ``speed``; with ``input_tc`` > 0 ArduSub's
+    shaped angle loop (eq. A.2s)."""
     plant = RudderPlant(model.a22, model.b2, model.delta0, rudder_max, rudder_rate)
     limits = {"full_scale": full_scale, "rate_max": rate_max, "rate_accel_max": rate_accel_max,
-              "output_scale": output_speed_scale(output_scale_base, speed), "rate_imax": rate_imax}
+              "output_scale": output_speed_scale(output_scale_base, speed), "rate_imax": rate_imax,
+              "input_tc": input_tc, "yaw_slew_max": yaw_slew_max}
     return StepCase(speed, model, plant, "cascade", limits)
+
+
+def px4_rover_case(model: YawModel, speed: float, *, steering_max: float, rudder_rate: float = math.inf,
+                   steering_rate: float = math.inf, rate_max: float = math.inf, rate_accel_max: float = math.inf,
+                   rate_threshold: float = 0.0, speed_estimate: float | None = None) -> StepCase:
+    """A case under PX4's Ackermann rover (eq. A.4) at ``speed``: ``steering_max`` RA_MAX_STR_ANG (the
+    rudder's limit and PX4's steering full scale), ``rudder_rate`` the servo's own rate, the rest PX4's
+    limits in rad/s (RA_STR_RATE_LIM, RO_YAW_RATE_LIM, RO_YAW_RATE_TH) and rad/s² (RO_YAW_ACCEL_LIM;
+    inf where not configured); ``speed_estimate`` PX4's û (default ``speed``: RO_MAX_THR_SPEED
+    calibrated)."""
+    plant = RudderPlant(model.a22, model.b2, model.delta0, steering_max, rudder_rate)
+    limits = {"full_scale": steering_max, "speed": speed if speed_estimate is None else speed_estimate,
+              "rate_max": rate_max, "rate_accel_max": rate_accel_max, "steering_rate": steering_rate,
+              "rate_threshold": rate_threshold}
+    return StepCase(speed, model, plant, "px4_rover", limits)
+
+
+def px4_uuv_case(model: YawModel, speed: float, *, full_scale: float, torque_max: float = 1.0,
+                 rudder_rate: float = math.inf) -> StepCase:
+    """A case under PX4's UUV yaw control (eq. A.5) at ``speed``: ``full_scale`` the equivalent rudder
+    of full yaw torque, ``torque_max`` UUV_TORQUE_SAT."""
+    plant = RudderPlant(model.a22, model.b2, model.delta0, full_scale, rudder_rate)
+    return StepCase(speed, model, plant, "px4_uuv", {"full_scale": full_scale, "torque_max": torque_max})
 
 
 def pi_case(model: YawModel, speed: float, *, rudder_max: float, rudder_rate: float, imax: float) -> StepCase:

@@ -9,7 +9,9 @@ rudder's limit and slew rate), under the autopilot's own heading controller:
   |I| ≤ imax and conditional integration while the rudder is saturated;
 * ArduPilot's cascade (eq. A.2): desired turn rate r_d = ANG_P·e (limited in size, in slew and by
   the distance left to stop), steering s = FF·r_d + P·(r_d − r) + I∫(r_d − r) (|I| ≤ IMAX),
-  δ = δfs·sat(k·s) with k the output's speed scaling (``companion.numerics.cascade_gains.output_speed_scale``).
+  δ = δfs·sat(k·s) with k the output's speed scaling (``companion.numerics.cascade_gains.output_speed_scale``);
+* PX4's Ackermann rover (eq. A.4) and UUV (eq. A.5) controllers, transcribed from PX4's source in
+  ``companion.numerics.px4_step`` (controller names ``"px4_rover"``, ``"px4_uuv"``).
 
 Before the step the vehicle is on course with the rudder at its trim δ0, the integrator holding what
 the trim feed-forward does not. Pure: Euler integration at ``dt`` (10 ms against yaw time constants
@@ -22,8 +24,12 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.integrate import trapezoid
 from scipy.signal import savgol_filter
+
+from .attitude_shaping import ShapedYawTarget
+from .px4_step import PX4_CONTROLLERS, fly, px4_controller
 
 #: a reversal of the error counts only beyond this fraction of the step (noise stays inside)
 OSCILLATION_BAND = 0.03
@@ -45,7 +51,7 @@ def smooth_heading(times: np.ndarray, heading: np.ndarray, window_s: float = 1.0
     return savgol_filter(heading, window, 2) if window >= 5 else heading
 
 
-def step_metrics(times: Sequence[float], heading: Sequence[float], start: float, target: float,
+def step_metrics(times: ArrayLike, heading: ArrayLike, start: float, target: float,
                  smooth: bool = True) -> dict:
     """One heading step (headings unwrapped; smoothed by :func:`smooth_heading` unless ``smooth`` is
     False, for a noise-free prediction): overshoot (% of the step), 90 % rise time, settling time
@@ -106,6 +112,8 @@ def _slew(current: float, demand: float, limit: float, max_step: float) -> float
 def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], step: float, duration_s: float,
                   *, full_scale: float = 0.5236, rate_max: float = math.inf, imax: float = 0.15,
                   rate_accel_max: float = math.inf, output_scale: float = 1.0, rate_imax: float = 1.0,
+                  speed: float = math.nan, steering_rate: float = math.inf, rate_threshold: float = 0.0,
+                  torque_max: float = 1.0, input_tc: float = 0.0, yaw_slew_max: float = math.inf,
                   dt: float = 0.01) -> tuple[np.ndarray, np.ndarray, float]:
     """Heading over time after a step of ``step`` rad from 0 (module docstring); also the largest
     rudder deflection reached. ``controller``: ``"pi"`` (gains ``heading_p``, ``heading_i``,
@@ -114,7 +122,18 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
     vehicle's), with the
     desired turn rate limited to ``rate_max`` (rad/s), its change to ``rate_accel_max`` (rad/s²,
     which also caps it at √(2·|e|·accel) so the turn can stop on target, as ArduPilot's
-    ``get_turn_rate_from_heading``), and the output scaled by ``output_scale`` (k of eq. A.2)."""
+    ``get_turn_rate_from_heading``), and the output scaled by ``output_scale`` (k of eq. A.2);
+    with ``input_tc`` > 0 the angle loop is ArduSub's, its set-point shaped (eq. A.2s,
+    ``companion.numerics.attitude_shaping``: ATC_INPUT_TC, the yaw slew ``yaw_slew_max``).
+    ``"px4_rover"`` / ``"px4_uuv"`` (eq. A.4 / A.5, ``companion.numerics.px4_step.px4_controller``)
+    take ``full_scale``, ``rate_max``, ``rate_accel_max``, ``speed`` (PX4's speed estimate),
+    ``steering_rate``, ``rate_threshold`` and ``torque_max``."""
+    if controller in PX4_CONTROLLERS:
+        loop = px4_controller(controller, gains, full_scale=full_scale, speed=speed, rate_max=rate_max,
+                              rate_accel_max=rate_accel_max, steering_rate=steering_rate,
+                              rate_threshold=rate_threshold, torque_max=torque_max)
+        trace = fly(plant, loop, step, duration_s, dt)
+        return trace.times, trace.heading, trace.rudder_peak
     steps = int(round(duration_s / dt))
     times = np.arange(steps + 1) * dt
     heading = np.zeros(steps + 1)
@@ -130,8 +149,10 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
         integral = min(max(plant.delta0 / (full_scale * output_scale), -rate_imax), rate_imax)
         accel_step = rate_accel_max * dt
         previous_demand = 0.0
+        shaper = ShapedYawTarget(input_tc, angle_p, rate_p, rate_max, rate_accel_max, yaw_slew_max) \
+            if input_tc > 0.0 else None
     else:
-        raise ValueError(f"unknown heading controller {controller!r} (pi, cascade)")
+        raise ValueError(f"unknown heading controller {controller!r} (pi, cascade, {', '.join(PX4_CONTROLLERS)})")
     peak = abs(delta)
     for k in range(1, steps + 1):
         error = step - psi
@@ -143,7 +164,9 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
             demand = min(max(trim + kp * error + integral, -plant.rudder_max), plant.rudder_max)
         else:
             rate_demand = min(max(angle_p * error, -rate_max), rate_max)
-            if math.isfinite(rate_accel_max):
+            if shaper is not None:
+                rate_demand = shaper.rate_demand(step, psi, dt)
+            elif math.isfinite(rate_accel_max):
                 stop_limit = math.sqrt(2.0 * abs(error) * rate_accel_max)
                 rate_demand = min(max(rate_demand, -stop_limit), stop_limit)
                 rate_demand = min(max(rate_demand, previous_demand - accel_step), previous_demand + accel_step)
@@ -164,8 +187,8 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
     return times, heading, peak
 
 
-def simulate_rate_tracking(plant: RudderPlant, gains: dict[str, float], times: Sequence[float],
-                           desired: Sequence[float], yaw_rate0: float, *, rudder0: float = math.nan,
+def simulate_rate_tracking(plant: RudderPlant, gains: dict[str, float], times: ArrayLike,
+                           desired: ArrayLike, yaw_rate0: float, *, rudder0: float = math.nan,
                            full_scale: float = 0.5236, output_scale: float = 1.0, rate_imax: float = 1.0,
                            dt: float = 0.01, **_limits: float) -> np.ndarray:
     """The turn rate (rad/s, at ``times``) of eq. A.2's rate loop alone on the model, asked for the
@@ -209,9 +232,12 @@ def simulate_rate_tracking(plant: RudderPlant, gains: dict[str, float], times: S
 def predict_step(plant: RudderPlant, controller: str, gains: dict[str, float], step: float,
                  duration_s: float = 30.0, **limits) -> dict:
     """The figures of merit (:func:`step_metrics`) of a step flown on the model, and whether the
-    rudder saturated (``rudder_peak`` against its limit)."""
+    rudder saturated (``rudder_peak`` against its limit; PX4's UUV: its torque limit's, eq. A.5)."""
     times, heading, peak = simulate_step(plant, controller, gains, step, duration_s, **limits)
     metrics = step_metrics(times, heading, 0.0, step, smooth=False)
+    limit = plant.rudder_max
+    if controller == "px4_uuv":
+        limit = min(limit, limits.get("torque_max", 1.0) * limits.get("full_scale", limit))
     metrics["rudder_peak"] = peak
-    metrics["saturated"] = peak >= 0.999 * plant.rudder_max
+    metrics["saturated"] = peak >= 0.999 * limit
     return metrics

@@ -12,6 +12,7 @@ and the original gains are predicted at every identified speed; :meth:`decide` a
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from typing import Sequence
@@ -85,7 +86,9 @@ class CampaignVerification:
     def scheduled_step(self, design: GainDesign | None, end: str) -> VerificationStep | None:
         """The schedule at the ``"highest"`` or ``"lowest"`` identified speed, unless already flown
         there (the schedule itself, or an own design the schedule agrees with)."""
-        ends = self.ends(design) if design is not None else None
+        if design is None:
+            return None
+        ends = self.ends(design)
         if ends is None:
             return None
         thrust = ends[1] if end == "highest" else ends[0]
@@ -128,6 +131,8 @@ class CampaignVerification:
         whether the lowest speed's own-design flight stands for the schedule there."""
         self.predicted = []
         for point in design.points:
+            if point.thrust is None:  # not flown at a thrust of this campaign (``ends`` skips it too)
+                continue
             model = self.model_at(attempts, point.thrust)
             if model is None:
                 continue
@@ -165,4 +170,4 @@ class CampaignVerification:
 
         return {"flown": [figures(s) for s in self.flown], "predicted": [figures(s) for s in self.predicted],
                 "coverage": {f"{t:.2f}": v for t, v in self.coverage.items()}, "settle_band": SETTLE_BAND,
-                "controller": self.controller}
+                "controller": self.controller, "limits": dataclasses.asdict(self.limits)}  # what was predicted with

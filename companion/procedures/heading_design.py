@@ -18,9 +18,9 @@ from typing import Sequence
 from behaviors.gain_scheduling import ScheduleKind
 from companion.numerics.cascade_gains import CascadeRules
 from companion.numerics.gains import GainBounds
-from companion.numerics.step_design import (DesignChoice, StepCase, cascade_case, cascade_family,
-                                            design_by_prediction, pi_case, pi_family)
-from companion.procedures.verified_design import CONTROLLERS, HeadingLimits
+from companion.numerics.step_design import (DesignChoice, RuleFamily, StepCase, cascade_family,
+                                            design_by_prediction, pi_family, px4_rover_family, px4_uuv_family)
+from companion.procedures.verified_design import CONTROLLERS, HeadingLimits, limits_case
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,7 @@ class HeadingDesign:
 
 
 def optimisable(kind: ScheduleKind | None) -> bool:
-    """A heading kind whose controller the predictions model (eq. A.1, A.2)."""
+    """A heading kind whose controller the predictions model (eq. A.1, A.2, A.4, A.5)."""
     return kind is not None and kind.name in CONTROLLERS
 
 
@@ -54,18 +54,19 @@ def design_cases(kind: ScheduleKind, attempts: Sequence, limits: HeadingLimits) 
 
 
 def step_case(controller: str, model, speed: float, limits: HeadingLimits) -> StepCase:
-    """One predicted-step case under ``controller`` ("pi", eq. A.1, or "cascade", eq. A.2)."""
-    if controller == "cascade":
-        return cascade_case(model, speed, rudder_max=limits.rudder_max, rudder_rate=limits.rudder_rate,
-                            full_scale=limits.full_scale, rate_max=limits.rate_max,
-                            rate_accel_max=limits.rate_accel_max, output_scale_base=limits.output_scale_base,
-                            rate_imax=limits.rate_imax)
-    return pi_case(model, speed, rudder_max=limits.rudder_max, rudder_rate=limits.rudder_rate, imax=limits.imax)
+    """One predicted-step case under ``controller`` ("pi", eq. A.1; "cascade", eq. A.2; "px4_rover",
+    eq. A.4; "px4_uuv", eq. A.5)."""
+    return limits_case(controller, model, speed, limits)
 
 
-def family_for(controller: str, cascade: CascadeRules, bounds: GainBounds):
+#: the rule family of each controller's gains, designed with the cascade's rules (all but the PI)
+_CASCADE_FAMILIES = {"cascade": cascade_family, "px4_rover": px4_rover_family, "px4_uuv": px4_uuv_family}
+
+
+def family_for(controller: str, cascade: CascadeRules, bounds: GainBounds) -> RuleFamily:
     """The rule family a controller's gains are searched in (eq. D.1)."""
-    return cascade_family(cascade) if controller == "cascade" else pi_family(bounds)
+    family = _CASCADE_FAMILIES.get(controller)
+    return family(cascade) if family is not None else pi_family(bounds)
 
 
 def choose_heading_design(kind: ScheduleKind, cascade: CascadeRules, bounds: GainBounds, attempts: Sequence,

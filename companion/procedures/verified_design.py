@@ -13,7 +13,7 @@ of a campaign's time at sea. A product only needs to know that the gains it writ
   ends when it has decided.
 * **predicted**: every other step — the schedule at each identified speed, and the original gains
   everywhere — flown on the accepted model under the autopilot's own heading controller
-  (``companion.numerics.step_response``, eq. A.1 / A.2).
+  (``companion.numerics.step_response``, eq. A.1 / A.2 / A.4 / A.5).
 
 :class:`KeepRule` decides. The gains are written only when (1) every flown step decided, overshot at
 most ``max_overshoot_pct`` and reversed at most ``max_oscillations`` times; (2) the model predicted
@@ -34,14 +34,17 @@ from dataclasses import dataclass, replace
 from typing import Iterable, Sequence
 
 from companion.checks import require_non_negative, require_positive
-from companion.numerics.cascade_gains import output_speed_scale
-from companion.numerics.step_response import RudderPlant, predict_step
+from companion.numerics.step_design import StepCase, cascade_case, pi_case, px4_rover_case, px4_uuv_case
+from companion.numerics.step_response import predict_step
 
-#: the autopilot's heading controller each schedule kind is the gains of (eq. A.1, eq. A.2)
-CONTROLLERS = {"heading": "pi", "cascade": "cascade"}
-#: read with the original gains (never written: a restore finds them unchanged), for the predictions
+#: the autopilot's heading controller each schedule kind is the gains of (eq. A.1, A.2, A.4, A.5)
+CONTROLLERS = {"heading": "pi", "cascade": "cascade", "px4_rover": "px4_rover", "px4_uuv": "px4_uuv"}
+#: read with the original gains (never written: a restore finds them unchanged), for the predictions;
+#: a profile declares those its autopilot has (PX4's rover: RA_MAX_STR_ANG, RA_STR_RATE_LIM,
+#: RO_YAW_RATE_LIM, RO_YAW_ACCEL_LIM, RO_YAW_RATE_TH; its UUV: UUV_TORQUE_SAT)
 LIMIT_PARAMETERS = ("rudder_max", "rudder_rate", "heading_imax", "turn_rate_max", "heading_rate_imax",
-                    "turn_accel_max", "steering_scale_speed")
+                    "turn_accel_max", "steering_scale_speed", "steering_max", "steering_rate_max",
+                    "yaw_rate_threshold", "torque_max", "input_tc", "yaw_slew_max", "rate_ff_enabled")
 
 
 @dataclass(frozen=True)
@@ -49,7 +52,9 @@ class HeadingLimits:
     """What bounds a heading step besides the gains: the rudder's limit and slew rate (rad, rad/s),
     the PI's integrator clamp (rad), the cascade's full scale (rad per unit output), turn-rate
     limit (rad/s), turn-acceleration limit (rad/s²), the speed above which its output is scaled
-    down (m/s, eq. A.2; None: never) and its rate integrator's clamp (fraction of the output)."""
+    down (m/s, eq. A.2; None: never) and its rate integrator's clamp (fraction of the output); PX4's
+    steering slew (RA_STR_RATE_LIM, rad/s), yaw-rate measurement threshold (RO_YAW_RATE_TH, rad/s)
+    and UUV torque limit (UUV_TORQUE_SAT, fraction of full torque), eq. A.4 / A.5."""
 
     rudder_max: float
     rudder_rate: float = math.inf
@@ -59,23 +64,63 @@ class HeadingLimits:
     rate_accel_max: float = math.inf
     output_scale_base: float | None = None
     rate_imax: float = 1.0  # the cascade's rate integrator clamp, a fraction of the output
+    steering_rate: float = math.inf  # PX4 rover: RA_STR_RATE_LIM (inf: not configured)
+    rate_threshold: float = 0.0  # PX4 rover: RO_YAW_RATE_TH
+    torque_max: float = 1.0  # PX4 UUV: UUV_TORQUE_SAT
+    input_tc: float = 0.0  # ArduSub: ATC_INPUT_TC where ATC_RATE_FF_ENAB shapes the set-point (eq. A.2s); 0: none
+    yaw_slew_max: float = math.inf  # ArduSub: ATC_SLEW_YAW, rad/s
 
     @classmethod
     def from_vehicle(cls, values: dict[str, float], *, full_scale: float, rudder_rate: float | None,
                      output_scale_base: float | None = None) -> "HeadingLimits":
         """From the parameters read with the original gains (:data:`LIMIT_PARAMETERS`; ArduPilot's
-        turn limits in degrees) and the profile's rudder full scale and servo rate; what the vehicle
-        does not say takes the profile's. ``output_scale_base``: the design's (CascadeRules), which
-        knows whether this frame's output is scaled at all."""
+        and PX4's turn limits and PX4's steering slew in degrees) and the profile's rudder full scale
+        and servo rate; what the vehicle does not say takes the profile's. ``output_scale_base``: the
+        design's (CascadeRules), which knows whether this frame's output is scaled at all."""
         rate = values.get("rudder_rate", rudder_rate if rudder_rate else math.inf)
         turn = values.get("turn_rate_max", 0.0)
         accel = values.get("turn_accel_max", 0.0)
-        return cls(rudder_max=values.get("rudder_max", full_scale), rudder_rate=rate if rate and rate > 0 else math.inf,
+        steering_rate = values.get("steering_rate_max", 0.0)
+        threshold = values.get("yaw_rate_threshold", 0.0)
+        torque = values.get("torque_max", 1.0)
+        shaped = "input_tc" in values and values.get("rate_ff_enabled", 1.0) > 0.0
+        tc = values.get("input_tc", 0.0) if shaped else 0.0
+        slew = values.get("yaw_slew_max", 0.0)
+        return cls(rudder_max=values.get("rudder_max", values.get("steering_max", full_scale)),
+                   rudder_rate=rate if rate and rate > 0 else math.inf,
                    imax=values.get("heading_imax", 0.15), full_scale=full_scale,
                    rate_max=math.radians(turn) if turn and turn > 0 else math.inf,
                    rate_accel_max=math.radians(accel) if accel and accel > 0 else math.inf,
                    output_scale_base=output_scale_base,
-                   rate_imax=imax if (imax := values.get("heading_rate_imax", 1.0)) and imax > 0 else 1.0)
+                   rate_imax=imax if (imax := values.get("heading_rate_imax", 1.0)) and imax > 0 else 1.0,
+                   steering_rate=math.radians(steering_rate) if steering_rate and steering_rate > 0 else math.inf,
+                   rate_threshold=math.radians(threshold) if threshold and threshold > 0 else 0.0,
+                   torque_max=min(max(torque, 0.0), 1.0) if math.isfinite(torque) else 1.0,
+                   input_tc=tc if math.isfinite(tc) and tc > 0 else 0.0,
+                   yaw_slew_max=math.radians(slew) if math.isfinite(slew) and slew > 0 else math.inf)
+
+
+def limits_case(controller: str, model, speed: float | None, limits: HeadingLimits) -> StepCase:
+    """One predicted-step case under ``controller`` (:data:`CONTROLLERS`' values: eq. A.1, A.2, A.4,
+    A.5) on the yaw ``model`` at ``speed`` with the vehicle's ``limits`` (PX4's rover: ``rudder_max``
+    is RA_MAX_STR_ANG as read); ValueError for PX4's rover without a speed (its feed-forward divides
+    by it)."""
+    at = math.nan if speed is None else speed  # unknown: no output speed scaling (eq. A.2)
+    if controller == "cascade":
+        return cascade_case(model, at, rudder_max=limits.rudder_max, rudder_rate=limits.rudder_rate,
+                            full_scale=limits.full_scale, rate_max=limits.rate_max,
+                            rate_accel_max=limits.rate_accel_max, output_scale_base=limits.output_scale_base,
+                            rate_imax=limits.rate_imax, input_tc=limits.input_tc, yaw_slew_max=limits.yaw_slew_max)
+    if controller == "px4_rover":
+        if speed is None or not (math.isfinite(speed) and speed > 0.0):
+            raise ValueError(f"PX4's rover step needs a speed > 0, not {speed!r}")
+        return px4_rover_case(model, speed, steering_max=limits.rudder_max, rudder_rate=limits.rudder_rate,
+                              steering_rate=limits.steering_rate, rate_max=limits.rate_max,
+                              rate_accel_max=limits.rate_accel_max, rate_threshold=limits.rate_threshold)
+    if controller == "px4_uuv":
+        return px4_uuv_case(model, at, full_scale=limits.full_scale, torque_max=limits.torque_max,
+                            rudder_rate=limits.rudder_rate)
+    return pi_case(model, at, rudder_max=limits.rudder_max, rudder_rate=limits.rudder_rate, imax=limits.imax)
 
 
 def predicted_step(controller: str, model, gains: dict[str, float], limits: HeadingLimits, step: float,
@@ -83,11 +128,8 @@ def predicted_step(controller: str, model, gains: dict[str, float], limits: Head
     """One heading step of ``step`` rad flown on the yaw ``model`` (a22, b2, δ0) with ``gains`` at
     ``speed`` (m/s: the output's speed scaling), scored over ``duration_s`` (a flown step's own
     length when compared with it: the step error integrates to the end of the record)."""
-    plant = RudderPlant(model.a22, model.b2, model.delta0, limits.rudder_max, limits.rudder_rate)
-    options = {"imax": limits.imax} if controller == "pi" else {
-        "full_scale": limits.full_scale, "rate_max": limits.rate_max, "rate_accel_max": limits.rate_accel_max,
-        "output_scale": output_speed_scale(limits.output_scale_base, speed), "rate_imax": limits.rate_imax}
-    return predict_step(plant, controller, gains, abs(step), duration_s, **options)
+    case = limits_case(controller, model, speed, limits)
+    return predict_step(case.plant, case.controller, gains, abs(step), duration_s, **case.limits)
 
 
 @dataclass(frozen=True)

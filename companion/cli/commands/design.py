@@ -2,18 +2,19 @@
 
     companion design --a22 -1.62 --b2 1.25 --delta0 0.036 --speed 1.4 [--delta-max 0.26] [--json]
     companion design --autopilot ardurover --a22 -0.9 --b2 1.1 --speed 2.0 [--original ATC_STR_RAT_FF=0.2,...]
+    companion design --autopilot px4-rover --a22 -0.9 --b2 1.1 --speed 1.5 [--original RA_WHEEL_BASE=2,...]
 
 Without ``--autopilot``: the thesis' PI (kp, ki, trim; gains.py) and, for the speed given, ψ̇max,
 the U-turn time and the turning radius (turning.py, eq. 3.47–3.50). Without ``--speed`` the radius
 is not printed (it needs V).
 
 With ``--autopilot``: the campaign's designer (eq. D.1, ``companion.numerics.step_design``) for that
-autopilot's own heading controller — the rule's parameters optimised on the predicted ±20° and ±40°
-steps under the controller's limits (the autopilot's shipped defaults unless given), with the original
-gains (the autopilot's defaults, or ``--original``) as a candidate — printing the chosen gains under
-the autopilot's parameter names and every candidate's predicted step. A user with a model from
-elsewhere gets the design a campaign would make at that one speed. PX4's controllers have no step
-model yet, so ``px4-rover`` and ``px4-uuv`` are refused with that reason.
+autopilot's own heading controller — our simulator's PI (eq. A.1), ArduPilot's cascade (eq. A.2), PX4's
+Ackermann rover (eq. A.4) or UUV (eq. A.5) — the rule's parameters optimised on the predicted ±20° and
+±40° steps under the controller's limits (the autopilot's shipped defaults unless given), with the
+original gains (the autopilot's defaults, or ``--original``) as a candidate — printing the chosen gains
+under the autopilot's parameter names and every candidate's predicted steps. A user with a model from
+elsewhere gets the design a campaign would make at that one speed.
 """
 from __future__ import annotations
 
@@ -50,8 +51,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--delta-max", type=float, default=DEFAULT_DELTA_MAX, help=f"rudder limit, rad (default {DEFAULT_DELTA_MAX})"
     )
     parser.add_argument("--autopilot", choices=AUTOPILOT_CHOICES, default=None,
-                        help="design for this autopilot's own heading controller by its predicted steps (eq. D.1); "
-                             "default: the thesis PI rule")
+                        help="design for this autopilot's own heading controller by its predicted steps (eq. D.1: "
+                             "builtin PI, ArduPilot cascade, PX4 rover or UUV); default: the thesis PI rule")
     parser.add_argument("--original", default=None, metavar="NAME=VALUE,...",
                         help="the vehicle's heading gains and limits as found, by the autopilot's parameter names "
                              "(default: its shipped defaults); scored as a candidate")

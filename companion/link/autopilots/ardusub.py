@@ -81,9 +81,12 @@ PROFILE = AutopilotProfile(
         # read, never written: AC_AttitudeControl's yaw rate and acceleration limits, for the
         # predicted steps (eq. A.2); 0 is "no limit"
         "turn_rate_max": "ATC_RATE_Y_MAX", "turn_accel_max": "ATC_ACCEL_Y_MAX",
+        # and the set-point's input shaping (eq. A.2s): on where the rate feed-forward is
+        "input_tc": "ATC_INPUT_TC", "yaw_slew_max": "ATC_SLEW_YAW", "rate_ff_enabled": "ATC_RATE_FF_ENAB",
     },
     aliases={"gcs_sysid": ("SYSID_MYGCS",), "system_id": ("SYSID_THISMAV",)},
-    native_scales={"turn_accel_max": NativeScale(scale=100.0)},  # ATC_ACCEL_Y_MAX is in centidegrees/s²
+    # ATC_ACCEL_Y_MAX is in centidegrees/s², ATC_SLEW_YAW in centidegrees/s
+    native_scales={"turn_accel_max": NativeScale(scale=100.0), "yaw_slew_max": NativeScale(scale=100.0)},
     marker_param="ATC_ANG_YAW_P",
     angle_full_scale_rad=0.35,
     pwm_half_range=400,

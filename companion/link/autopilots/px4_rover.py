@@ -48,6 +48,9 @@ PROFILE = Px4Profile(
         "heading_ff_length": "RA_WHEEL_BASE", "heading_ff_correction": "RO_YAW_RATE_CORR",
         "turn_rate_max": "RO_YAW_RATE_LIM", "speed_full_throttle": "RO_MAX_THR_SPEED", "speed_max": "RO_SPEED_LIM",
         "steering_max": "RA_MAX_STR_ANG", "rc_loss_exceptions": "COM_RCL_EXCEPT", "system_id": "MAV_SYS_ID",
+        # read for the predicted steps (eq. A.4), never written
+        "steering_rate_max": "RA_STR_RATE_LIM", "turn_accel_max": "RO_YAW_ACCEL_LIM",
+        "yaw_rate_threshold": "RO_YAW_RATE_TH",
     },
     marker_param="SYS_AUTOSTART",  # PX4 only; rover and UUV are told apart by MAV_TYPE
     mav_types=(10, 11),  # MAV_TYPE_GROUND_ROVER, MAV_TYPE_SURFACE_BOAT
