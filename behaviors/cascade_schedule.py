@@ -24,7 +24,7 @@ def cascade_kind(rules: CascadeRules = CascadeRules(), speed_law: str | None = N
     return ScheduleKind(name="cascade", axis="yaw",
                         scheduled=("heading_rate_ff", "heading_rate_p", "heading_rate_i", "heading_angle_p"),
                         fixed=(), fit=partial(schedule_from_models, prior_law=speed_law), gains=gains,
-                        model_gains=model_gains, live_value="sched_ff")
+                        model_gains=model_gains, live_value="sched_ff", rules=rules, speed_law=speed_law)
 
 
 CASCADE = cascade_kind()

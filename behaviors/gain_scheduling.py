@@ -41,12 +41,17 @@ class DesignPoint:
 
 @dataclass
 class GainDesign:
-    """One kind's design: the fitted schedule (exactly the one whose gains are written) and its
-    gains at each identified speed."""
+    """One kind's design: the fitted schedule (exactly the one whose gains are written), its gains at
+    each identified speed, and the design rules it was made with (``rules``: the kind's registered,
+    storable rule value — ``GainBounds``, ``CascadeRules`` or ``PitchGainBounds`` — and the b2 speed
+    law of its fit), so a stored design gives back its own kind (``behaviors.schedules.kind_of``).
+    ``rules`` is None only in a design stored before designs carried their rules."""
 
     kind: str
     schedule: Any  # YawSchedule | PitchSchedule (a registered record type)
     points: list[DesignPoint] = field(default_factory=list)
+    rules: Any = None
+    speed_law: str | None = None
 
 
 @dataclass(frozen=True)
@@ -65,6 +70,8 @@ class ScheduleKind:
     gains: Callable[[Any, float], dict[str, float]]
     model_gains: Callable[[Any, float], dict[str, float]]
     live_value: str = ""  # NAMED_VALUE_FLOAT name (≤ 10 chars) of the first scheduled gain
+    rules: Any = None  # the design rules the kind was built with (a registered record type)
+    speed_law: str | None = None  # the b2 speed law its fit keeps when the models cannot tell (eq. S.3)
 
     @property
     def parameters(self) -> tuple[str, ...]:
@@ -82,7 +89,8 @@ class ScheduleKind:
         schedule = self.fit([a.speed for a in usable], [a.model for a in usable])
         points = [DesignPoint(thrust=a.thrust, speed=a.speed, own=self.model_gains(a.model, a.speed),
                               scheduled=self.gains(schedule, a.speed)) for a in usable]
-        return GainDesign(kind=self.name, schedule=schedule, points=points)
+        return GainDesign(kind=self.name, schedule=schedule, points=points, rules=self.rules,
+                          speed_law=self.speed_law)
 
     def scheduled_gains(self, schedule: Any, speed: float) -> dict[str, float]:
         gains = self.gains(schedule, speed)
@@ -158,7 +166,7 @@ class GainScheduler(Behaviour):
 
     def update(self, telemetry: Telemetry) -> Sequence[Command]:
         self._filter_speed(telemetry)
-        if self.config.duration_s is not None and telemetry.time_s - self.start_time_s >= self.config.duration_s:
+        if self.config.duration_s is not None and telemetry.time_s - self.started_s >= self.config.duration_s:
             self.finish(Status.SUCCESS)
             return []
         if math.isnan(self.speed) or telemetry.time_s - self._last_write_time < self.config.min_interval_s:

@@ -31,7 +31,7 @@ def heading_kind(bounds: GainBounds = GainBounds(), speed_law: str | None = None
 
     return ScheduleKind(name="heading", axis="yaw", scheduled=("heading_p", "heading_i"), fixed=("rudder_trim",),
                         fit=partial(schedule_from_models, prior_law=speed_law), gains=gains, model_gains=model_gains,
-                        live_value="sched_kp")
+                        live_value="sched_kp", rules=bounds, speed_law=speed_law)
 
 
 HEADING = heading_kind()

@@ -29,7 +29,8 @@ def pitch_kind(bounds: PitchGainBounds = PitchGainBounds()) -> ScheduleKind:
         return pitch_params(design_pitch_gains(model, bounds, speed=speed))
 
     return ScheduleKind(name="pitch", axis="pitch", scheduled=("pitch_p", "pitch_i"), fixed=(),
-                        fit=pitch_schedule_from_models, gains=gains, model_gains=model_gains, live_value="sched_pp")
+                        fit=pitch_schedule_from_models, gains=gains, model_gains=model_gains, live_value="sched_pp",
+                        rules=bounds)
 
 
 PITCH = pitch_kind()

@@ -23,7 +23,7 @@ def px4_rover_kind(rules: CascadeRules = CascadeRules()) -> ScheduleKind:
     return ScheduleKind(name="px4_rover", axis="yaw",
                         scheduled=("heading_ff_length", "heading_rate_p", "heading_rate_i", "heading_angle_p"),
                         fixed=("heading_ff_correction",), fit=schedule_from_models, gains=gains,
-                        model_gains=model_gains, live_value="sched_L")
+                        model_gains=model_gains, live_value="sched_L", rules=rules)
 
 
 def px4_uuv_kind(rules: CascadeRules = CascadeRules()) -> ScheduleKind:
@@ -35,4 +35,5 @@ def px4_uuv_kind(rules: CascadeRules = CascadeRules()) -> ScheduleKind:
         return design_uuv_gains(model, rules, speed=float(speed)).params()
 
     return ScheduleKind(name="px4_uuv", axis="yaw", scheduled=("heading_angle_p", "heading_rate_d"), fixed=(),
-                        fit=schedule_from_models, gains=gains, model_gains=model_gains, live_value="sched_yp")
+                        fit=schedule_from_models, gains=gains, model_gains=model_gains, live_value="sched_yp",
+                        rules=rules)

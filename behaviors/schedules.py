@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Callable
 
 from behaviors.cascade_schedule import cascade_kind
-from behaviors.gain_scheduling import ScheduleKind
+from behaviors.gain_scheduling import GainDesign, ScheduleKind
 from behaviors.heading_schedule import heading_kind
 from behaviors.pitch_schedule import pitch_kind
 from behaviors.px4_schedule import px4_rover_kind, px4_uuv_kind
@@ -27,6 +27,14 @@ CASCADE_RULED = ("cascade", "px4_rover", "px4_uuv")
 
 #: the kinds whose fit takes the b2 speed law of the vehicle's actuation (eq. S.3)
 SPEED_LAW_KINDS = ("heading", "cascade")
+
+
+def kind_of(design: GainDesign) -> ScheduleKind | None:
+    """The kind a stored design was made with: its own registered kind, with the rules and speed law
+    it carries (None for a design stored before designs carried their rules)."""
+    if design.rules is None:
+        return None
+    return schedule_kind(design.kind, design.rules, design.speed_law)
 
 
 def schedule_kind(name: str, bounds=None, speed_law: str | None = None) -> ScheduleKind:

@@ -3,6 +3,8 @@
 or at a chosen speed; and, with ArduPilot SITL, a file loaded into the real firmware and read back."""
 from __future__ import annotations
 
+import dataclasses
+
 import os
 import time
 from dataclasses import dataclass, field
@@ -37,13 +39,15 @@ def attempts():
 
 
 def campaign_store(path: Path, profile: str, kind, config: dict | None = None, status: str = "completed",
-                   vehicle: str = "sysid-7") -> int:
-    """A campaign as a live one stores it: its runs, its design, its resolved configuration."""
+                   vehicle: str = "sysid-7", with_rules: bool = True) -> int:
+    """A campaign as a live one stores it: its runs, its design, its resolved configuration
+    (``with_rules`` False: a design as stores kept it before designs carried their rules)."""
     with Store(path) as store:
         campaign = store.start_campaign(store.add_vehicle(vehicle, profile), "identification", config or {})
         for attempt in attempts():
             store.add_run(campaign, attempt)
-        store.add_design(campaign, kind.design(attempts()))
+        design = kind.design(attempts())
+        store.add_design(campaign, design if with_rules else dataclasses.replace(design, rules=None, speed_law=None))
         store.finish_campaign(campaign, status, None if status == "completed" else "signal SIGTERM")
     return campaign
 
@@ -102,7 +106,7 @@ def test_per_identified_speed_the_stored_gains_exactly(tmp_path, capsys):
         assert set(values) == {"ATC_STR_RAT_FF", "ATC_STR_RAT_P", "ATC_STR_RAT_I", "ATC_STR_ANG_P"}
 
 
-def test_at_a_chosen_speed_from_the_rebuilt_schedule(tmp_path, capsys):
+def test_at_a_chosen_speed_from_the_stored_schedule(tmp_path, capsys):
     store = tmp_path / "s.sqlite"
     campaign = rover_store(store)
     target = tmp_path / "at.parm"
@@ -117,15 +121,31 @@ def test_at_a_chosen_speed_from_the_rebuilt_schedule(tmp_path, capsys):
     assert code == 0 and "outside the identified speeds" in target.read_text()
 
 
-def test_a_schedule_that_cannot_be_rebuilt_is_not_exported_at_a_chosen_speed(tmp_path, capsys):
+def test_a_design_is_exported_at_a_chosen_speed_under_the_rules_it_carries(tmp_path, capsys):
+    """Rules the stored (empty) configuration does not say: the design itself carries them."""
     store = tmp_path / "s.sqlite"
-    clamped = heading_kind(GainBounds(kp_max=0.3))  # rules the stored (empty) configuration does not say
+    clamped = heading_kind(GainBounds(kp_max=0.3))
     campaign = campaign_store(store, "sim", clamped)
+    code, paths, err = export(capsys, store, "--campaign", str(campaign), "--export", str(tmp_path / "g.parm"),
+                              "--speed", "1.5")
+    assert code == 0, err
+    assert read_parm(Path(paths[0]).read_text())["HDG_P"] == pytest.approx(0.3)  # the default rules give more
+    assert heading_kind().gains(opened_design(store, campaign).schedule, 1.5)["heading_p"] > 0.3
+
+
+def test_a_design_stored_without_its_rules_is_exported_per_speed_only(tmp_path, capsys):
+    store = tmp_path / "s.sqlite"
+    campaign = campaign_store(store, "sim", heading_kind(GainBounds(kp_max=0.3)), with_rules=False)
     code, _, err = export(capsys, store, "--campaign", str(campaign), "--export", str(tmp_path / "g.parm"),
                           "--speed", "1.5")
-    assert code == 1 and "cannot be rebuilt" in err and err.count("\n") == 1
+    assert code == 1 and "stored without its design rules" in err and err.count("\n") == 1
     code, paths, _ = export(capsys, store, "--campaign", str(campaign), "--export", str(tmp_path / "g.parm"))
     assert code == 0 and read_parm(Path(paths[0]).read_text())["HDG_P"] == pytest.approx(0.3)
+
+
+def opened_design(store: Path, campaign: int):
+    with Store(store, read_only=True) as opened:
+        return opened.designs(campaign)[0]
 
 
 def test_only_a_completed_campaign_with_a_design(tmp_path, capsys):

@@ -31,11 +31,11 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Any, Callable, Protocol
 
 from pymavlink.dialects.v20.common import MAV_RESULT_DENIED
 
-from behaviors.gain_scheduling import GainDesign, GainScheduler, SchedulingConfig
+from behaviors.gain_scheduling import GainDesign, GainScheduler, ScheduleKind, SchedulingConfig
 from behaviors.mission_learning import LearningConfig
 from behaviors.base import Footprint
 from companion.errors import UserError
@@ -57,11 +57,10 @@ from companion.procedures.campaign import CampaignConfig
 from companion.procedures.health import HealthSession
 from companion.procedures.learning import LearningSession
 from companion.procedures.min_speed import MinSpeedProcedureConfig
-from behaviors.schedules import schedule_kind
+from behaviors.schedules import kind_of, schedule_kind
 from companion.procedures.registry import ABORT_COMMAND, COMMANDS, IDENTIFICATION_COMMAND, ProcedureContext
 from companion.procedures.roll import RollProcedureConfig
 from companion.procedures.runner import RestorePoint
-from companion.records.gain_export import rebuilt_kind
 from companion.records.store import Store
 
 log = logging.getLogger(__name__)
@@ -164,7 +163,7 @@ class Companion:
         if self.procedure_abort is not None or self.pending:
             self.link.ground.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
             return
-        if not getattr(self.link, "armed", True):
+        if not self.link.armed:
             self.link.status_text("procedure refused: the vehicle is not armed", 4)
             self.link.ground.send_command_ack(command, MAV_RESULT_TEMPORARILY_REJECTED)
             return
@@ -174,9 +173,12 @@ class Companion:
     def _learning_decision(self, params: tuple[float, ...]) -> bool:
         """USER_4 with nothing running: param1 = 1 accepts the learned gains, else they are reverted;
         False when learning has nothing on the vehicle to decide on."""
+        learning = self.learning
+        if learning is None:
+            return False
         if params and params[0] == 1:
-            return self.learning.accept()
-        return self.learning.revert()
+            return learning.accept()
+        return learning.revert()
 
     def _abort_requested(self) -> Callable[[], str | None]:
         return lambda: self.stop() or (self.procedure_abort() if self.procedure_abort else None)
@@ -187,12 +189,11 @@ class Companion:
         exactly as written (``schedule_from_store``), writing their scheduled gains in one set."""
         if not self.config.schedule_gains:
             return
-        profile = getattr(self.link, "profile", None)
+        profile = self.link.profile
         found = latest_designs(self.store, self.config.schedules)
-        kinds = [self._kind_of(design, campaign_id, profile) for campaign_id, design in found]
+        kinds = [self._kind_of(design, campaign_id) for campaign_id, design in found]
         designs = {design.kind: design for _, design in found}
-        known = getattr(profile, "params", None)
-        kinds = [k for k in kinds if known is None or all(name in known for name in k.scheduled)]
+        kinds = [k for k in kinds if all(name in profile.params for name in k.scheduled)]
         if not kinds:
             self.scheduler = None
             return
@@ -210,18 +211,15 @@ class Companion:
                                        live_value=kinds[0].live_value)
         log.info("gain scheduling on: %s", "; ".join(f"{k.name}: {designs[k.name].schedule.describe()}" for k in kinds))
 
-    def _kind_of(self, design: GainDesign, campaign_id: int, profile):
-        """The kind whose design rules gave the stored design (its campaign's resolved configuration:
-        e.g. the cascade's full scale and output scaling on ArduRover), else this service's default."""
-        try:
-            config = self.store.campaign(campaign_id).get("config") or {}
-        except KeyError:
-            config = {}
-        rebuilt = rebuilt_kind(design, config, profile)
-        if rebuilt is not None:
-            return rebuilt
-        log.warning("the %s schedule of campaign %d is scheduled with the default design rules (its own could "
-                    "not be rebuilt from the stored configuration)", design.kind, campaign_id)
+    def _kind_of(self, design: GainDesign, campaign_id: int) -> ScheduleKind:
+        """The kind the stored design was made with (the rules it carries: e.g. the cascade's full scale
+        and output scaling on ArduRover), else — a design stored before designs carried their rules —
+        this service's default, said."""
+        kind = kind_of(design)
+        if kind is not None:
+            return kind
+        log.warning("the %s schedule of campaign %d is scheduled with the default design rules (it was stored "
+                    "without its own)", design.kind, campaign_id)
         return schedule_kind(design.kind, self.config.bounds if design.kind == "heading" else None)
 
     def run(self) -> list[dict]:
@@ -264,15 +262,15 @@ class Companion:
                 self.unscheduled.restore(self.link, mode=False)
         return self.history
 
-    def _release_foreign(self) -> None:
+    def _release_foreign(self, scheduler: GainScheduler, unscheduled: RestorePoint) -> None:
         """A scheduled gain someone else set (a ground station's PARAM_SET) is theirs: no longer
         scheduled, kept on exit (the restore keeps a change it did not make), and said."""
         foreign = self.link.parameters.foreign
-        changed = [neutral for neutral in self.scheduler.footprint.parameters - self.scheduler.released
-                   if any(native in foreign for native in self.unscheduled.natives_of.get(neutral, ()))]
+        changed = [neutral for neutral in scheduler.footprint.parameters - scheduler.released
+                   if any(native in foreign for native in unscheduled.natives_of.get(neutral, ()))]
         if not changed:
             return
-        self.scheduler.release(changed)
+        scheduler.release(changed)
         natives = ", ".join(f"{c.name} {c.value:g}" for c in foreign.values())
         log.warning("gain scheduling: %s set by someone else (%s): no longer scheduled, their value kept",
                     ", ".join(sorted(changed)), natives)
@@ -281,19 +279,22 @@ class Companion:
     def _schedule(self, telemetry) -> None:
         """One scheduler step; a refused or lost write leaves the last good gains (rolled back if
         the failure came half-way through a set), and the loop goes on."""
-        self._release_foreign()
-        commands = self.scheduler.step(telemetry)
+        scheduler, unscheduled = self.scheduler, self.unscheduled
+        if scheduler is None or unscheduled is None:  # _rebuild_scheduler sets both: no scheduler, nothing to do
+            return
+        self._release_foreign(scheduler, unscheduled)
+        commands = scheduler.step(telemetry)
         if not commands:
             return
         try:
             self.link.execute(commands)
-            self.scheduler.confirm()
+            scheduler.confirm()
         except Exception as exc:  # noqa: BLE001 - the resident loop must outlive a refused write
             log.warning("scheduled gain write failed: %s", exc)
-            self.scheduler.reject()
-            good = self.scheduler.written or self.unscheduled.parameters
+            scheduler.reject()
+            good = scheduler.written or unscheduled.parameters
             for name, value in good.items():  # each one on its own: one refusal must not stop the others
-                if name not in self.scheduler.footprint.parameters or name in self.scheduler.released:
+                if name not in scheduler.footprint.parameters or name in scheduler.released:
                     continue
                 try:
                     self.link.set_params({name: value})
@@ -339,8 +340,8 @@ class Companion:
                 gcs = GcsProgress(self.link, command)
                 _campaign, outcome, campaign_id = run_campaign(self.link, self.store, self.config.campaign,
                                                                vehicle_id=self.vehicle_id, abort=abort, gcs=gcs)
-                entry = {"procedure": name, "status": outcome.status, "reason": outcome.reason,
-                         "campaign_id": campaign_id}
+                entry: dict[str, Any] = {"procedure": name, "status": outcome.status, "reason": outcome.reason,
+                                         "campaign_id": campaign_id}
                 if self.learning is None:  # with learning on, the learner owns the heading gains
                     self._rebuild_scheduler()
                 if self.health is not None:  # a new campaign is the new healthy reference

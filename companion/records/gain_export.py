@@ -6,10 +6,9 @@ autopilot's own parameter names and units (its profile), either
 
 * **per speed** (no ``--speed``): one file per identified speed, ``FILE-<speed>ms.<suffix>``,
   holding the gains the schedule gives at that speed (the design's stored points, exactly), or
-* **at a chosen speed** (``--speed U``): one file with the schedule's gains at U. The schedule is
-  rebuilt from the stored record with the design rules the campaign used, and checked: it must
-  give back every stored point to 1e-9, or the export is refused (the stored configuration no
-  longer says how the gains were designed).
+* **at a chosen speed** (``--speed U``): one file with the schedule's gains at U, from the stored
+  schedule under the design rules the design carries (``GainDesign.rules``). A design stored before
+  designs carried their rules is exported per identified speed only.
 
 Only a completed campaign is exported. Each file starts with comments saying what it holds, from
 which campaign, at which speed, and whether the gains were checked on the vehicle (a live campaign
@@ -24,17 +23,14 @@ from pathlib import Path
 from typing import Any
 
 from behaviors.gain_scheduling import GainDesign, ScheduleKind
-from behaviors.schedules import schedule_kind
+from behaviors.schedules import kind_of, schedule_kind
 from companion.errors import UserError
 from companion.link.profiles import get_profile
-from companion.numerics.cascade_gains import CascadeRules
-from companion.numerics.gains import GainBounds
 from companion.records.param_files import FORMATS, ParamFile, write
 from companion.records.store import Store
 
 #: file suffix → format (anything else: ``parm`` unless ``--format`` says otherwise)
 SUFFIX_FORMATS = {".parm": "parm", ".param": "parm", ".params": "qgc"}
-MATCH_TOLERANCE = 1e-9
 
 
 class ExportError(UserError):
@@ -61,40 +57,11 @@ def format_for(path: str | Path, given: str | None = None) -> str:
     return SUFFIX_FORMATS.get(Path(path).suffix.lower(), "parm")
 
 
-def _options(config: dict, profile) -> list[dict[str, Any]]:
-    """The design rules to try, the stored ones first (a live campaign stores its resolved
-    configuration), then those a campaign on this profile uses by default (a log campaign)."""
-    stored = config.get("campaign", config) if isinstance(config, dict) else {}
-    candidates = []
-    try:
-        bounds = GainBounds(**stored["bounds"]) if isinstance(stored.get("bounds"), dict) else None
-        cascade = CascadeRules(**{k: tuple(v) if isinstance(v, list) else v for k, v in stored["cascade"].items()}) \
-            if isinstance(stored.get("cascade"), dict) else None
-        if bounds is not None or cascade is not None:
-            candidates.append({"heading": bounds or GainBounds(), "cascade": cascade or CascadeRules()})
-    except (TypeError, ValueError):
-        pass
-    ranges = dict(getattr(profile, "gain_ranges", {}) or {})
-    candidates.append({"heading": GainBounds(),
-                       "cascade": CascadeRules(full_scale=getattr(profile, "angle_full_scale_rad", 0.5236), **ranges)})
-    return candidates
-
-
-def rebuilt_kind(design: GainDesign, config: dict, profile) -> ScheduleKind | None:
-    """The kind whose ``gains`` reproduce every stored point of ``design`` (None: none does)."""
-    for options in _options(config, profile):
-        kind = schedule_kind(design.kind, options.get(design.kind))
-        try:
-            if all(_same(kind.gains(design.schedule, point.speed), point.scheduled) for point in design.points):
-                return kind
-        except ValueError:
-            continue
-    return None
-
-
-def _same(a: dict[str, float], b: dict[str, float]) -> bool:
-    return set(a) == set(b) and all(math.isclose(a[k], b[k], rel_tol=MATCH_TOLERANCE, abs_tol=MATCH_TOLERANCE)
-                                    for k in a)
+def stored_kind(design: GainDesign) -> ScheduleKind | None:
+    """The kind a stored design was made with (``behaviors.schedules.kind_of``: the rules it carries);
+    None for a design stored before designs carried their rules, which is then exported per identified
+    speed only (its stored gains), never recomputed."""
+    return kind_of(design)
 
 
 def gain_sets(store: Store, campaign_id: int, speed: float | None = None) -> tuple[dict, Any, list[GainSet]]:
@@ -117,11 +84,10 @@ def gain_sets(store: Store, campaign_id: int, speed: float | None = None) -> tup
         neutral: dict[str, float] = {}
         notes = []
         for design in designs:
-            kind = rebuilt_kind(design, campaign.get("config") or {}, profile)
+            kind = stored_kind(design)
             if kind is None:
-                raise ExportError(f"the {design.kind} schedule of campaign {campaign_id} cannot be rebuilt from the "
-                                  "stored configuration (it does not give back the stored gains): export per "
-                                  "identified speed instead (leave out --speed)")
+                raise ExportError(f"the {design.kind} design of campaign {campaign_id} was stored without its design "
+                                  "rules (an older store): export per identified speed instead (leave out --speed)")
             neutral.update(kind.gains(design.schedule, speed))
             low, high = design.schedule.speed_range
             if not low <= speed <= high:
@@ -129,19 +95,19 @@ def gain_sets(store: Store, campaign_id: int, speed: float | None = None) -> tup
                              f"({low:.2f}-{high:.2f} m/s): its laws are extrapolated (clamped) as the companion "
                              "itself would")
         return campaign, profile, [_gain_set(profile, speed, None, neutral, notes)]
-    lead = next((d for d in designs if getattr(schedule_kind(d.kind), "axis", "") == "yaw"), designs[0])
+    lead = next((d for d in designs if schedule_kind(d.kind).axis == "yaw"), designs[0])
     sets = []
     for point in lead.points:
         neutral, notes = dict(point.scheduled), []
         for other in designs:
             if other is lead:
                 continue
-            kind = rebuilt_kind(other, campaign.get("config") or {}, profile)
+            kind = stored_kind(other)
             low, high = other.schedule.speed_range
             if kind is None or not low <= point.speed <= high:
                 notes.append(f"the {other.kind} gains are left out: {point.speed:.2f} m/s is not within their "
                              "identified speeds" if kind is not None else
-                             f"the {other.kind} gains are left out: their schedule cannot be rebuilt")
+                             f"the {other.kind} gains are left out: their design was stored without its rules")
                 continue
             neutral.update(kind.gains(other.schedule, point.speed))
         sets.append(_gain_set(profile, point.speed, point.thrust, neutral, notes))

@@ -88,7 +88,7 @@ def _restore(value: Any, hint: Any) -> Any:
 def from_json(data: dict) -> Any:
     """The record :func:`to_json` wrote (ValueError for an unknown or missing tag)."""
     tag = data.get("type") if isinstance(data, dict) else None
-    cls = RECORD_TYPES.get(tag)
+    cls = RECORD_TYPES.get(tag) if tag is not None else None
     if cls is None:
         raise ValueError(f"not a stored record (type {tag!r}; known: {sorted(RECORD_TYPES)})")
     hints = typing.get_type_hints(cls)
@@ -103,14 +103,16 @@ def _register_product_records() -> None:
     """The product's storable records (imported here, not in the numerics: they stay pure)."""
     from behaviors.gain_scheduling import DesignPoint, GainDesign
     from behaviors.identification import IdentificationAttempt
+    from companion.numerics.cascade_gains import CascadeRules
+    from companion.numerics.gains import GainBounds
     from companion.numerics.identification import PitchModel, YawModel
-    from companion.numerics.pitch_gains import PitchSchedule
+    from companion.numerics.pitch_gains import PitchGainBounds, PitchSchedule
     from companion.numerics.schedule import YawSchedule
     from companion.numerics.speed_gains import SpeedDesign, SpeedLoopGains
     from companion.numerics.surge import SurgeModel
 
     for cls in (YawModel, PitchModel, YawSchedule, PitchSchedule, DesignPoint, GainDesign, IdentificationAttempt,
-                SurgeModel, SpeedLoopGains, SpeedDesign):
+                SurgeModel, SpeedLoopGains, SpeedDesign, GainBounds, CascadeRules, PitchGainBounds):
         register(cls)
 
 
