@@ -124,36 +124,3 @@ def design_cascade_gains(model: YawModel, rules: CascadeRules = CascadeRules(), 
     return CascadeGains(angle_p=angle_p, rate_p=rate_p, rate_i=rate_i, rate_ff=rate_ff, rate_bandwidth=achieved,
                         heading_damping=damping, speed=speed, clamped=tuple(clamped))
 
-
-#: Rover QuickTune's steering rules (``rover-quicktune.lua``: RTUN_STR_FFRATIO, _P_RATIO, _I_RATIO
-#: defaults) and the samples it accepts (steering output ≥ 0.10, turn rate > 10°/s)
-QUICKTUNE_FF_RATIO = 0.9
-QUICKTUNE_P_RATIO = 0.5
-QUICKTUNE_I_RATIO = 0.5
-QUICKTUNE_STEERING_MIN = 0.10
-QUICKTUNE_TURN_RATE_MIN = math.radians(10.0)
-
-
-def quicktune_feed_forward(steering: list[float], turn_rate: list[float]) -> float:
-    """ArduRover QuickTune's rule on recorded data: FF = 0.9·Σ|steering| / Σ|turn rate| (output per
-    rad/s) over the samples QuickTune accepts (|steering| ≥ 0.10 and |turn rate| > 10°/s). Where no
-    sample is accepted (a doublet scaled down on a skid boat at low throttle, a slow hull), over every
-    sample: QuickTune itself would ask for more steering, the rule still defines a gain to compare
-    with. ValueError when the data hold no turn at all."""
-    finite = [(abs(s), abs(r)) for s, r in zip(steering, turn_rate) if math.isfinite(s) and math.isfinite(r)]
-    pairs = [(s, r) for s, r in finite if s >= QUICKTUNE_STEERING_MIN and r > QUICKTUNE_TURN_RATE_MIN] or finite
-    total_rate = sum(r for _, r in pairs)
-    if total_rate <= 0.0:
-        raise ValueError("no turn rate in the data")
-    return QUICKTUNE_FF_RATIO * sum(s for s, _ in pairs) / total_rate
-
-
-def quicktune_gains(feed_forward: float, rules: CascadeRules = CascadeRules()) -> dict[str, float]:
-    """QuickTune's steering gains from its FF: P = 0.5·FF, I = 0.5·FF (each within the autopilot's
-    range); ANG_P is not QuickTune's to change."""
-    def within(value: float, limits: tuple[float, float]) -> float:
-        return min(max(value, limits[0]), limits[1])
-
-    ff = within(feed_forward, rules.rate_ff_range)
-    return {"heading_rate_ff": ff, "heading_rate_p": within(QUICKTUNE_P_RATIO * ff, rules.rate_p_range),
-            "heading_rate_i": within(QUICKTUNE_I_RATIO * ff, rules.rate_i_range)}

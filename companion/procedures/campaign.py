@@ -25,27 +25,27 @@ restores everything else, and everything after an abort).
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass, replace
 from typing import Sequence, Union
 
-import numpy as np
-
 from behaviors.background import BackgroundStep
 from behaviors.base import Behaviour, Footprint, Status, footprint_of
 from behaviors.gain_scheduling import GainDesign, ScheduleKind
 from behaviors.heading_steps import HeadingStepTest, reengage_hold
-from behaviors.identification import TRAIN, VALIDATE, IdentificationAttempt, IdentificationManoeuvre
+from behaviors.identification import IdentificationAttempt, IdentificationManoeuvre
 from behaviors.sequence import Deferred, Instant, ParallelBehavior, SequenceBehavior
 from behaviors.speed_tuning import SPEED_CONTEXT, SPEED_GAINS, SpeedTuning, SurgeRecorder
 from behaviors.verification import VerificationStep
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
-from companion.numerics.cascade_gains import quicktune_feed_forward, quicktune_gains
+from companion.numerics.quicktune import quicktune_gains, record_feed_forward
 from companion.numerics.thrust_levels import respaced, same_speed_as
 from companion.procedures.campaign_config import (AXES, CHECKS, DEFAULT_THRUSTS, PROCEDURES,  # noqa: F401 - re-exported
                                                   QUICK_CONVERGENCE_DELAY_S, QUICK_NOISE_BAND, QUICK_PITCH_DOUBLET,
                                                   QUICK_R2_THRESHOLD, CampaignConfig, GainCheck)
+from companion.procedures.campaign_phases import PhaseClock, add_times, phase_of
 from companion.procedures.campaign_verification import CampaignVerification
 from companion.procedures.heading_design import HeadingDesign, choose_heading_design, optimisable, with_design
 from companion.procedures.results import ProcedureResult
@@ -115,7 +115,7 @@ class IdentificationCampaign(Behaviour):
         self.designs: dict[str, GainDesign] = {}
         self.design_errors: dict[str, str] = {}
         self.step_results: list[dict] = []
-        self.vehicle_time_by_phase: dict[str, float] = {}  # see _count_phase_time
+        self._phases = PhaseClock()  # vehicle seconds per phase (companion.procedures.campaign_phases)
         self.phase_times: dict[str, float] = {}  # per identification stage, summed over manoeuvres
         self.final_gains: dict[str, float] | None = None
         self._sequence: SequenceBehavior | None = None
@@ -190,19 +190,18 @@ class IdentificationCampaign(Behaviour):
         for index, thrust in enumerate(cfg.thrusts):
             # each level is built when its turn comes: a level that repeats a lower one's speed
             # re-plans the thrusts still to fly (_settled_speed)
-            items.append(Deferred(lambda index=index: self._level_thrust(index, course),
+            items.append(Deferred(functools.partial(self._level_thrust, index, course),
                                   Footprint.of(setpoints=("thrust", "heading"))))
             if cfg.parallel_axes and len(cfg.axes) > 1:
-                items.append(Deferred(lambda index=index: self._level_parallel(index, course), level_footprint))
+                items.append(Deferred(functools.partial(self._level_parallel, index, course), level_footprint))
             else:
                 for position in range(len(cfg.axes)):
-                    items.append(Deferred(lambda index=index, position=position:
-                                          self._level_manoeuvre(index, position, course), level_footprint))
+                    items.append(Deferred(functools.partial(self._level_manoeuvre, index, position, course),
+                                          level_footprint))
             if self.verifier_wanted and index == 0 and len(cfg.thrusts) > 1 and not self.optimised_design:
                 # the lowest speed's own design, while the vehicle is there and steady (an optimised
                 # design is chosen over every speed's model, so it is not known yet here)
-                items.append(Deferred(lambda thrust=thrust: self._verifier().own_step(self.accepted, thrust),
-                                      self._heading_gains))
+                items.append(Deferred(functools.partial(self._own_step, thrust), self._heading_gains))
         items.append(Deferred(self._design_step))
         if self.verifier_wanted:
             # the highest first: where the identification ends, so no thrust change before it
@@ -235,6 +234,8 @@ class IdentificationCampaign(Behaviour):
     def _level_manoeuvres(self, index: int, course: float) -> list[IdentificationManoeuvre]:
         cfg = self.config
         thrust = self._plan[index]
+        if thrust is None:  # dropped by a re-plan: the caller flies nothing there
+            return []
         prefix = f"[{index + 1}/{len(cfg.thrusts)} T{thrust * 100:.0f}] "
         return [IdentificationManoeuvre(replace(cfg.yaw if axis == "yaw" else cfg.pitch, axis=axis), thrust=thrust,
                                         status_prefix=prefix,
@@ -287,17 +288,26 @@ class IdentificationCampaign(Behaviour):
         names = self.heading_kind.parameters if self.heading_kind else ()
         return {k: v for k, v in self.original_gains.items() if k in names}
 
+    def _yaw_kind(self) -> ScheduleKind:
+        """The heading schedule kind (the campaign identifies yaw: it has one)."""
+        if self.heading_kind is None:
+            raise RuntimeError("the campaign has no heading schedule kind (yaw is not among its axes)")
+        return self.heading_kind
+
+    def _own_step(self, thrust: float):
+        return self._verifier().own_step(self.accepted, thrust)
+
     def _limits(self) -> HeadingLimits:
         """What bounds a heading step besides the gains, read with the original gains."""
         return HeadingLimits.from_vehicle(self.original_gains, full_scale=self.config.cascade.full_scale,
                                           rudder_rate=self.config.rudder_rate,
                                           output_scale_base=self.config.cascade.output_scale_base
-                                          if self.heading_kind.name == "cascade" else None)
+                                          if self._yaw_kind().name == "cascade" else None)
 
     def _verifier(self) -> CampaignVerification:
         """The verification's bookkeeping, made once the original gains (and limits) are known."""
         if self.verifier is None:
-            self.verifier = CampaignVerification(self.heading_kind, self.config.verification, self.config.keep,
+            self.verifier = CampaignVerification(self._yaw_kind(), self.config.verification, self.config.keep,
                                                  self._limits())
         return self.verifier
 
@@ -307,9 +317,9 @@ class IdentificationCampaign(Behaviour):
         has measured: it may run beside the loop, ``BackgroundStep``). None when nothing could be
         scored (the rule as configured stands)."""
         quicktune = self._gains_for("quicktune", self._middle_thrust()) \
-            if self.heading_kind.name == "cascade" and self.original_heading() else None
+            if self._yaw_kind().name == "cascade" and self.original_heading() else None
         try:
-            return choose_heading_design(self.heading_kind, self.config.cascade, self.config.bounds, self.accepted,
+            return choose_heading_design(self._yaw_kind(), self.config.cascade, self.config.bounds, self.accepted,
                                          self._limits(), self.config.objective, self.original_heading(), quicktune)
         except ValueError as exc:
             log.warning("heading design by prediction: %s; the rule as configured is used", exc)
@@ -327,7 +337,7 @@ class IdentificationCampaign(Behaviour):
             self.kinds = self.config.kinds()
             self.heading_kind = next((k for k in self.kinds if k.axis == "yaw"), None)
             if self.verifier is not None:
-                self.verifier.kind = self.heading_kind
+                self.verifier.kind = self._yaw_kind()
         best = choice.choice.chosen
         return [StatusText(f"heading: {best.name}, predicted {best.score.iae_s:.2f} s "
                            f"{best.score.worst_overshoot_pct:.1f}%"[:50])]
@@ -380,7 +390,7 @@ class IdentificationCampaign(Behaviour):
         design = self.heading_design
         if design is None:
             return None
-        names = self.heading_kind.parameters
+        names = self._yaw_kind().parameters
         if label == "original":
             return {k: v for k, v in self.original_gains.items() if k in names} or None
         if label == "quicktune":
@@ -390,13 +400,13 @@ class IdentificationCampaign(Behaviour):
             return {**{k: v for k, v in self.original_gains.items() if k in names},
                     **quicktune_gains(feed_forward, self.config.cascade)}
         if label == "constant":  # one gain tuned at the lowest identified thrust, used everywhere
-            lowest = min(design.points, key=lambda point: point.thrust)
+            lowest = min((p for p in design.points if p.thrust is not None), key=lambda p: p.thrust or 0.0)
             return dict(lowest.scheduled)
         point = next((p for p in design.points if p.thrust == thrust), None)
         if point is not None:  # the design point's gains, as designed (computed once, carried here)
             return dict(point.scheduled)
         # this thrust has no accepted model: the schedule at the nearest identified speed
-        nearest = min(design.points, key=lambda p: abs(p.thrust - thrust))
+        nearest = min(design.points, key=lambda p: abs(p.thrust - thrust) if p.thrust is not None else math.inf)
         return dict(nearest.scheduled)
 
     def _quicktune_feed_forward(self, thrust: float) -> float | None:
@@ -407,16 +417,8 @@ class IdentificationCampaign(Behaviour):
             return None
         attempt = min(attempts, key=lambda a: abs((a.thrust or 0.0) - thrust))
         series = attempt.training
-        times, heading, rudder = (np.asarray(series.get(k, []), dtype=float) for k in ("time", "signal", "actuator"))
-        if len(times) < 3:
-            return None
-        turn_rate = np.gradient(np.unwrap(heading), times)
-        try:
-            value = quicktune_feed_forward(list(rudder / self.config.cascade.full_scale), list(turn_rate))
-        except ValueError:
-            return None
-        low, high = self.config.cascade.rate_ff_range
-        return float(min(max(value, low), high))
+        return record_feed_forward(series.get("time", []), series.get("signal", []), series.get("actuator", []),
+                                   self.config.cascade)
 
     def _kind(self, name: str) -> ScheduleKind:
         return next(kind for kind in self.kinds if kind.name == name)
@@ -503,7 +505,7 @@ class IdentificationCampaign(Behaviour):
         out: dict[str, dict[str, str]] = {}
         if self.heading_kind is not None and "yaw" in self.config.axes:
             written = self.final_gains is not None and any(k in self.final_gains for k in self.heading_kind.parameters)
-            if self.keeps_original_heading:
+            if self.heading_choice is not None and self.heading_choice.keeps_original:
                 out["heading"] = {"outcome": "original kept",
                                   "why": "no design is predicted better than the vehicle's own gains: "
                                          + self.heading_choice.choice.reason()}
@@ -536,7 +538,7 @@ class IdentificationCampaign(Behaviour):
                 self._on_complete(child)
             return
         if isinstance(behavior, IdentificationManoeuvre):
-            self.phase_times = _add_times(self.phase_times, behavior.stage_times)
+            self.phase_times = add_times(self.phase_times, behavior.stage_times)
             self.manoeuvres.append({k: v for k, v in behavior.result().items() if k != "attempts"})
             for attempt in behavior.attempts:
                 self.attempts.append(attempt)
@@ -581,7 +583,7 @@ class IdentificationCampaign(Behaviour):
             if not telemetry.finite("yaw"):
                 return []
             self._sequence = self._build(telemetry.yaw)
-        self._count_phase_time(telemetry.time_s)
+        self._phases.count(telemetry.time_s, phase_of(self.current_step))
         self._record_surge(telemetry)
         commands = list(self._sequence.tick(telemetry))
         if self._sequence.done:
@@ -598,19 +600,6 @@ class IdentificationCampaign(Behaviour):
             self.surge.add(telemetry, current.thrust, current.stage)
         else:
             self.surge.add(telemetry, None, None)
-
-    def _count_phase_time(self, now: float) -> None:
-        """Vehicle seconds per phase of the campaign (what the campaign costs at sea), by what the
-        vehicle is doing: ``settle`` (waiting to be steady before a record), ``excitation`` (the
-        training records), ``validation`` (the fresh records that accept a model), ``verification``
-        (the short campaign's decisive steps, their settles included), ``heading_steps`` (the
-        thesis comparison) and ``design_writes`` (designs, parameter writes and mode changes). With
-        yaw and pitch together the yaw manoeuvre's stage names the time."""
-        last = getattr(self, "_phase_clock", None)
-        phase = _phase_of(self._sequence.current if self._sequence is not None else None)
-        if last is not None and now > last[0]:
-            self.vehicle_time_by_phase[last[1]] = self.vehicle_time_by_phase.get(last[1], 0.0) + (now - last[0])
-        self._phase_clock = (now, phase)
 
     def _conclude(self) -> list[Command]:
         speed_refused = self._speed_refused()
@@ -642,9 +631,8 @@ class IdentificationCampaign(Behaviour):
         return []
 
     def phases_in_order(self) -> dict[str, float]:
-        """``vehicle_time_by_phase`` in the order a campaign flies them (PHASES), then any other."""
-        order = {name: index for index, name in enumerate(PHASES)}
-        return dict(sorted(self.vehicle_time_by_phase.items(), key=lambda item: order.get(item[0], len(order))))
+        """Vehicle seconds per phase in the order a campaign flies them, then any other."""
+        return self._phases.in_order()
 
     def result(self) -> ProcedureResult:
         figures = {
@@ -666,35 +654,3 @@ class IdentificationCampaign(Behaviour):
         }
         return ProcedureResult.of("identification", self.status, self.reason, figures)
 
-
-def _add_times(total: dict[str, float], more: dict[str, float]) -> dict[str, float]:
-    """Vehicle seconds per identification stage, summed over manoeuvres (run together, a parallel
-    pair's stages overlap: their sum is the axes' time, not the campaign's)."""
-    out = dict(total)
-    for stage, seconds in more.items():
-        out[stage] = out.get(stage, 0.0) + seconds
-    return out
-
-
-#: the campaign's phases of vehicle time, in the order they are flown (``_phase_of``)
-PHASES = ("settle", "excitation", "validation", "verification", "heading_steps", "speed_steps", "design_writes")
-
-#: what the vehicle is doing in each stage of an identification manoeuvre
-_STAGE_PHASES = {TRAIN: "excitation", VALIDATE: "validation"}
-
-
-def _phase_of(current: Behaviour | None) -> str:
-    """The campaign phase a running step counts to (``IdentificationCampaign._count_phase_time``)."""
-    if isinstance(current, ParallelBehavior):  # the yaw manoeuvre's stage, or the pitch one's once yaw is done
-        manoeuvres = [c for c in current.children if isinstance(c, IdentificationManoeuvre)]
-        running = sorted((c for c in manoeuvres if not c.done), key=lambda c: c.config.axis != "yaw")
-        current = running[0] if running else (manoeuvres[0] if manoeuvres else None)
-    if isinstance(current, IdentificationManoeuvre):
-        return _STAGE_PHASES.get(current.stage, "settle")
-    if isinstance(current, VerificationStep):
-        return "verification"
-    if isinstance(current, HeadingStepTest):
-        return "heading_steps"
-    if isinstance(current, SpeedTuning):
-        return "speed_steps"
-    return "design_writes"
