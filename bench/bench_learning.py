@@ -46,7 +46,7 @@ PLAN = SurveyPlan(thrusts=(0.7,), seconds_per_thrust=1e9, course_changes_deg=(30
 def fly(preset: str, seed: int, gain_scale: float, learn: bool, seconds: float) -> dict:
     link = InProcessLink(preset=preset, seed=seed)
     for name in ("HDG_P", "HDG_I"):
-        link.autopilot.set_param(name, gain_scale * link.autopilot.params[name])
+        link.simulated.set_param(name, gain_scale * link.simulated.params[name])
     read = link.next_telemetry
     samples: list[tuple[float, float, float, float]] = []
     last: list = []

@@ -76,7 +76,7 @@ def telemetry_from(measurements, mode: str = "hold", armed: bool = True) -> Tele
 
 def dispatch(host: "_AutopilotHost", command: Command) -> None:
     """Apply one companion command to ``host``'s simulated autopilot (the one command mapping)."""
-    autopilot = host.autopilot
+    autopilot = host.simulated
     if isinstance(command, SetHeading):
         autopilot.set_heading(command.heading)
     elif isinstance(command, SetDepth):
@@ -110,6 +110,7 @@ class InProcessParameters:
         self._listeners: list[Callable[[str, float], None]] = []
         self.watched: set[str] = set()
         self.foreign: dict[str, ForeignChange] = {}
+        self.cache: dict[str, float] = {}  # the last value read or written of each native parameter
         self._asked: dict[str, list[float]] = {}
 
     def on_write(self, listener: Callable[[str, float], None]) -> Callable[[], None]:
@@ -128,9 +129,138 @@ class InProcessParameters:
         return any(abs(asked - value) <= 1e-6 * max(1.0, abs(value)) for asked in self._asked.get(name, ()))
 
 
+class InProcessClock:
+    """The in-process vehicle's clock (``companion.link.port.ClockPort``): it never reboots, and it is
+    in lockstep — the physics step only as the companion reads them, after every command is applied."""
+
+    reboots = 0
+    lockstep = True
+
+    def __init__(self, vehicle: Vehicle) -> None:
+        self._vehicle = vehicle
+
+    @property
+    def vehicle_time_s(self) -> float:
+        return self._vehicle.time_s
+
+
+class InProcessCommands:
+    """The command channel of a link that applies every command at once (``CommandPort``): nothing is
+    ever left unanswered, so nothing is abandoned and nothing answers late."""
+
+    answers_late = False
+    max_round_trip_s = 0.0
+    abandon_generation = 0
+    abandoned: tuple[int, ...] = ()
+    period_s = 0.1
+
+    def __init__(self) -> None:
+        self.sends_of: dict[int, int] = {}
+
+    def abandon(self) -> list[int]:
+        return []
+
+    def forget_abandoned(self) -> None:
+        return None
+
+    def late_answers(self, command: int) -> int:
+        return 0
+
+    def last_setpoint(self, command: int) -> tuple[float, ...] | None:
+        return None
+
+    def send(self, command: int, params: Sequence[float], *, confirmation: int = 0) -> int:
+        raise NotImplementedError("the in-process link carries no MAVLink command: nothing is ever sent late")
+
+
+class InProcessStrategy:
+    """The autopilot strategy of the in-process link (``StrategyPort``): the simulator's autopilot
+    keeps no set-point the restore must put back, and an override is released on the link itself."""
+
+    persistent_setpoints: tuple[str, ...] = ()
+    streams: dict[int, float] = {}
+
+    def __init__(self, host: "_AutopilotHost") -> None:
+        self._host = host
+
+    def release(self, actuator: str | None) -> None:
+        self._host.release(actuator)
+
+    def forget_targets(self) -> None:
+        return None
+
+    def forget_excitation(self) -> None:
+        return None
+
+    def release_after_crash(self, actuators: list[str]) -> None:
+        for actuator in actuators:
+            self._host.release(actuator)
+
+    def not_ready(self, telemetry: Telemetry) -> str | None:
+        return None
+
+
+@dataclass(frozen=True)
+class InProcessTransport:
+    """Who the in-process link talks to (``TransportPort``): no bytes travel."""
+
+    system_id: int = 1
+    component: int = 191
+    autopilot_component: int = 1
+    endpoint: str = "in-process"
+    bytes_received: int = 0
+
+
+@dataclass(frozen=True)
+class InProcessAnnouncements:
+    """What the simulated vehicle announces of itself (``AnnouncementPort``): no board id."""
+
+    hardware_uid: str | None = None
+
+
+@dataclass
+class InProcessModes:
+    """When the vehicle confirmed the companion's latest mode (``ModePort``): NaN, no heartbeat
+    confirms it in process (the mode is set at once). Mode requests are not announced: a crash
+    trail of an in-process run records the behaviours' SetMode commands only."""
+
+    commanded_at_s: float = math.nan
+
+    def on_request(self, listener: Callable[[str], None]) -> Callable[[], None]:
+        return lambda: None
+
+
+class InProcessOverrides(dict):
+    """The actuators held by override, by name (``OverridePort``): refreshed every physics step by the
+    host; a newly held channel is not announced (a crash trail of an in-process run records the
+    behaviours' OverrideActuator commands)."""
+
+    def on_hold(self, listener: Callable[[int], None]) -> Callable[[], None]:
+        return lambda: None
+
+
+class InProcessTelemetry:
+    """Listeners called after each snapshot the companion reads (``TelemetryPort``)."""
+
+    def __init__(self) -> None:
+        self._listeners: list[Callable[[], None]] = []
+
+    def after_snapshot(self, listener: Callable[[], None]) -> None:
+        self._listeners.append(listener)
+
+    def stop_calling(self, listener: Callable[[], None]) -> None:
+        if listener in self._listeners:
+            self._listeners.remove(listener)
+
+    def snapshot_read(self) -> None:
+        for listener in list(self._listeners):
+            listener()
+
+
 class _AutopilotHost:
-    """A simulated vehicle and autopilot plus what the commands leave behind (overrides, texts,
-    parameter writes, mode changes); shared by :class:`InProcessLink` and :class:`ClosedLoop`."""
+    """A simulated vehicle and autopilot (``simulated``) plus what the commands leave behind
+    (overrides, texts, parameter writes, mode changes); shared by :class:`InProcessLink` and
+    :class:`ClosedLoop`."""
 
     profile = PROFILE
     gcs_sysid: int = 255
@@ -140,8 +270,8 @@ class _AutopilotHost:
                faults: tuple = ()) -> None:
         preset = load_preset(preset_name)
         self.vehicle = build_vehicle(preset, seed=seed, depth=depth, speed=speed, faults=faults)
-        self.autopilot = Autopilot(self.vehicle, ParamTable.for_preset(preset))
-        self.overrides: dict[str, float] = {}
+        self.simulated = Autopilot(self.vehicle, ParamTable.for_preset(preset))
+        self.overrides = InProcessOverrides()
         self.status_texts: list[str] = []
         self.named_values: list[tuple[str, float]] = []
         self.param_writes: list[tuple[str, float]] = []
@@ -155,8 +285,8 @@ class _AutopilotHost:
             channels = [65535] * 8
             for actuator, value in self.overrides.items():
                 channels[self.profile.channel(actuator) - 1] = self.profile.actuator_to_pwm(actuator, value)
-            self.autopilot.rc_override(self.gcs_sysid, channels)
-        self.autopilot.step(dt)
+            self.simulated.rc_override(self.gcs_sysid, channels)
+        self.simulated.step(dt)
 
     # ------------------------------------------------------------------ commands
     def execute(self, commands: Sequence[Command]) -> None:
@@ -165,11 +295,11 @@ class _AutopilotHost:
 
     @property
     def mode(self) -> str:
-        return self.profile.mode_name(self.autopilot.mode)
+        return self.profile.mode_name(self.simulated.mode)
 
     def set_mode(self, neutral: str) -> None:
         self.mode_changes.append(neutral)
-        self.autopilot.set_mode(self.profile.mode_number(neutral))
+        self.simulated.set_mode(self.profile.mode_number(neutral))
 
     def release(self, actuator: str | None = None) -> None:
         names = list(self.overrides) if actuator is None else [actuator]
@@ -177,7 +307,7 @@ class _AutopilotHost:
         for name in names:
             self.overrides.pop(name, None)
             channels[self.profile.channel(name) - 1] = 0
-        self.autopilot.rc_override(self.gcs_sysid, channels)
+        self.simulated.rc_override(self.gcs_sysid, channels)
 
     def set_params(self, neutral_values: dict) -> dict:
         echoed = {}
@@ -188,14 +318,16 @@ class _AutopilotHost:
         return echoed
 
     def get_param(self, native: str) -> float:
-        if native not in self.autopilot.params:
+        if native not in self.simulated.params:
             raise ParamRefused(f"no parameter {native}")
-        return self.autopilot.params[native]
+        value = self.simulated.params[native]
+        self.parameters.cache[native] = value
+        return value
 
     def set_by_someone_else(self, native: str, value: float) -> None:
         """A ground station's PARAM_SET: applied, and seen as someone else's change where watched."""
-        before = self.autopilot.params[native]
-        self.autopilot.set_param(native, float(value))
+        before = self.simulated.params[native]
+        self.simulated.set_param(native, float(value))
         if native in self.parameters.watched and before != value:
             self.parameters.foreign[native] = ForeignChange(native, before, float(value), self.vehicle.time_s)
 
@@ -203,10 +335,11 @@ class _AutopilotHost:
         if native in self.refuse:
             raise ParamRefused(f"{native} refused")
         self.parameters.notify(native, float(value))
-        result = self.autopilot.set_param(native, float(value))
+        result = self.simulated.set_param(native, float(value))
         if not result.accepted:
             raise ParamRefused(f"{native} = {value} refused")
-        return self.autopilot.params[native]
+        self.parameters.cache[native] = self.simulated.params[native]
+        return self.simulated.params[native]
 
     def status_text(self, text: str, severity: int = 6) -> None:
         self.status_texts.append(text)
@@ -230,8 +363,20 @@ class InProcessLink(_AutopilotHost):
     def __post_init__(self) -> None:
         self._build(self.preset, self.seed, self.depth, faults=self.faults)
         self.system_id = 1
-        self.autopilot.arm(True)
-        self.autopilot.set_mode(MODE_ALT_HOLD)  # as a vehicle waiting for its mission would be
+        # the rest of companion.link.port.VehiclePort: what a MAVLink link has, as it is in process
+        self.clock = InProcessClock(self.vehicle)
+        self.commands = InProcessCommands()
+        self.autopilot = InProcessStrategy(self)
+        self.transport = InProcessTransport(system_id=self.system_id)
+        self.announcements = InProcessAnnouncements()
+        self.modes = InProcessModes()
+        self.telemetry = InProcessTelemetry()
+        self.commanded_mode: str | None = None
+        self.statustexts: list[tuple[float, int, str]] = []  # the simulated vehicle says nothing
+        self.latest_telemetry: Telemetry | None = None
+        self._report_listeners: list[Callable] = []
+        self.simulated.arm(True)
+        self.simulated.set_mode(MODE_ALT_HOLD)  # as a vehicle waiting for its mission would be
         self._steps_per_sample = max(1, round(1.0 / (self.telemetry_hz * self.physics_dt)))
         self._user_callback = None
         self._user_queue: list[tuple[float, int, tuple]] = []
@@ -248,7 +393,7 @@ class InProcessLink(_AutopilotHost):
         return True
 
     def param(self, neutral: str) -> float:
-        return self.autopilot.params[self.profile.native_param(neutral)]
+        return self.simulated.params[self.profile.native_param(neutral)]
 
     def get_params(self, neutral_names) -> dict:
         return {name: self.param(name) for name in neutral_names}
@@ -265,12 +410,32 @@ class InProcessLink(_AutopilotHost):
             self._user_queue.remove(item)
             if self._user_callback is not None:
                 self._user_callback(item[1], item[2])
-        sample = telemetry_from(self.vehicle.measure(), mode=self.mode, armed=self.autopilot.armed)
+        sample = telemetry_from(self.vehicle.measure(), mode=self.mode, armed=self.simulated.armed)
         if self.mode != "manual":  # the set-point the autopilot holds (NAV_CONTROLLER_OUTPUT over MAVLink)
-            sample = replace(sample, heading_target=self.autopilot.heading_setpoint)
+            sample = replace(sample, heading_target=self.simulated.heading_setpoint)
         if self.nan_from_s is not None and now >= self.nan_from_s:
             sample = replace(sample, roll=math.nan, pitch=math.nan, yaw=math.nan)
+        self.latest_telemetry = sample
+        self.telemetry.snapshot_read()
         return sample
+
+    @property
+    def armed(self) -> bool:
+        return bool(self.simulated.armed)
+
+    def await_setpoints(self) -> None:
+        """Every set-point is applied when it is executed: nothing to wait for."""
+
+    def skip_to_now(self) -> int:
+        """No snapshot is ever queued in process."""
+        return 0
+
+    def other_companion(self) -> str | None:
+        return None
+
+    def reconnect(self, timeout_s: float | None = None) -> bool:
+        """A lost in-process link (``lose_link_at_s``) never comes back."""
+        return False
 
     # ------------------------------------------------------------------ ground station
     @property
@@ -278,15 +443,20 @@ class InProcessLink(_AutopilotHost):
         """The ground-station side (``VehicleLink.ground``): this object answers for it."""
         return self
 
-    def on_user_command(self, callback) -> None:
+    def on_user_command(self, callback: Callable[[int, tuple[float, ...]], None] | None) -> None:
         self._user_callback = callback
 
     def inject_user_command(self, command: int, at_s: float, params: tuple = (0.0,) * 7) -> None:
         """A COMMAND_LONG from a ground station, delivered at vehicle time ``at_s``."""
         self._user_queue.append((at_s, command, params))
 
-    def send_command_ack(self, command: int, result: int, progress: int = 0, *_targets) -> None:
+    def send_command_ack(self, command: int, result: int, progress: int = 0, target_system: int = 0,
+                         target_component: int = 0) -> None:
         self.acks.append((command, result, progress))
+
+    def on_report(self, listener: Callable) -> None:
+        """The ground station's reports (none in process: nobody else is on the link)."""
+        self._report_listeners.append(listener)
 
 
 @dataclass
@@ -312,16 +482,16 @@ class ClosedLoop(_AutopilotHost):
         self._build(self.preset_name, self.seed, self.depth, self.speed)
         for name, value in self.params.items():
             self.set_param(name, value)
-        self.autopilot.arm(True)
-        self.autopilot.set_mode(MODE_ALT_HOLD)
+        self.simulated.arm(True)
+        self.simulated.set_mode(MODE_ALT_HOLD)
         if self.thrust is not None:
-            self.autopilot.set_thrust(self.thrust)
+            self.simulated.set_thrust(self.thrust)
         self._substeps = max(1, round(self.physics_hz / self.telemetry_hz))
         self._dt = 1.0 / self.physics_hz
 
     def param(self, name: str) -> float:
         """A native parameter (e.g. ``DPT_P``)."""
-        return self.autopilot.params[name]
+        return self.simulated.params[name]
 
     def apply(self, commands) -> None:
         for command in commands:
@@ -329,7 +499,7 @@ class ClosedLoop(_AutopilotHost):
             dispatch(self, command)
 
     def telemetry(self) -> Telemetry:
-        return telemetry_from(self.vehicle.measure(), mode=self.mode, armed=self.autopilot.armed)
+        return telemetry_from(self.vehicle.measure(), mode=self.mode, armed=self.simulated.armed)
 
     def advance(self, seconds: float) -> None:
         """Physics and autopilot only (no behaviour)."""

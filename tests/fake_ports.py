@@ -29,7 +29,11 @@ class FakeTransport:
     system_id, autopilot_component, component = 1, 1, 191
 
     def __init__(self) -> None:
+        from companion.link.frame_loss import FrameLoss
+
         self.mav = RecordingMav()
+        self.frame_loss = FrameLoss()
+        self.heard_time_ms = None
         self.handlers = defaultdict(list)
         self.sent_as: list[tuple[int, int]] = []
 

@@ -10,6 +10,8 @@ from dataclasses import replace
 
 import pytest
 
+from behaviors.schedules import kind_of
+
 from behaviors.identification import IdentificationManoeuvre, ManoeuvreConfig, doublet
 from companion.procedures.app import AbortFlag, drain_campaign_events
 from companion.procedures.campaign import AttemptRecorded, CampaignConfig, IdentificationCampaign
@@ -69,6 +71,11 @@ def test_campaign_writes_scheduled_gains_and_keeps_them(completed):
     final = campaign.final_gains
     assert final is not None
     assert link.param("heading_p") == pytest.approx(final["heading_p"], rel=1e-6)
+    # the design carries the rules it was made with: they give back every designed point exactly
+    rebuilt = kind_of(design)
+    assert rebuilt is not None and design.rules is not None
+    for point in design.points:
+        assert rebuilt.gains(design.schedule, point.speed) == pytest.approx(point.scheduled, rel=1e-12)
     assert link.param("heading_p") != pytest.approx(restore.parameters["heading_p"], rel=1e-3)
     assert not link.overrides, "no override may outlive the campaign"
     steps = campaign.step_results
@@ -91,7 +98,7 @@ def _assert_restored(link: InProcessLink, restore: RestorePoint) -> None:
     assert link.mode == restore.mode
     for name, value in restore.parameters.items():
         assert link.param(name) == pytest.approx(value, abs=1e-9), name
-    assert not link.autopilot.overridden(1)
+    assert not link.simulated.overridden(1)
 
 
 def _abort_when(condition):

@@ -26,6 +26,7 @@ import pytest
 from harness.fault_cases import (CASE_PROCEDURES, PHASES, closed_cut_case, mixed_case, restore_case, run_case,
                                  silent_cut_case, single_case)
 from harness.fault_proxy import FAULT_KINDS, Fault, FaultProxy, Frame, Trigger, split_frames
+from harness.port_stub import PortStub, StrategyStub
 
 CASES = ([mixed_case(procedure) for procedure in CASE_PROCEDURES]
          + [silent_cut_case(procedure) for procedure in CASE_PROCEDURES]
@@ -162,28 +163,18 @@ def test_faults_are_bounded_and_named():
 
 
 # ---------------------------------------------------------------------------- regression tests of the bugs found
-class _Strategy:
-    persistent_setpoints = ("thrust", "heading", "rolling_mass")
-
-
-class _LinkWithProperty:
+class _LinkWithProperty(PortStub):
     """VehicleLink's shape: ``latest_telemetry`` is a property, set-points go through ``execute``."""
 
     def __init__(self, fail_first: set[str] = frozenset()) -> None:
         from companion.interface import Telemetry
-        from companion.link.autopilots.sim import PROFILE
 
-        self.profile = PROFILE
-        self.autopilot = _Strategy()
-        self.mode = "hold"
+        super().__init__()
+        self.autopilot = StrategyStub(("thrust", "heading", "rolling_mass"))
         self.params = {"HDG_P": 0.5, "HDG_I": 0.05, "HDG_TRIM": 0.0}
         self.fail_first = set(fail_first)
         self.executed: list = []
-        self._latest = Telemetry(time_s=10.0, thrust_ratio=0.7, yaw=1.0)
-
-    @property
-    def latest_telemetry(self):
-        return self._latest
+        self.latest_telemetry = Telemetry(time_s=10.0, thrust_ratio=0.7, yaw=1.0)
 
     def get_param(self, name):
         if name in self.fail_first:
@@ -220,7 +211,7 @@ def test_an_autopilot_without_persistent_set_points_gets_none_put_back():
     from companion.procedures.runner import RestorePoint
 
     link = _LinkWithProperty()
-    link.autopilot = SimpleNamespace()  # e.g. ArduSub: its thrust is an override the restore releases
+    link.autopilot = StrategyStub()  # e.g. ArduSub: its thrust is an override the restore releases
     assert RestorePoint.capture(link, Footprint.of((), ("thrust", "heading"))).setpoints == {}
 
 

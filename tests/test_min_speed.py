@@ -496,5 +496,5 @@ def test_levelled_start_settles_within_a_minute_and_puts_the_depth_setpoint_back
     assert result["settle_time_s"] is not None and result["settle_time_s"] <= 60.0
     assert tr_star <= result["thrust_ratio_final"] <= 1.02 * tr_star and result["reversals_last_30s"] <= 1
     # back at the depth the seeker took as the set-point: the hold mode's, within the depth noise
-    assert link.autopilot.depth_setpoint == result["depth_setpoint_m"] == pytest.approx(2.0, abs=0.005)
+    assert link.simulated.depth_setpoint == result["depth_setpoint_m"] == pytest.approx(2.0, abs=0.005)
     assert result["decisions"] >= 50 and result["theta_e_crossover"] == pytest.approx(0.0155)

@@ -41,7 +41,7 @@ def _survey_link(seed: int = 3, faults: tuple = (), plan: SurveyPlan = PLAN, man
     changes, never a doublet), optionally in MANUAL for ``manual`` = (from, to) vehicle seconds."""
     link = InProcessLink(seed=seed, faults=faults)
     for name, value in gains.items():
-        link.autopilot.set_param(name, value)
+        link.simulated.set_param(name, value)
     read = link.next_telemetry
     last: list = []
 

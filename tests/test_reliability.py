@@ -242,17 +242,17 @@ def test_a_reboot_is_recognised_and_the_new_boot_keeps_its_own_mode(sim_factory,
 def test_an_autopilot_that_restarts_is_named_a_reboot_not_a_lost_link():
     """The autopilot process dies and comes back: the procedure first sees silence (LinkLost), then
     the restore finds the new boot. The headline says reboot; before, it said only the lost link."""
-    from types import SimpleNamespace
-
     from behaviors.base import Behaviour
     from companion.link.errors import LinkLost
+    from harness.port_stub import PortStub
     from companion.procedures.runner import RestorePoint, run_procedure
 
     class Waiting(Behaviour):
         def update(self, telemetry):
             return []
 
-    clock = SimpleNamespace(reboots=0)
+    link = PortStub()
+    clock = link.clock
     samples = iter([Telemetry(time_s=1.0, roll=0.0, pitch=0.0, yaw=0.0, mode="hold", armed=True)])
 
     def next_telemetry(timeout_s=5.0):
@@ -262,8 +262,7 @@ def test_an_autopilot_that_restarts_is_named_a_reboot_not_a_lost_link():
             clock.reboots = 1  # what the link sees once it hears the vehicle again: a new boot
             raise LinkLost("no telemetry snapshot for 5 s") from None
 
-    link = SimpleNamespace(next_telemetry=next_telemetry, execute=lambda commands: None, clock=clock,
-                           status_text=lambda *args: None, mode="hold")
+    link.next_telemetry = next_telemetry  # type: ignore[method-assign]
     outcome = run_procedure(link, Waiting(), restore=RestorePoint(mode=None, boot=0))
     assert outcome.status == "aborted"
     assert outcome.reason.startswith("the autopilot rebooted during the procedure")

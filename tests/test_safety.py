@@ -16,19 +16,18 @@ from behaviors.base import Footprint
 from companion.procedures.runner import RestorePoint, RunOutcome
 from companion.records.store import Store
 from harness.inprocess import InProcessLink
+from harness.port_stub import PortStub
 from pymavlink.dialects.v20.common import MAV_RESULT_FAILED
 
 SHORT = CampaignConfig(thrusts=(0.7, 1.0), axes=("yaw",), step_labels=("scheduled",),
                        yaw=ManoeuvreConfig(settle_s=12.0, resettle_s=10.0))
 
 
-class CascadedFake:
+class CascadedFake(PortStub):
     """An ArduRover-like parameter store behind the link API (no vehicle needed for restore points)."""
 
-    profile = ARDUROVER
-    mode = "hold"
-
     def __init__(self, fail: set[str] = frozenset()) -> None:
+        super().__init__(ARDUROVER)
         self.params = {"ATC_STR_ANG_P": 2.0, "ATC_STR_RAT_P": 0.2, "ATC_STR_RAT_I": 0.2, "ATC_STR_RAT_D": 0.01,
                        "ATC_STR_RAT_FF": 0.2, "ATC_STR_RAT_IMAX": 1.0}
         self.fail = set(fail)
@@ -94,7 +93,7 @@ def test_pilot_switching_to_manual_aborts_and_the_companion_does_not_fight_back(
     def pilot(timeout_s=5.0):
         telemetry = original_step(timeout_s)
         if 25.0 <= telemetry.time_s < 25.06:
-            link.autopilot.set_mode(19)  # the pilot takes MANUAL during the first doublet
+            link.simulated.set_mode(19)  # the pilot takes MANUAL during the first doublet
         return telemetry
 
     link.next_telemetry = pilot
@@ -112,7 +111,7 @@ def test_disarming_aborts():
     def disarm(timeout_s=5.0):
         telemetry = original_step(timeout_s)
         if telemetry.time_s >= 20.0:
-            link.autopilot.arm(False)
+            link.simulated.arm(False)
         return telemetry
 
     link.next_telemetry = disarm
@@ -122,7 +121,7 @@ def test_disarming_aborts():
 
 def test_a_disarmed_vehicle_is_refused_at_once():
     link = InProcessLink(seed=2)
-    link.autopilot.arm(False)
+    link.simulated.arm(False)
     _, outcome, _ = _run(link)
     assert outcome.status == "aborted" and "not armed" in outcome.reason and outcome.samples == 1
 
@@ -148,13 +147,13 @@ def test_a_refused_simulator_hook_keeps_the_measured_data_and_closes_the_record(
         assert result.figures["std_open_deg"] > 0 and result.figures["std_closed_deg"] > 0  # measured before
         assert store.campaigns()[0]["status"] == "aborted"
         assert store.behavior_results()[0]["kind"] == "roll"
-    assert link.autopilot.params["SIM_ROLL_DIST"] == 0.0  # the disturbance hook is switched off again
+    assert link.simulated.params["SIM_ROLL_DIST"] == 0.0  # the disturbance hook is switched off again
     assert link.mode == "hold"
 
 
 def test_roll_procedure_leaves_the_mode_it_found():
     link = InProcessLink(seed=2)
-    link.autopilot.set_mode(4)  # found in GUIDED
+    link.simulated.set_mode(4)  # found in GUIDED
     result = roll_procedure(link, AbortFlag(), RollProcedureConfig(settle_s=5.0, open_s=10.0, closed_s=10.0,
                                                                      kick_deg=0.0), simulator=True).to_json()
     assert result["status"] == "completed" and link.mode == "guided"
@@ -183,14 +182,14 @@ def test_pilot_takeover_during_roll_stabilisation_keeps_the_pilots_mode():
     def pilot(timeout_s=5.0):
         telemetry = original_step(timeout_s)
         if 20.0 <= telemetry.time_s < 20.06:
-            link.autopilot.set_mode(19)
+            link.simulated.set_mode(19)
         return telemetry
 
     link.next_telemetry = pilot
     result = roll_procedure(link, AbortFlag(), RollProcedureConfig(settle_s=5.0, open_s=10.0, closed_s=30.0,
                                                                      kick_deg=0.0), simulator=True).to_json()
     assert result["status"] == "aborted" and result["pilot_has_it"]
-    assert link.mode == "manual" and link.autopilot.mass_angle_demand == 0.0
+    assert link.mode == "manual" and link.simulated.mass_angle_demand == 0.0
 
 
 @pytest.mark.parametrize("name, why", [("roll", "rolling mass"), ("min_speed", "depth loop")])

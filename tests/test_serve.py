@@ -53,7 +53,7 @@ def _speeding_up(tmp_path, seconds: float, also=None):
         stored_models(store)
         config = ServeConfig(max_vehicle_s=seconds, scheduling=SchedulingConfig(min_interval_s=10.0))
         companion = Companion(link, store, store.add_vehicle("v"), config, AbortFlag())
-        link.autopilot.set_thrust(0.6)
+        link.simulated.set_thrust(0.6)
         read = link.next_telemetry
 
         def mission(timeout_s=5.0):
@@ -61,7 +61,7 @@ def _speeding_up(tmp_path, seconds: float, also=None):
             if also is not None:
                 also(link, telemetry)
             if telemetry.time_s > 60.0:
-                link.autopilot.set_thrust(1.0)
+                link.simulated.set_thrust(1.0)
             return telemetry
 
         link.next_telemetry = mission

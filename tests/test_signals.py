@@ -23,15 +23,14 @@ FAKE = textwrap.dedent('''
     import os, signal
 
     from companion.link.profiles import ARDUROVER
+    from harness.port_stub import PortStub
 
 
-    class SignallingFake:
+    class SignallingFake(PortStub):
         """An ArduRover-like parameter store whose restore writes are each hit by signals."""
 
-        profile = ARDUROVER
-        mode = "hold"
-
         def __init__(self, signals=0, flaky=()):
+            super().__init__(ARDUROVER)
             self.params = {"ATC_STR_ANG_P": 2.0, "ATC_STR_RAT_P": 0.2, "ATC_STR_RAT_I": 0.2,
                            "ATC_STR_RAT_D": 0.01, "ATC_STR_RAT_FF": 0.2, "ATC_STR_RAT_IMAX": 1.0}
             self.signals = signals  # sent all at once, at the first restore write

@@ -153,8 +153,9 @@ class Actuation:
 
         if not self.skid:
             throttle = self.unscaled_throttle(at(self.throttle)) if self.throttle is not None else math.nan
-            return at(self.steering), throttle
-        left, right = self.unscaled_throttle(at(self.left)), self.unscaled_throttle(at(self.right))
+            return at(self._scale(self.steering, "steering")), throttle
+        left = self.unscaled_throttle(at(self._scale(self.left, "left")))
+        right = self.unscaled_throttle(at(self._scale(self.right, "right")))
         if left < 0.0:
             left /= self.thrust_asymmetry
         if right < 0.0:
@@ -173,15 +174,23 @@ class Actuation:
         roles = (("steering", self.steering), ("throttle", self.throttle), ("left", self.left), ("right", self.right))
         return {role: scale.output for role, scale in roles if scale is not None}
 
+    def _scale(self, scale: OutputScale | None, role: str) -> OutputScale:
+        """``scale``, an output this kind has (``__post_init__`` checked it is there)."""
+        if scale is None:
+            raise ValueError(f"Actuation {self.kind!r} has no {role} output")
+        return scale
+
     def describe(self) -> str:
         if self.skid:
-            return (f"skid steering: SERVO{self.left.output} ThrottleLeft, SERVO{self.right.output} ThrottleRight "
+            left, right = self._scale(self.left, "left"), self._scale(self.right, "right")
+            return (f"skid steering: SERVO{left.output} ThrottleLeft, SERVO{right.output} ThrottleRight "
                     f"(MOT_THST_ASYM {self.thrust_asymmetry:g}, MOT_STR_THR_MIX {self.steering_throttle_mix:g}); "
                     "steering and throttle un-mixed from the two outputs")
         name = "Rudder" if self.steering_function == FUNCTION_RUDDER else "GroundSteering"
         throttle = f", SERVO{self.throttle.output} Throttle" if self.throttle is not None else ", no throttle output"
-        return f"SERVO{self.steering.output} {name} (min/trim/max {self.steering.minimum:.0f}/" \
-               f"{self.steering.trim:.0f}/{self.steering.maximum:.0f}){throttle}"
+        steering = self._scale(self.steering, "steering")
+        return f"SERVO{steering.output} {name} (min/trim/max {steering.minimum:.0f}/" \
+               f"{steering.trim:.0f}/{steering.maximum:.0f}){throttle}"
 
     def scale_params(self) -> tuple[str, ...]:
         """The SERVOn_MIN/TRIM/MAX/REVERSED names of the outputs in use."""
@@ -207,10 +216,10 @@ def actuation_from_functions(functions: Mapping[int, float], params: Mapping[str
     throttle = _outputs_with(functions, FUNCTION_THROTTLE)
     found = ", ".join(f"SERVO{n}_FUNCTION {int(round(f))}" for n, f in sorted(functions.items())
                       if isinstance(f, (int, float)) and math.isfinite(f) and int(round(f)) != 0) or "no output function"
-    common = dict(thrust_asymmetry=max(1.0, mixer["MOT_THST_ASYM"]),
-                  steering_throttle_mix=min(1.0, max(0.0, mixer["MOT_STR_THR_MIX"])),
-                  throttle_min_pct=min(99.0, max(0.0, mixer["MOT_THR_MIN"])),
-                  thrust_expo=mixer["MOT_THST_EXPO"] if -1.0 <= mixer["MOT_THST_EXPO"] <= 1.0 else 0.0)
+    thrust_asymmetry = max(1.0, mixer["MOT_THST_ASYM"])
+    steering_throttle_mix = min(1.0, max(0.0, mixer["MOT_STR_THR_MIX"]))
+    throttle_min_pct = min(99.0, max(0.0, mixer["MOT_THR_MIN"]))
+    thrust_expo = mixer["MOT_THST_EXPO"] if -1.0 <= mixer["MOT_THST_EXPO"] <= 1.0 else 0.0
     if left or right:
         if not (left and right):
             missing = "74 ThrottleRight" if left else "73 ThrottleLeft"
@@ -220,7 +229,9 @@ def actuation_from_functions(functions: Mapping[int, float], params: Mapping[str
             raise ProfileError(f"{where} has a skid-steering pair and a steering servo or throttle too ({found}): "
                                "the companion cannot tell which one steers; keep either 73/74 or 26 (or 21) with 70")
         return Actuation("skid", left=OutputScale.from_params(left[0], params),
-                         right=OutputScale.from_params(right[0], params), **common)
+                         right=OutputScale.from_params(right[0], params), thrust_asymmetry=thrust_asymmetry,
+                         steering_throttle_mix=steering_throttle_mix, throttle_min_pct=throttle_min_pct,
+                         thrust_expo=thrust_expo)
     function = next((f for f in STEERING_FUNCTIONS if steering[f]), None)
     if function is None:
         raise ProfileError(f"{where} has no steering output ({found}): set SERVOn_FUNCTION 26 (GroundSteering) on "
@@ -230,7 +241,9 @@ def actuation_from_functions(functions: Mapping[int, float], params: Mapping[str
                            "(Throttle) on the motor's output")
     return Actuation("steering", steering=OutputScale.from_params(steering[function][0], params),
                      throttle=OutputScale.from_params(throttle[0], params) if throttle else None,
-                     steering_function=function, **common)
+                     steering_function=function, thrust_asymmetry=thrust_asymmetry,
+                     steering_throttle_mix=steering_throttle_mix, throttle_min_pct=throttle_min_pct,
+                     thrust_expo=thrust_expo)
 
 
 def actuation_from_params(params: Mapping[str, float], where: str = "the vehicle") -> Actuation:

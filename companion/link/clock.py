@@ -194,7 +194,7 @@ class VehicleClock:
             return
         base = max(self.acked_ms, 0)
         answered = self.transport.bytes_received != self._bytes_acked
-        heard = [t for t in (self.last_sample_ms, getattr(self.transport, "heard_time_ms", None)) if t is not None]
+        heard = [t for t in (self.last_sample_ms, self.transport.heard_time_ms) if t is not None]
         period = int(self.requested_period_ms) if self.requested_period_ms else self.sample_period_ms
         if (damaging and answered) or self._nudged_ms == base:
             # one period on, or to the vehicle time last heard (its samples lost since), whichever is later
@@ -218,16 +218,14 @@ class VehicleClock:
 
     def _link_losses(self) -> int:
         """Frames the link lost or discarded so far (``companion.link.frame_loss``)."""
-        frame_loss = getattr(self.transport, "frame_loss", None)
-        return frame_loss.lost + frame_loss.corrupt if frame_loss is not None else 0
+        return self.transport.frame_loss.lost + self.transport.frame_loss.corrupt
 
     def _damaging(self, now: float) -> bool:
         """The link damages frames: some were lost or discarded since the last acknowledgement, part
         of a frame waits in the parser (on a stalled lockstep link nothing more is on its way), or
         frames were discarded as corrupt within :data:`DAMAGE_MEMORY_S` (a radio damaging what it
         carries to us damages what it carries from us too, where we cannot see it)."""
-        frame_loss = getattr(self.transport, "frame_loss", None)
-        corrupt = frame_loss.corrupt if frame_loss is not None else 0
+        corrupt = self.transport.frame_loss.corrupt
         if corrupt != self._corrupt_seen:
             self._corrupt_seen, self._corrupt_wall = corrupt, now
         return (self._link_losses() > self._losses_acked or self.transport.unparsed_bytes > 0

@@ -33,6 +33,9 @@ MAV_CMD_DO_SET_SERVO = 183
 class CommandChannel:
     """Commands to the autopilot and what it answered (see the module docstring)."""
 
+    #: a set-point's acknowledgement may arrive after the procedure gave up on it (``companion.link.port``)
+    answers_late = True
+
     def __init__(self, transport: Transport, clock: VehicleClock) -> None:
         self.transport = transport
         self.clock = clock

@@ -5,6 +5,10 @@ subclasses say what went wrong precisely enough to act on it (retry, abort, reco
 """
 from __future__ import annotations
 
+from typing import TypeVar
+
+T = TypeVar("T")
+
 
 class LinkError(RuntimeError):
     """Base class of every vehicle-interface failure."""
@@ -64,3 +68,10 @@ class ModeChangeFailed(LinkError):
 
 class EndpointError(LinkError):
     """The connection string could not be opened (refused, no such device, bad address)."""
+
+
+def known_once_set_up(value: T | None, what: str) -> T:
+    """``value``, which the link knows once its handshake ran; ProfileError before that."""
+    if value is None:
+        raise ProfileError(f"the link is not set up yet: its {what} is not known")
+    return value

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from typing import Any
 
 from companion.link import param_codec
 from companion.link.autopilots import strategy_for
@@ -64,8 +65,11 @@ def _configured(ports: LinkPorts, chosen: AutopilotProfile, strategy: AutopilotS
     outputs steer and drive it); ProfileError when the vehicle cannot be understood."""
     configured = strategy.configure()
     if configured is not chosen:
+        assembler = ports.telemetry.assembler
+        if assembler is None:
+            raise RuntimeError("the profile is configured only once telemetry is assembled (TelemetryFeed.use)")
         ports.profile = configured
-        for part in (ports.modes, ports.parameters, ports.overrides, ports.telemetry.assembler):
+        for part in (ports.modes, ports.parameters, ports.overrides, assembler):
             part.profile = configured
         if configured.actuation is not None:
             log.info("actuation: %s", configured.actuation.describe())

@@ -9,12 +9,15 @@ own mode changes from a pilot's.
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from companion.link.clock import VehicleClock
 from companion.link.commands import MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS, CommandChannel
 from companion.link.errors import CommandFailed, ModeChangeFailed, ProfileError
 from companion.link.vehicle_state import VehicleAnnouncements
+
+if TYPE_CHECKING:
+    from companion.link.profile import AutopilotProfile
 
 MAV_CMD_DO_SET_MODE = 176
 
@@ -31,7 +34,7 @@ class ModeControl:
         self.commands = commands
         self.announcements = announcements
         self.clock = clock
-        self.profile = None  # the autopilot profile, once known
+        self.profile: AutopilotProfile | None = None  # the autopilot profile, once known
         self._commanded: str | None = None  # the last mode the companion itself switched to
         self._confirmed_at_s: float = float("nan")  # vehicle time the heartbeat confirmed it
         self._confirmed_boot = 0  # the boot it was confirmed on (``clock.reboots`` then)
@@ -79,7 +82,7 @@ class ModeControl:
         self._request_listeners.append(listener)
         return lambda: self._request_listeners.remove(listener) if listener in self._request_listeners else None
 
-    def _profile(self):
+    def _profile(self) -> AutopilotProfile:
         if self.profile is None:
             raise ProfileError("no profile yet (still connecting)")
         return self.profile

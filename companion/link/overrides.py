@@ -10,7 +10,12 @@ The table is pure bookkeeping; :class:`OverrideChannels` sends it through the au
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
+
+from companion.link.errors import ProfileError
+
+if TYPE_CHECKING:
+    from companion.link.profile import AutopilotProfile
 
 CHANNEL_COUNT = 18
 IGNORE_LOW = 65535  # channels 1..8
@@ -85,7 +90,7 @@ class OverrideChannels:
     def __init__(self, send: Callable[[list[int]], None] | None = None, table: OverrideTable | None = None) -> None:
         self.table = table or OverrideTable()
         self.send = send
-        self.profile = None  # the autopilot profile, once known
+        self.profile: AutopilotProfile | None = None  # the autopilot profile, once known
         self._hold_listeners: list[Callable[[int], None]] = []
 
     def on_hold(self, listener: Callable[[int], None]) -> Callable[[], None]:
@@ -103,6 +108,11 @@ class OverrideChannels:
     def pending(self) -> bool:
         return self.table.pending
 
+    def _profile(self) -> AutopilotProfile:
+        if self.profile is None:
+            raise ProfileError("no profile yet (still connecting)")
+        return self.profile
+
     def _send_values(self, values: list[int]) -> None:
         if self.send is None:
             raise RuntimeError("no override sender yet (still connecting)")
@@ -116,8 +126,9 @@ class OverrideChannels:
     def override(self, actuator: str, value: float, *, keep_alive: bool = True) -> None:
         """Drive ``actuator`` (rad for fins, ratio for thrust). With ``keep_alive`` it is refreshed
         at every snapshot until released; without, it is sent once and expires on the vehicle."""
-        channel = self.profile.channel(actuator)
-        pwm = self.profile.actuator_to_pwm(actuator, value)
+        profile = self._profile()
+        channel = profile.channel(actuator)
+        pwm = profile.actuator_to_pwm(actuator, value)
         if keep_alive:
             self.hold(channel, pwm)
         else:
@@ -126,7 +137,7 @@ class OverrideChannels:
 
     def override_raw(self, channel_name: str, pwm: int) -> None:
         """Hold a raw PWM on the profile's channel ``channel_name`` (kept alive like an override)."""
-        self.hold(self.profile.channel(channel_name), int(pwm))
+        self.hold(self._profile().channel(channel_name), int(pwm))
 
     def hold(self, channel: int, pwm: int) -> None:
         if channel not in self.table.active:
@@ -142,15 +153,15 @@ class OverrideChannels:
         if actuator is None:
             self.table.release_all()
         else:
-            self.table.release(self.profile.channel(actuator))
+            self.table.release(self._profile().channel(actuator))
         self.refresh()
 
     def holds(self, actuator: str) -> bool:
         """True while ``actuator``'s channel is held."""
-        return self.profile.channel(actuator) in self.table.active
+        return self._profile().channel(actuator) in self.table.active
 
     def held_pwm(self, actuator: str) -> int | None:
-        return self.table.active.get(self.profile.channel(actuator))
+        return self.table.active.get(self._profile().channel(actuator))
 
     def no_change(self) -> None:
         """An override that changes no channel (every value "ignore"): pilot presence, nothing moves."""

@@ -12,13 +12,16 @@ import collections
 import logging
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 from companion.link import param_codec
 from companion.link.clock import VehicleClock
 from companion.link.errors import ParamRefused, ParamTimeout, ProfileError
 from companion.link.transport import Transport
 from companion.link.vehicle_state import VehicleAnnouncements
+
+if TYPE_CHECKING:
+    from companion.link.profile import AutopilotProfile
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +43,7 @@ class ParameterChannel:
         self.transport = transport
         self.clock = clock
         self.announcements = announcements
-        self.profile = None  # the autopilot profile, once known (neutral names)
+        self.profile: AutopilotProfile | None = None  # the autopilot profile, once known (neutral names)
         self.int_encoding: param_codec.IntEncoding = "cast"
         self.cache: dict[str, float] = {}
         self.types: dict[str, int] = {}
@@ -84,7 +87,8 @@ class ParameterChannel:
     def watch(self, names) -> None:
         """Watch these parameters for changes by anyone else (from now on; earlier changes and
         the values our writes asked for forgotten)."""
-        resetting = {self.profile.params.get(n, n) for n in getattr(self.profile, "self_resetting", ())}
+        profile = self.profile
+        resetting = set() if profile is None else {profile.params.get(n, n) for n in profile.self_resetting}
         self.watched = set(names) - resetting
         self.foreign = {}
         self._asked.clear()
@@ -176,7 +180,7 @@ class ParameterChannel:
         return default
 
     # ------------------------------------------------------------------ by neutral name
-    def _profile(self):
+    def _profile(self) -> AutopilotProfile:
         if self.profile is None:
             raise ProfileError("no profile yet (still connecting)")
         return self.profile

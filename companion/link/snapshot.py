@@ -88,7 +88,7 @@ class TelemetryAssembler:
     wait_for_outputs: bool = True
 
     def __post_init__(self) -> None:
-        self._handlers: dict[str, Callable[[Any], list[Telemetry]]] = {
+        self._handlers: dict[str, Callable[[Any], list[Telemetry] | None]] = {
             "ATTITUDE": self._on_attitude,
             "SERVO_OUTPUT_RAW": self._on_servo_output_raw,
             "LOCAL_POSITION_NED": self._on_local_position_ned,
@@ -299,7 +299,7 @@ class TelemetryAssembler:
         """``msg.name`` as a finite float, else NaN (logged once per message field)."""
         value = getattr(msg, name, None)
         try:
-            number = float(value)
+            number = float(value) if value is not None else math.nan
         except (TypeError, ValueError):
             number = math.nan
         if not math.isfinite(number):

@@ -93,8 +93,11 @@ class TelemetryFeed:
     def _on_attitude(self, msg: Any) -> None:
         if not self.transport.from_autopilot(msg):
             return
-        time_ms = getattr(msg, "time_boot_ms", None)
-        numeric = isinstance(time_ms, (int, float)) and math.isfinite(time_ms)
+        time_ms: float = math.nan
+        stamp = getattr(msg, "time_boot_ms", None)
+        if isinstance(stamp, (int, float)) and math.isfinite(stamp):
+            time_ms = stamp
+        numeric = math.isfinite(time_ms)
         last = self.clock.last_sample_ms
         if numeric and last is not None and time_ms < last - 1000:
             if not self._confirms_reboot(time_ms):
@@ -199,7 +202,8 @@ class TelemetryFeed:
     def _queue(self, snapshot: Telemetry) -> None:
         if self.refine is not None:
             snapshot = self.refine(snapshot)
-            self.assembler.latest = snapshot
+            if self.assembler is not None:  # set: snapshots come only from the assembler
+                self.assembler.latest = snapshot
         if len(self._unread) == SNAPSHOT_QUEUE_MAX:
             self.snapshots_dropped += 1
             if self.snapshots_dropped == 1 or self.snapshots_dropped % 1000 == 0:
@@ -265,12 +269,12 @@ class TelemetryFeed:
         arrived (``companion.link.frame_loss``): received, lost on the link (sequence gaps), late,
         repeated, discarded as corrupt (and their bytes), and the fraction lost."""
         lost_outputs = self.assembler.released_without_outputs if self.assembler is not None else 0
-        frame_loss = getattr(self.transport, "frame_loss", None)
+        frame_loss = self.transport.frame_loss
         return {"samples": self.samples_accepted, "late": self.samples_late,
                 "late_dropped": self.samples_dropped_late, "duplicate": self.samples_duplicate,
                 "outputs_lost": lost_outputs, "dropped_unread": self.snapshots_dropped, "stray": self.samples_stray,
                 "hold_ms": self.assembler.hold_ms if self.assembler is not None else 0.0,
-                **(frame_loss.counts() if frame_loss is not None else {})}
+                **frame_loss.counts()}
 
     def servo_pwm(self) -> list[float]:
         """The latest SERVO_OUTPUT_RAW, outputs 1..16 in µs (empty before the first one)."""

@@ -72,16 +72,19 @@ def open_connection(endpoint: str, *, system_id: int, component: int, dialect: s
     return master
 
 
-def await_autopilot_heartbeat(master: Any, timeout_s: float, endpoint: str) -> Any:
+def await_autopilot_heartbeat(master: Any, timeout_s: float, endpoint: str, *, signed: bool = False) -> Any:
     """The first HEARTBEAT of an autopilot (not a ground station, not a companion), beaconing our
     own HEARTBEAT once a second meanwhile so a ``udpout:`` peer learns our address; HeartbeatTimeout
-    after ``timeout_s`` of wall clock (no vehicle clock exists before the vehicle answers)."""
+    after ``timeout_s`` of wall clock (no vehicle clock exists before the vehicle answers). ``signed``:
+    we sign, and a signed link drops every unsigned frame: the timeout then says so."""
     deadline = time.monotonic() + timeout_s
     next_beacon = 0.0
     while True:
         now = time.monotonic()
         if now >= deadline:
-            raise HeartbeatTimeout(f"no autopilot HEARTBEAT on {endpoint} within {timeout_s:g} s (wall clock)")
+            hint = ("; with a signing key only frames signed with the same key are accepted: is the vehicle "
+                    "signing, with this key?") if signed else ""
+            raise HeartbeatTimeout(f"no autopilot HEARTBEAT on {endpoint} within {timeout_s:g} s (wall clock){hint}")
         if now >= next_beacon:
             master.mav.heartbeat_send(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE)
             next_beacon = now + 1.0
@@ -240,7 +243,8 @@ class Transport:
         ``timeout_s`` of wall clock until the autopilot's HEARTBEAT arrives on a new connection;
         that heartbeat is dispatched like any other, then the reconnect listeners run. False when
         the vehicle did not come back; everything the link knows is kept either way."""
-        if not self.can_reconnect:
+        endpoint = self.endpoint
+        if endpoint is None or not self.can_reconnect:
             return False
         deadline = time.monotonic() + timeout_s
         try:
@@ -249,13 +253,13 @@ class Transport:
             pass
         while time.monotonic() < deadline:
             try:  # retries=0: one attempt, never pymavlink's print-and-sleep loop
-                master = open_connection(self.endpoint, system_id=self.system_id, component=self.component,
+                master = open_connection(endpoint, system_id=self.system_id, component=self.component,
                                          dialect=self.dialect, signing_key=self._signing_key, retries=0)
             except (OSError, EndpointError):
                 time.sleep(0.2)
                 continue
             try:
-                heartbeat = await_autopilot_heartbeat(master, max(deadline - time.monotonic(), 0.1), self.endpoint)
+                heartbeat = await_autopilot_heartbeat(master, max(deadline - time.monotonic(), 0.1), endpoint)
             except (HeartbeatTimeout, LinkLost):
                 master.close()
                 continue

@@ -1,7 +1,7 @@
 """The companion's MAVLink vehicle interface, one object over the link's parts (SPEC C1, §4).
 
-:class:`VehicleLink` wires the parts of ``companion.link`` together and keeps the procedure
-runner's ``Link`` protocol. Each part owns its state and is reachable by name: ``transport``
+:class:`VehicleLink` wires the parts of ``companion.link`` together and implements the port the
+procedures use (``companion.link.port.VehiclePort``). Each part owns its state and is reachable by name: ``transport``
 (connection, dispatch, send), ``clock`` (vehicle time, waits, lockstep), ``announcements``
 (HEARTBEAT, STATUSTEXT, capabilities), ``commands`` and ``modes``, ``parameters``, ``overrides``,
 ``telemetry`` (snapshots in order), ``ground`` (our reports, the ground station's commands) and
@@ -14,14 +14,15 @@ from typing import Any, Iterable, Sequence
 from companion.interface import Command, Telemetry
 from companion.link import dispatch, handshake
 from companion.link.autopilots import CONNECT_DIALECT
-from companion.link.autopilots.base import LinkPorts
+from companion.link.autopilots.base import AutopilotStrategy, LinkPorts
 from companion.link.clock import LinkTimeouts, VehicleClock
 from companion.link.commands import CommandChannel
-from companion.link.errors import HeartbeatTimeout
+from companion.link.errors import known_once_set_up
 from companion.link.ground_station import GroundStation, UserCommand, validate_named_value_name
 from companion.link.modes import ModeControl
 from companion.link.overrides import OverrideChannels
 from companion.link.parameters import ParameterChannel
+from companion.link.profile import AutopilotProfile
 from companion.link.snapshot import DepthSensor
 from companion.link.telemetry import TelemetryFeed
 from companion.link.transport import Transport, await_autopilot_heartbeat, open_connection
@@ -54,7 +55,7 @@ class VehicleLink:
         self.telemetry.after_snapshot(self.overrides.refresh)
         self.ports = LinkPorts(self.transport, self.clock, self.announcements, self.commands, self.modes,
                                self.parameters, self.overrides, self.telemetry, self.ground)
-        self.autopilot = None  # the profile's strategy, set by setup()
+        self._strategy: AutopilotStrategy | None = None  # the profile's strategy, set by setup()
         self.override_timeout_s = 3.0
         self._stream_rates: dict[int, float] = {}
         self.transport.on_reconnect(lambda: handshake.request_streams(self.ports, self._stream_rates))
@@ -72,13 +73,7 @@ class VehicleLink:
         master = open_connection(endpoint, system_id=system_id_hint, component=component, dialect=CONNECT_DIALECT,
                                  signing_key=signing_key)
         try:
-            try:
-                heartbeat = await_autopilot_heartbeat(master, heartbeat_timeout_s, endpoint)
-            except HeartbeatTimeout as exc:
-                if signing_key is not None:  # a signed link drops every unsigned frame
-                    raise HeartbeatTimeout(f"{exc}; with a signing key only frames signed with the same key are "
-                                           "accepted: is the vehicle signing, with this key?") from exc
-                raise
+            heartbeat = await_autopilot_heartbeat(master, heartbeat_timeout_s, endpoint, signed=signing_key is not None)
             link = cls(master, system_id=heartbeat.get_srcSystem(), autopilot_component=heartbeat.get_srcComponent(),
                        component=component, timeouts=timeouts, lockstep=lockstep, endpoint=endpoint,
                        signing_key=signing_key)
@@ -94,7 +89,12 @@ class VehicleLink:
               vehicle: dict | None = None) -> None:
         """The handshake (``companion.link.handshake.setup``) on this link."""
         done = handshake.setup(self.ports, profile, stream_rates, depth_sensor, vehicle)
-        self.autopilot, self._stream_rates, self.override_timeout_s = done.strategy, done.stream_rates, done.override_timeout_s
+        self._strategy, self._stream_rates, self.override_timeout_s = done.strategy, done.stream_rates, done.override_timeout_s
+
+    @property
+    def autopilot(self) -> AutopilotStrategy:
+        """The autopilot's strategy (``companion.link.autopilots``), known once :meth:`setup` ran."""
+        return known_once_set_up(self._strategy, "autopilot strategy")
 
     # ------------------------------------------------------------------ the runner's protocol
     def next_telemetry(self, timeout_s: float = 5.0) -> Telemetry:
@@ -153,8 +153,8 @@ class VehicleLink:
 
     # ------------------------------------------------------------------ state
     @property
-    def profile(self):
-        return self.ports.profile
+    def profile(self) -> AutopilotProfile:
+        return known_once_set_up(self.ports.profile, "autopilot profile")
 
     @property
     def vehicle_time_s(self) -> float:

@@ -21,6 +21,7 @@ from typing import Callable
 from pymavlink.dialects.v20.common import (MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_IN_PROGRESS,
                                            MAV_RESULT_TEMPORARILY_REJECTED)
 
+from companion.link.port import VehiclePort
 from companion.interface import Behavior, Telemetry
 from companion.procedures.campaign import (AttemptRecorded, CampaignConfig, DesignMade, GainsWritten,
                                            IdentificationCampaign, SpeedTuned, StepsChecked)
@@ -121,7 +122,7 @@ def handle_stop_signals(handler, previous: dict | None = None) -> Callable[[], N
 class GcsProgress:
     """COMMAND_ACK IN_PROGRESS with the progress percent, then the final result (SPEC C1)."""
 
-    link: object
+    link: VehiclePort
     command: int
     target_system: int = 0
     target_component: int = 0
@@ -164,11 +165,8 @@ class ConsoleProgress:
             sys.stderr.write("\n")
 
 
-def vehicle_record(store: Store, link, name: str | None = None, config: dict | None = None) -> int:
-    profile = getattr(getattr(link, "profile", None), "name", None)
-    # the in-process link carries its system id itself, a VehicleLink on its transport
-    system_id = getattr(link, "system_id", None) or getattr(getattr(link, "transport", None), "system_id", None)
-    return store.add_vehicle(name or f"sysid-{system_id}", profile, config or {})
+def vehicle_record(store: Store, link: VehiclePort, name: str | None = None, config: dict | None = None) -> int:
+    return store.add_vehicle(name or f"sysid-{link.transport.system_id}", link.profile.name, config or {})
 
 
 def drain_campaign_events(store: Store, campaign_id: int, campaign: IdentificationCampaign) -> None:
@@ -193,12 +191,12 @@ def drain_campaign_events(store: Store, campaign_id: int, campaign: Identificati
 
 
 def run_campaign(
-    link,
+    link: VehiclePort,
     store: Store,
     config: CampaignConfig,
     *,
     vehicle_id: int,
-    abort: AbortFlag,
+    abort: Callable[[], str | None],
     limits: SafetyLimits | None = None,
     gcs: GcsProgress | None = None,
     console: ConsoleProgress | None = None,
@@ -208,13 +206,13 @@ def run_campaign(
     Afterwards the vehicle is as found, except for the final gains of a successful campaign (the
     step checks' trial gains are always undone). A store that cannot be written (a full disk) ends
     the procedure, restored; what could not be stored is in the outcome's ``store_problems``."""
-    profile = getattr(link, "profile", None)
+    profile = link.profile
     config = config.resolved_for(profile)
     limits = limits if limits is not None else SafetyLimits.for_profile(profile)
     campaign_id = store.start_campaign(vehicle_id, "identification", config.to_dict())
     # a vehicle that does not wait for the companion keeps moving while the design computes: it then
     # runs beside the loop (behaviors/background.py); one that waits (lockstep, in-process) stays exact
-    campaign = IdentificationCampaign(config, background_design=not getattr(link, "waits_for_companion", True))
+    campaign = IdentificationCampaign(config, background_design=not link.waits_for_companion)
     try:
         objection = await_ready(link, tell=lambda text: _tell(link, text[:50], 4))
     except LinkError as exc:  # lost while waiting: nothing was changed
@@ -280,7 +278,7 @@ def run_campaign(
     return campaign, outcome, campaign_id
 
 
-def _store_safely(outcome: RunOutcome, write: Callable[[], None]) -> None:
+def _store_safely(outcome: RunOutcome, write: Callable[[], object]) -> None:
     """``write()`` after the vehicle is restored; a store that cannot be written is said in the
     outcome (the vehicle and what was stored before are fine), never raised."""
     try:
@@ -308,7 +306,7 @@ class NamedRun:
     outcome: RunOutcome | None
 
 
-def run_named_procedure(name: str, link, store: Store, *, vehicle_id: int, campaign_id: int | None, abort,
+def run_named_procedure(name: str, link: VehiclePort, store: Store, *, vehicle_id: int, campaign_id: int | None, abort,
                         context: ProcedureContext | None = None, limits: SafetyLimits | None = None) -> NamedRun:
     """Run a registered procedure (``companion.procedures.registry.PROCEDURES``) by name under one
     restore point and store its result."""
@@ -316,11 +314,11 @@ def run_named_procedure(name: str, link, store: Store, *, vehicle_id: int, campa
     if spec is None:
         raise ValueError(f"unknown procedure {name!r} ({', '.join(PROCEDURES)})")
     own = campaign_id is None
-    if own:
+    if campaign_id is None:
         campaign_id = store.start_campaign(vehicle_id, name, {"preset": getattr(context, "preset", None)})
     result = ProcedureResult(name, "not started", "not started")
     outcome = None
-    profile = getattr(link, "profile", None)
+    profile = link.profile
     refusal = spec.applies(profile)
     if refusal is not None:  # never "completed": the procedure does not apply to this vehicle
         result = ProcedureResult(name, "refused", refusal)

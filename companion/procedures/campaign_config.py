@@ -15,6 +15,7 @@ from behaviors.schedules import CASCADE_RULED, schedule_kind
 from behaviors.steadiness import SteadinessRule
 from behaviors.verification import VerificationConfig
 from companion.checks import check_thrust_levels, require_non_negative, require_positive
+from companion.link.profile import AutopilotProfile
 from companion.numerics.cascade_gains import CascadeRules
 from companion.numerics.gains import CAMPAIGN_DAMPING, GainBounds
 from companion.numerics.step_design import DesignObjective
@@ -171,11 +172,11 @@ class CampaignConfig:
         options = {"heading": self.bounds, **{name: self.cascade for name in CASCADE_RULED}}
         return [schedule_kind(name, options.get(name), self.speed_law) for name in self.schedules]
 
-    def with_profile_defaults(self, profile) -> "CampaignConfig":
+    def with_profile_defaults(self, profile: AutopilotProfile | None) -> "CampaignConfig":
         """This configuration with the autopilot's campaign defaults (``profile.campaign_defaults``:
         thrusts, axes and doublet amplitudes it can fly), except the fields in ``user_set``.
         Without a profile, or with no defaults, unchanged."""
-        defaults = getattr(profile, "campaign_defaults", None)
+        defaults = profile.campaign_defaults if profile is not None else None
         given = {k: v for k, v in (defaults.given() if defaults is not None else {}).items() if k not in self.user_set}
         config = self
         if "thrusts" in given:
@@ -187,7 +188,7 @@ class CampaignConfig:
             config = replace(config, yaw=replace(config.yaw, **amplitudes))
         return config
 
-    def resolved_for(self, profile) -> "CampaignConfig":
+    def resolved_for(self, profile: AutopilotProfile | None) -> "CampaignConfig":
         """This configuration for one autopilot, applied once by ``run_campaign``: its campaign
         defaults (:meth:`with_profile_defaults`), "heading" naming the profile's heading schedule
         (the PI on the simulator, the native cascade on ArduPilot, designed for its rudder full
@@ -196,32 +197,32 @@ class CampaignConfig:
         if profile is None:
             return self
         config = self.with_profile_defaults(profile)
-        heading = getattr(profile, "heading_schedule", "heading")
+        heading = profile.heading_schedule
         schedules = tuple(heading if name == "heading" else name for name in config.schedules)
-        actuation = getattr(profile, "actuation", None)
+        actuation = profile.actuation
         # a rudder's steering output scaled down with speed (ArduRover): the design starts from the
         # autopilot's default base speed, replaced by the vehicle's own (IdentificationCampaign.adopt_original)
-        scaled = "steering_scale_speed" in getattr(profile, "params", {}) and not (actuation is not None and actuation.skid)
+        scaled = "steering_scale_speed" in profile.params and not (actuation is not None and actuation.skid)
         config = replace(config, schedules=schedules,
                          cascade=replace(config.cascade, full_scale=profile.angle_full_scale_rad,
                                          output_scale_base=1.0 if scaled else None,  # ArduPilot's default
-                                         **getattr(profile, "gain_ranges", {})))
-        if not getattr(profile, "depth_setpoint", True):
+                                         **profile.gain_ranges))
+        if not profile.depth_setpoint:
             config = replace(config, depth=None)
         if config.speed.enabled is None:  # tuned where the autopilot has a speed loop
-            config = replace(config, speed=replace(config.speed, enabled="speed_p" in getattr(profile, "params", {})))
+            config = replace(config, speed=replace(config.speed, enabled="speed_p" in profile.params))
         if actuation is not None and config.speed_law is None:
             config = replace(config, speed_law="u" if actuation.skid else "u2")
         # a modelled servo deflection is continuous (first-order hold); a raw loop output is held (zero-order)
-        hold = "foh" if getattr(profile, "actuator_rate_rad_s", None) else getattr(profile, "actuator_hold", "foh")
+        hold = "foh" if profile.actuator_rate_rad_s else profile.actuator_hold
         if hold != "foh":
             config = replace(config, yaw=replace(config.yaw, input_hold=hold), pitch=replace(config.pitch, input_hold=hold))
-        if config.rudder_rate is None and getattr(profile, "actuator_rate_rad_s", None):
+        if config.rudder_rate is None and profile.actuator_rate_rad_s:
             config = replace(config, rudder_rate=profile.actuator_rate_rad_s)
-        if getattr(profile, "train_full_window", False):
+        if profile.train_full_window:
             config = replace(config, yaw=replace(config.yaw, stop_on_convergence=False),
                              pitch=replace(config.pitch, stop_on_convergence=False))
-        margin = getattr(profile, "prediction_margin_pct", None)
+        margin = profile.prediction_margin_pct
         if margin is not None:
             config = replace(config, objective=replace(config.objective, margin_pct=float(margin)))
         config = replace(config, objective=replace(config.objective, max_overshoot_pct=config.keep.max_overshoot_pct))

@@ -38,7 +38,7 @@ def reference_from_store(store: Store) -> tuple[int, YawSchedule] | None:
             continue
         models = [YawModel(m.params["a22"], m.params["b2"], m.params.get("delta0", 0.0)) for m in stored]
         try:
-            return campaign["id"], schedule_from_models([m.speed for m in stored], models)
+            return campaign["id"], schedule_from_models([m.speed for m in stored if m.speed is not None], models)
         except ValueError as exc:
             log.info("campaign %d cannot serve as the health reference: %s", campaign["id"], exc)
     return None

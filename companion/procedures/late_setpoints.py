@@ -28,6 +28,7 @@ import time
 from dataclasses import dataclass
 
 from companion.interface import Command
+from companion.link.port import VehiclePort
 from companion.procedures.restore_items import CONFIRM_TIMEOUT_S, StateCheck, set_and_confirm
 
 log = logging.getLogger(__name__)
@@ -57,7 +58,7 @@ class LateSetpointWatch:
     """See the module docstring. Built by the restore from what it put back; :meth:`settle` is its
     last item, after which the watch listens to each snapshot while the link lasts."""
 
-    def __init__(self, link, watched: list[WatchedSetpoint], notes: list[str]) -> None:
+    def __init__(self, link: VehiclePort, watched: list[WatchedSetpoint], notes: list[str]) -> None:
         self.link = link
         self.commands = link.commands
         self.watched = [w for w in watched if w.command in self.commands.abandoned]

@@ -38,9 +38,11 @@ import numpy as np
 from behaviors.base import Footprint
 from behaviors.gain_scheduling import ScheduleKind
 from behaviors.mission_learning import DesignOutcome, LearningConfig, LearningResult, MissionLearner, Phase
+from companion.link.port import VehiclePort
 from companion.interface import Command, SetParameters
 from companion.numerics.identification import YawModel
 from companion.numerics.mission_turns import FlownSegment
+from companion.numerics.schedule import YawSchedule
 from companion.numerics.speed_law import LAW_EXPONENTS
 from companion.numerics.step_response import predict_step, simulate_rate_tracking
 from companion.procedures.campaign import CampaignConfig
@@ -73,7 +75,7 @@ class ScheduledDesign:
     controller's limits for predictions (``behaviors.mission_learning.LearnedDesign``)."""
 
     kind: ScheduleKind
-    schedule: object
+    schedule: YawSchedule  # a heading kind's fit (``schedule_from_models``)
     limits: HeadingLimits
     summary: str
 
@@ -153,10 +155,10 @@ def unverifiable(profile) -> str | None:
 class LearningSession:
     """One ``companion run --learn`` session: the learner, its trail and its records."""
 
-    def __init__(self, link, store: Store, vehicle_id: int, config: LearningConfig = LearningConfig(),
+    def __init__(self, link: VehiclePort, store: Store, vehicle_id: int, config: LearningConfig = LearningConfig(),
                  campaign: CampaignConfig = CampaignConfig()) -> None:
         self.link, self.store, self.vehicle_id, self.config = link, store, vehicle_id, config
-        self.campaign = campaign.resolved_for(getattr(link, "profile", None))
+        self.campaign = campaign.resolved_for(link.profile)
         self.learner: MissionLearner | None = None
         self.campaign_id: int | None = None
         self.trail_id: int | None = None
@@ -172,7 +174,7 @@ class LearningSession:
         if refused is not None:
             return refused
         kind = heading_kind_for(self.campaign)
-        if not optimisable(kind):
+        if kind is None or not optimisable(kind):
             return f"no model of this autopilot's heading controller to design with ({kind.name if kind else 'none'})"
         profile = self.link.profile
         limit_names = tuple(name for name in LIMIT_PARAMETERS if name in profile.params)
@@ -186,7 +188,7 @@ class LearningSession:
                                             rudder_rate=self.campaign.rudder_rate,
                                             output_scale_base=self.campaign.cascade.output_scale_base
                                             if kind.name == "cascade" else None)
-        margin = getattr(profile, "prediction_margin_pct", None)
+        margin = profile.prediction_margin_pct
         config = replace(self.config, verification=profile.learning_verification)
         # the windows' rows are written at their band's speed by the vehicle's own speed law of b2
         # (eq. L.3; the actuation read from the vehicle: a rudder's u², a skid pair's u, eq. S.3)
@@ -246,10 +248,13 @@ class LearningSession:
 
     def _changed_by_others(self) -> dict:
         """neutral name → the link's record of a learned gain someone else changed, not seen before."""
+        learner, restore = self.learner, self.restore
+        if learner is None or restore is None:  # start() takes the restore point before it makes the learner
+            raise RuntimeError("learning has not started")
         foreign = self.link.parameters.foreign
         found = {}
-        for neutral in self.learner.original:
-            for native in self.restore.natives_of.get(neutral, ()):
+        for neutral in learner.original:
+            for native in restore.natives_of.get(neutral, ()):
                 if native in foreign and native not in self._foreign_seen:
                     self._foreign_seen.add(native)
                     found[neutral] = foreign[native]
@@ -274,12 +279,17 @@ class LearningSession:
     def _send(self, commands: Sequence[Command]) -> None:
         if not commands:
             return
+        if self.recorder is None:  # start() opens the trail before anything is sent
+            raise RuntimeError("learning has not started: no trail to record in")
         self.recorder(commands)
         self.link.execute(list(commands))
 
     def _drain(self) -> None:
-        while self.learner.events:
-            event = self.learner.events.pop(0)
+        learner = self.learner
+        if learner is None:
+            raise RuntimeError("learning has not started")
+        while learner.events:
+            event = learner.events.pop(0)
             self.store.add_behavior_result(self.campaign_id, "learning_event", event["type"], event)
 
     def finish(self) -> LearningResult | None:
@@ -301,14 +311,17 @@ class LearningSession:
         if learner.written is not None and set(learner.written) - set(keep):
             learner.note = f"{learner.note}; the session ended before the verification: original gains written back"
             learner.phase = Phase.REVERTED
-        self.restore_problems = self.restore.restore(self.link, mode=False, keep=keep)
+        restore = self.restore
+        if restore is None:  # start() takes the restore point before it makes the learner
+            raise RuntimeError("learning has no restore point")
+        self.restore_problems = restore.restore(self.link, mode=False, keep=keep)
         learner.written = None
         if self.restore_problems:
             log.error("learning: the vehicle could not be put back: %s", "; ".join(self.restore_problems))
             self._close(learner, "failed", f"not put back: {'; '.join(self.restore_problems)}", close_trail=False)
             return self.result
         status = "completed" if learner.result().goal_reached else "failed"
-        self._close(learner, status, learner.note, close_trail=True, notes=self.restore.notes)
+        self._close(learner, status, learner.note, close_trail=True, notes=restore.notes)
         return self.result
 
     def _close(self, learner: MissionLearner, status: str, reason: str, *, close_trail: bool,
@@ -319,6 +332,7 @@ class LearningSession:
             self.recorder.close()
         if close_trail and self.trail_id is not None:
             self.store.finish_restore(self.trail_id, [], [f"learning ended: {self.result.phase.value}", *notes])
-        self.store.finish_campaign(self.campaign_id, status, reason)
+        if self.campaign_id is not None:  # None only when start() could not open its campaign
+            self.store.finish_campaign(self.campaign_id, status, reason)
         self.learner = None
 

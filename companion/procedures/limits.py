@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 
 from companion.checks import require_positive, require_range
 from companion.interface import Telemetry
+from companion.link.profile import AutopilotProfile
 
 
 @dataclass(frozen=True)
@@ -42,13 +43,13 @@ class SafetyLimits:
             raise ValueError(f"SafetyLimits.max_nan_samples must be an integer ≥ 1, not {self.max_nan_samples!r}")
 
     @classmethod
-    def for_profile(cls, profile, *, max_distance_m: float | None = None) -> "SafetyLimits":
+    def for_profile(cls, profile: AutopilotProfile | None, *, max_distance_m: float | None = None) -> "SafetyLimits":
         """The envelope of the vehicle behind an autopilot profile: a surface vessel is not checked
         on depth; an underwater vehicle keeps the depth band. The distance from where the procedure
         started is checked only when the operator gives one (``identify --max-distance``): there is
         no default that fits, since a whole campaign runs as one procedure and its straight runs
         add up to kilometres (about 2.6 km for the default four speeds at 2 m/s)."""
-        kind = getattr(profile, "vehicle_kind", "underwater")
+        kind = profile.vehicle_kind if profile is not None else "underwater"
         if kind == "surface":
             return cls(max_roll=math.radians(30.0), max_pitch=math.radians(30.0), max_depth=None, min_depth=None,
                        max_distance_m=max_distance_m)

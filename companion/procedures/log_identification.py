@@ -28,6 +28,7 @@ from behaviors.gain_scheduling import GainDesign
 from behaviors.identification import IdentificationAttempt, ManoeuvreConfig
 from companion.numerics.identification import ConvergenceRule, YawIdentifier, YawModel
 from companion.numerics.segments import Segment, SegmentRules, find_segments
+from companion.numerics.svf import DEFAULT_BANDWIDTH
 from companion.numerics.validation import simulate_yaw, validate_yaw
 from companion.procedures.campaign import CampaignConfig
 from companion.records.flight_logs import SteeringRecord
@@ -127,15 +128,14 @@ def lead_in(t: np.ndarray, ok: np.ndarray, start: int, seconds: float, max_gap_s
 
 
 def _identify_segment(record: SteeringRecord, segment: Segment, manoeuvre: ManoeuvreConfig,
-                      config: LogIdentificationConfig):
+                      config: LogIdentificationConfig) -> YawIdentifier:
     a, b = segment.start, segment.stop
     ok = np.isfinite(record.heading) & np.isfinite(record.rudder)
     first = lead_in(record.t, ok, a, config.warm_up_s, config.rules.max_gap_s)
-    kwargs = {"p0": manoeuvre.p0, "rule": replace(_RULE, min_time_s=0.0), "input_hold": manoeuvre.input_hold,
-              "output_hold": manoeuvre.output_hold, "warm_up_s": float(record.t[a] - record.t[first]) - 1e-9}
-    if manoeuvre.svf_bandwidth is not None:
-        kwargs["bandwidth"] = manoeuvre.svf_bandwidth
-    identifier = YawIdentifier(**kwargs)
+    identifier = YawIdentifier(
+        bandwidth=manoeuvre.svf_bandwidth if manoeuvre.svf_bandwidth is not None else DEFAULT_BANDWIDTH,
+        p0=manoeuvre.p0, rule=replace(_RULE, min_time_s=0.0), input_hold=manoeuvre.input_hold,
+        output_hold=manoeuvre.output_hold, warm_up_s=float(record.t[a] - record.t[first]) - 1e-9)
     for time_s, heading, rudder in zip(record.t[first:b], record.heading[first:b], record.rudder[first:b]):
         identifier.update(float(time_s), float(heading), float(rudder))
     return identifier
@@ -174,15 +174,16 @@ def identify_log(record: SteeringRecord, config: LogIdentificationConfig = LogId
                              rudder_limit=record.rudder_limit, rules=config.rules)
     result = LogIdentification(record=record, segments=[SegmentResult(s) for s in segments])
     used = [r for r in result.segments if r.segment.used]
-    models: dict[int, tuple] = {}
+    models: dict[int, YawIdentifier] = {}
     for number, item in enumerate(used, start=1):
         item.number = number
         models[number] = _identify_segment(record, item.segment, manoeuvre, config)
-    for item in used:
-        identifier = models[item.number]
+    for number, item in enumerate(used, start=1):
+        identifier = models[number]
         model = identifier.model()
         partner = _validation_partner(result.segments, item, config.validation_speed_tolerance)
-        r2, validation = math.nan, {}
+        r2 = math.nan
+        validation: dict = {}
         if partner is not None:
             item.validated_on = partner.number
             r2, validation = _validate(record, partner.segment, model)
@@ -192,7 +193,7 @@ def identify_log(record: SteeringRecord, config: LogIdentificationConfig = LogId
         accepted = math.isfinite(r2) and r2 >= manoeuvre.r2_threshold
         a, b = item.segment.start, item.segment.stop
         item.attempt = IdentificationAttempt(
-            attempt=item.number, axis="yaw", thrust=item.segment.thrust, speed=item.segment.speed, model=model,
+            attempt=number, axis="yaw", thrust=item.segment.thrust, speed=item.segment.speed, model=model,
             r2=r2, accepted=accepted, converged=bool(identifier.converged),
             converged_s=identifier.converged_at_s, criterion_met_from_s=identifier.criterion_met_from_s,
             training_s=item.segment.duration_s, samples=identifier.samples,

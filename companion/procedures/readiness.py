@@ -25,6 +25,7 @@ import math
 import time
 from dataclasses import dataclass
 
+from companion.link.port import VehiclePort
 from companion.numerics.sampling import sampling_quality
 
 log = logging.getLogger(__name__)
@@ -75,11 +76,10 @@ class LinkRate:
                 "wanted_hz": self.wanted_hz, "missing": self.missing, "max_gap_s": self.max_gap_s}
 
 
-def measure_link_rate(link, seconds: float = 2.0) -> LinkRate:
+def measure_link_rate(link: VehiclePort, seconds: float = 2.0) -> LinkRate:
     """Read telemetry for ``seconds`` of vehicle time and count what arrived (bounded by the link's
     own silence watchdog)."""
-    transport = getattr(link, "transport", None)
-    bytes_before = getattr(transport, "bytes_received", 0)
+    bytes_before = link.transport.bytes_received
     wall_before = time.monotonic()
     link.skip_to_now()
     first = link.next_telemetry()
@@ -91,8 +91,8 @@ def measure_link_rate(link, seconds: float = 2.0) -> LinkRate:
     elapsed = max(last.time_s - first.time_s, 1e-6)
     wall = max(time.monotonic() - wall_before, 1e-6)
     speedup = elapsed / wall  # bytes per vehicle second: a simulator at N x sends N times the wall rate
-    received = getattr(transport, "bytes_received", 0) - bytes_before
-    streams = getattr(getattr(link, "autopilot", None), "streams", {}) or {}
+    received = link.transport.bytes_received - bytes_before
+    streams = link.autopilot.streams
     sampling = sampling_quality(times)
     missing = sampling.missing if math.isfinite(sampling.missing) else 0.0
     return LinkRate(samples_per_s=count / elapsed, bytes_per_s=received / wall / max(speedup, 1e-6),
@@ -100,15 +100,12 @@ def measure_link_rate(link, seconds: float = 2.0) -> LinkRate:
                     max_gap_s=sampling.max_gap_s if math.isfinite(sampling.max_gap_s) else 0.0)
 
 
-def await_ready(link, patience_s: float = READY_PATIENCE_S, tell=None) -> str | None:
+def await_ready(link: VehiclePort, patience_s: float = READY_PATIENCE_S, tell=None) -> str | None:
     """Wait (vehicle time) until the strategy has no objection; None when ready, else the last
     objection after ``patience_s``. ``tell(text)`` hears each new objection once."""
-    strategy = getattr(link, "autopilot", None)
-    not_ready = getattr(strategy, "not_ready", None)
-    if not callable(not_ready):
-        return None
-    latest = getattr(link, "latest_telemetry", None)
-    if latest is not None and not callable(latest) and not_ready(latest) is None:
+    not_ready = link.autopilot.not_ready
+    latest = link.latest_telemetry
+    if latest is not None and not_ready(latest) is None:
         return None  # ready now: nothing is read, nothing waited for
     start = math.nan
     said = None

@@ -9,14 +9,22 @@ schedules are registered beside the behaviours (``behaviors.schedules``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from typing import Callable, Protocol
 
 from pymavlink.dialects.v20.common import MAV_CMD_USER_1, MAV_CMD_USER_2, MAV_CMD_USER_3, MAV_CMD_USER_4, MAV_CMD_USER_5
 
+from companion.interface import Behavior
 from companion.procedures.min_speed import (MinSpeedProcedure, MinSpeedProcedureConfig, analytic_minimum_speed,
                                             min_speed_summary, read_depth_gains)
 from companion.procedures.roll import RollProcedure, RollProcedureConfig, roll_summary
+from companion.procedures.results import ProcedureResult
 from companion.procedures.steady_state import SteadyStateConfig, SteadyStateProcedure, steady_summary
+
+
+class Procedure(Behavior, Protocol):
+    """What :attr:`ProcedureSpec.build` returns: a behaviour whose result is a :class:`ProcedureResult`."""
+
+    def result(self) -> ProcedureResult: ...
 
 
 @dataclass(frozen=True)
@@ -45,7 +53,7 @@ class ProcedureSpec:
 
     name: str
     command: int | None
-    build: Callable[[object, ProcedureContext], object]
+    build: Callable[[object, ProcedureContext], Procedure]
     summary: Callable[[dict], dict]
     applies: Callable[[object], str | None] = lambda profile: None  # None, or why it does not apply
 

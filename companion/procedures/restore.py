@@ -18,13 +18,16 @@ first change and followed by the next start if this process dies (``companion.pr
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass, field, replace
 from typing import Callable, Iterable
 
 from behaviors.base import Footprint
-from companion.interface import SetHeading, SetRollingMass, SetThrust
+from companion.interface import Command, SetHeading, SetRollingMass, SetThrust
+from companion.link.parameters import ForeignChange
+from companion.link.port import VehiclePort
 from companion.procedures.late_setpoints import LateSetpointWatch, WatchedSetpoint
 from companion.procedures.restore_items import Reconnector, StateCheck, set_and_confirm, try_restore_item, \
     in_flight_possible, wait_in_flight, write_if_changed
@@ -55,9 +58,9 @@ class RestoreGuard:
         self.pending: list[str] = []
 
 
-def reboots_seen(link) -> int:
+def reboots_seen(link: VehiclePort) -> int:
     """How many reboots of the vehicle the link has seen (a new boot time, or a sequence reset)."""
-    return int(getattr(getattr(link, "clock", None), "reboots", 0) or 0)
+    return int(link.clock.reboots)
 
 
 @dataclass
@@ -79,14 +82,14 @@ class RestorePoint:
     notes: list[str] = field(default_factory=list)  # what the last restore decided (kept changes, reboots)
 
     @classmethod
-    def capture(cls, link, footprint: Footprint = Footprint()) -> "RestorePoint":
-        profile = getattr(link, "profile", None)
-        known = profile.params if profile is not None else {}
+    def capture(cls, link: VehiclePort, footprint: Footprint = Footprint()) -> "RestorePoint":
+        profile = link.profile
+        known = profile.params
         neutral = sorted(name for name in footprint.parameters if name in known)
         unknown = sorted(set(footprint.parameters) - set(neutral))
         if unknown:
             log.info("restore point: this profile has no parameter for %s (not touched)", unknown)
-        natives_of = {name: profile.natives_touched([name]) for name in neutral} if profile is not None else {}
+        natives_of = {name: profile.natives_touched([name]) for name in neutral}
         native: dict[str, float] = {}
         unread: list[str] = []
         for name in dict.fromkeys(n for names in natives_of.values() for n in names):
@@ -94,10 +97,10 @@ class RestorePoint:
                 native[name] = link.get_param(name)
             except Exception:  # noqa: BLE001 - read again below
                 unread.append(name)
-        telemetry = getattr(link, "latest_telemetry", None)
+        telemetry = link.latest_telemetry
         kept_by_autopilot = _persistent_setpoints(link)
         setpoints: dict[str, float] = {}
-        if telemetry is not None and not callable(telemetry):
+        if telemetry is not None:
             # the heading the autopilot holds where it reports it, else the heading it is on
             heading = telemetry.heading_target if math.isfinite(telemetry.heading_target) else telemetry.yaw
             for setpoint, value in (("thrust", telemetry.thrust_ratio), ("heading", heading),
@@ -110,13 +113,9 @@ class RestorePoint:
                 native[name] = link.get_param(name)
             except Exception as exc:  # noqa: BLE001 - a parameter this firmware lacks is not touched either
                 log.info("restore point: %s not readable (%s)", name, exc)
-        watch = getattr(getattr(link, "parameters", None), "watch", None)
-        if callable(watch):  # from now on a change by anyone else is seen
-            watch(native)
-        forget = getattr(getattr(link, "commands", None), "forget_abandoned", None)
-        if callable(forget):  # a late set-point of an earlier procedure is this one's to override now
-            forget()
-        return cls(mode=getattr(link, "mode", None) or None, parameters=parameters, native=native,
+        link.parameters.watch(native)  # from now on a change by anyone else is seen
+        link.commands.forget_abandoned()  # a late set-point of an earlier procedure is this one's to override now
+        return cls(mode=link.mode or None, parameters=parameters, native=native,
                    setpoints=setpoints, natives_of=natives_of, boot=reboots_seen(link))
 
     # ------------------------------------------------------------------ the trail's form
@@ -133,7 +132,7 @@ class RestorePoint:
                    boot=int(data.get("boot") or 0))
 
     # ------------------------------------------------------------------ putting it back
-    def restore(self, link, *, parameters: bool = True, mode: bool = True,
+    def restore(self, link: VehiclePort, *, parameters: bool = True, mode: bool = True,
                 keep: Iterable[str] = (), guard: RestoreGuard | None = None) -> list[str]:
         """Release overrides, write back every parameter that changed (except the natives of the
         neutral names in ``keep``: verified results a procedure leaves on purpose, and what someone
@@ -148,12 +147,13 @@ class RestorePoint:
         _abandon_procedure_setpoints(link)
         rebooted = reboots_seen(link) > self.boot
         # no mode switch ends an excitation when the mode is not the companion's to change
-        items = [("release overrides", lambda: _release_all(link, switch_mode=mode and not rebooted))]
+        items: list[tuple[str, Callable[[], None]]] = [
+            ("release overrides", lambda: _release_all(link, switch_mode=mode and not rebooted))]
         if parameters:
             items += self._parameter_items(link, keep)
             items.append(("check the parameters again", lambda: self._recheck_parameters(link, keep)))
         watched: list[WatchedSetpoint] = []
-        items += [(what, lambda what=what, action=action: self._unless_rebooted(link, what, action))
+        items += [(what, functools.partial(self._unless_rebooted, link, what, action))
                   for what, action in self._setpoint_items(link, mode, watched)]
         if _late_setpoints_possible(link):
             items.append(("put back the procedure's late set-points",
@@ -177,22 +177,21 @@ class RestorePoint:
             log.warning("restore: %s", note)
         return problems
 
-    def _parameter_items(self, link, keep: Iterable[str]) -> list[tuple[str, Callable[[], None]]]:
+    def _parameter_items(self, link: VehiclePort, keep: Iterable[str]) -> list[tuple[str, Callable[[], None]]]:
         kept = {n for name in keep for n in self.natives_of.get(name, ())}
-        foreign = dict(getattr(getattr(link, "parameters", None), "foreign", None) or {})
-        items = []
+        foreign = dict(link.parameters.foreign)
+        items: list[tuple[str, Callable[[], None]]] = []
         for name, value in self.native.items():
             if name in kept:
                 continue
             change = foreign.get(name)
             if change is not None:
-                items.append((f"restore {name}", lambda name=name, value=value, change=change:
-                              self._keep_or_restore(link, name, value, change)))
+                items.append((f"restore {name}", functools.partial(self._keep_or_restore, link, name, value, change)))
                 continue
-            items.append((f"restore {name}", lambda name=name, value=value: write_if_changed(link, name, value)))
+            items.append((f"restore {name}", functools.partial(write_if_changed, link, name, value)))
         return items
 
-    def _recheck_parameters(self, link, keep: Iterable[str]) -> None:
+    def _recheck_parameters(self, link: VehiclePort, keep: Iterable[str]) -> None:
         """Read the restored parameters again once what was in flight has landed: a write of the
         procedure delayed on the link can arrive after the restore's (as a set-point can,
         ``restore_items``). One found changed again is written back once more and said. Nothing can
@@ -201,7 +200,7 @@ class RestorePoint:
             return
         wait_in_flight(link)
         kept = {n for name in keep for n in self.natives_of.get(name, ())}
-        foreign = getattr(getattr(link, "parameters", None), "foreign", None) or {}
+        foreign = link.parameters.foreign
         for name, found in self.native.items():
             if name in kept or name in foreign:
                 continue
@@ -211,25 +210,23 @@ class RestorePoint:
                                   f"procedure): written back to {found:g} again")
                 link.set_param(name, found)
 
-    def _keep_or_restore(self, link, name: str, found: float, change) -> None:
+    def _keep_or_restore(self, link: VehiclePort, name: str, found: float, change: ForeignChange) -> None:
         """A parameter someone else changed during the procedure: read it again, keep it if it still
         holds their value (and that is no value a write of ours asked for), else put back ``found``
         (their change was overwritten since, or the announcement was a late echo of ours)."""
         current = link.get_param(name)
-        parameters = getattr(link, "parameters", None)
-        ours = getattr(parameters, "ours", lambda _name, _value: False)
         theirs = math.isfinite(current) and abs(current - change.value) <= 1e-6 * max(1.0, abs(change.value))
-        if theirs and not ours(name, current):
+        if theirs and not link.parameters.ours(name, current):
             self.notes.append(f"{name}: kept {change.value:g}, set by someone else during the procedure "
                               f"(found {found:g})")
             return
         write_if_changed(link, name, found)
 
-    def _setpoint_items(self, link, mode: bool,
+    def _setpoint_items(self, link: VehiclePort, mode: bool,
                         watched: list[WatchedSetpoint]) -> list[tuple[str, Callable[[], None]]]:
         """The found set-points' items (and the mode's); each set-point put back and confirmed is
         added to ``watched`` with the MAVLink command that carried it (``late_setpoints``)."""
-        items = []
+        items: list[tuple[str, Callable[[], None]]] = []
         found_in_setpoint_mode = self.mode in SETPOINT_MODES
         checks = (("thrust", SetThrust, StateCheck("thrust", lambda t: t.thrust_ratio, 0.0, THRUST_TOLERANCE)),
                   ("heading", SetHeading, _reported(link, StateCheck("heading target", lambda t: t.heading_target,
@@ -242,13 +239,13 @@ class RestorePoint:
             target = self.setpoints[name]
             check = replace(check, target=target) if check is not None else None
             label = name.replace('_', ' ')
-            items.append((f"restore {label}", lambda label=label, command=command(target), check=check:
-                          _put_back(link, label, command, check, watched)))
+            items.append((f"restore {label}", functools.partial(_put_back, link, label, command(target), check,
+                                                                 watched)))
         if mode and self.mode:
-            items.append(("restore mode", lambda: link.set_mode(self.mode)))
+            items.append(("restore mode", functools.partial(link.set_mode, self.mode)))
         return items
 
-    def _unless_rebooted(self, link, what: str, action: Callable[[], None]) -> None:
+    def _unless_rebooted(self, link: VehiclePort, what: str, action: Callable[[], None]) -> None:
         """A set-point or the mode, unless the vehicle rebooted since the restore point was taken:
         a freshly booted vehicle's mode and set-points are its own (never a mode for a vehicle that
         may be disarmed on its cradle)."""
@@ -261,71 +258,60 @@ class RestorePoint:
         action()
 
 
-def _put_back(link, label: str, setpoint, check: StateCheck | None, watched: list[WatchedSetpoint]) -> None:
+def _put_back(link: VehiclePort, label: str, setpoint: Command, check: StateCheck | None,
+              watched: list[WatchedSetpoint]) -> None:
     """One found set-point sent and confirmed by state; what carried it is noted for the late watch."""
-    sends = getattr(getattr(link, "commands", None), "sends_of", None)
-    before = dict(sends) if sends is not None else {}
+    sends = link.commands.sends_of
+    before = dict(sends)
     set_and_confirm(link, setpoint, check)
-    if sends is None or check is None:
+    if check is None:
         return
     for command in [c for c in sends if sends[c] > before.get(c, 0)]:
         watched.append(WatchedSetpoint(label, command, setpoint, check))
 
 
-def _late_setpoints_possible(link) -> bool:
-    """The link reports which set-points a restore abandoned (a MAVLink link; the in-process harness
+def _late_setpoints_possible(link: VehiclePort) -> bool:
+    """A set-point the restore abandoned may still be answered (a MAVLink link; the in-process harness
     applies every command at once)."""
-    commands = getattr(link, "commands", None)
-    return callable(getattr(commands, "late_answers", None)) and callable(getattr(link, "next_telemetry", None))
+    return link.commands.answers_late
 
 
-def _reported(link, check: StateCheck) -> StateCheck | None:
+def _reported(link: VehiclePort, check: StateCheck) -> StateCheck | None:
     """``check``, where the vehicle reports that state (its profile says so), else None."""
-    profile = getattr(link, "profile", None)
-    if check.what == "heading target" and not getattr(profile, "reports_heading_target", False):
+    if check.what == "heading target" and not link.profile.reports_heading_target:
         return None
     return check
 
 
-def _release_all(link, *, switch_mode: bool = True) -> None:
+def _release_all(link: VehiclePort, *, switch_mode: bool = True) -> None:
     """Release every override through the autopilot's strategy (ArduSub keeps a released override's
     last value unless the stick is centred first; ArduRover's excitation ends by leaving MANUAL,
     unless ``switch_mode`` is False: the pilot has the vehicle, or it rebooted)."""
-    strategy = getattr(link, "autopilot", None)
-    if callable(getattr(strategy, "release", None)):
-        if not switch_mode and callable(getattr(strategy, "forget_excitation", None)):
-            strategy.forget_excitation()
-        strategy.release(None)
-    else:  # a link without an autopilot strategy (the in-process harness)
-        link.release(None)
+    if not switch_mode:
+        link.autopilot.forget_excitation()
+    link.autopilot.release(None)
 
 
-def _forget_targets(link) -> None:
+def _forget_targets(link: VehiclePort) -> None:
     """The strategy stops refreshing the procedure's targets (``AutopilotStrategy.forget_targets``)."""
-    forget = getattr(getattr(link, "autopilot", None), "forget_targets", None)
-    if callable(forget):
-        forget()
+    link.autopilot.forget_targets()
 
 
-def _abandon_procedure_setpoints(link) -> None:
+def _abandon_procedure_setpoints(link: VehiclePort) -> None:
     """Nothing of the procedure is sent once its restore begins: set-points it left unanswered are
     no longer re-sent (one arriving late is caught by the state confirmation)."""
-    abandon = getattr(getattr(link, "commands", None), "abandon", None)
-    if callable(abandon):
-        abandoned = abandon()
-        if abandoned:
-            log.info("restore: the procedure's unanswered set-points %s are not sent again", abandoned)
+    abandoned = link.commands.abandon()
+    if abandoned:
+        log.info("restore: the procedure's unanswered set-points %s are not sent again", abandoned)
 
 
-def _stop_watching(link) -> None:
-    watch = getattr(getattr(link, "parameters", None), "watch", None)
-    if callable(watch):
-        watch(())
+def _stop_watching(link: VehiclePort) -> None:
+    link.parameters.watch(())
 
 
-def _persistent_setpoints(link) -> tuple[str, ...]:
+def _persistent_setpoints(link: VehiclePort) -> tuple[str, ...]:
     """The set-points the link's autopilot keeps after the companion is done (its strategy's
     ``persistent_setpoints``): only those are captured and put back. Elsewhere a set-point is not
     autopilot state (ArduSub's thrust is an RC override the restore releases; ArduRover's speed is a
     fraction of WP_SPEED that telemetry does not report), so there is nothing to restore."""
-    return tuple(getattr(getattr(link, "autopilot", None), "persistent_setpoints", ()) or ())
+    return tuple(link.autopilot.persistent_setpoints)

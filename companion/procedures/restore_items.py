@@ -25,6 +25,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
+from companion.link.port import VehiclePort
 from companion.interface import Command, Telemetry
 
 log = logging.getLogger(__name__)
@@ -68,11 +69,11 @@ class StateCheck:
         return f"{self.what} reads {value:.3f} (wanted {self.target:.3f} ± {self.tolerance:g})"
 
 
-def set_and_confirm(link, command: Command, check: StateCheck | None) -> None:
+def set_and_confirm(link: VehiclePort, command: Command, check: StateCheck | None) -> None:
     """Send one set-point, wait for its acknowledgement, then for the vehicle's state to show it
     (module docstring). Without a check (nothing reports it) the acknowledgement is all there is."""
     _send_acknowledged(link, command)
-    if check is None or not callable(getattr(link, "next_telemetry", None)):
+    if check is None:
         return
     resends = 0
     while True:
@@ -87,34 +88,29 @@ def set_and_confirm(link, command: Command, check: StateCheck | None) -> None:
             _send_acknowledged(link, command)
 
 
-def _send_acknowledged(link, command: Command) -> None:
+def _send_acknowledged(link: VehiclePort, command: Command) -> None:
     link.execute([command])
-    confirm = getattr(link, "await_setpoints", None)
-    if callable(confirm):
-        confirm()
+    link.await_setpoints()
 
 
 class _Overtaken(RuntimeError):
     """The state showed the set-point, then left it: something sent earlier arrived later."""
 
 
-def _in_flight_wall_s(link) -> float:
+def _in_flight_wall_s(link: VehiclePort) -> float:
     """How long (wall clock) something sent before may still be on its way. Nothing on a lockstep
     link: our simulator applies every message it received before the one that moves its clock, in
     order, so nothing sent before the restore can land after it."""
-    if getattr(getattr(link, "clock", None), "lockstep", False):
+    if link.clock.lockstep:
         return 0.0
-    commands = getattr(link, "commands", None)
-    round_trip = getattr(commands, "max_round_trip_s", 0.0) or 0.0
+    round_trip = link.commands.max_round_trip_s or 0.0
     return max(CONFIRM_MIN_WALL_S, 3.0 * round_trip)
 
 
-def _hold_seen(link, check: StateCheck) -> None:
+def _hold_seen(link: VehiclePort, check: StateCheck) -> None:
     """Return once ``check`` holds for the confirmation window; _Overtaken if it stops holding,
     NotConfirmed if it is not seen within :data:`CONFIRM_TIMEOUT_S`."""
-    skip = getattr(link, "skip_to_now", None)
-    if callable(skip):
-        skip()  # snapshots queued before the command say nothing about it
+    link.skip_to_now()  # snapshots queued before the command say nothing about it
     first = link.next_telemetry()
     start_vehicle, start_wall, held_since, held_wall = first.time_s, time.monotonic(), None, 0.0
     wall_needed = _in_flight_wall_s(link)
@@ -133,14 +129,13 @@ def _hold_seen(link, check: StateCheck) -> None:
         telemetry = link.next_telemetry()
 
 
-def in_flight_possible(link) -> bool:
-    """Something the procedure sent may still be on its way: a MAVLink link (it has a clock) that is
-    not in lockstep. The in-process harness applies every command at once."""
-    clock = getattr(link, "clock", None)
-    return clock is not None and not getattr(clock, "lockstep", False) and callable(getattr(link, "next_telemetry", None))
+def in_flight_possible(link: VehiclePort) -> bool:
+    """Something the procedure sent may still be on its way: a link that is not in lockstep. In
+    lockstep (and in process, where every command is applied at once) nothing can land later."""
+    return not link.clock.lockstep
 
 
-def wait_in_flight(link) -> None:
+def wait_in_flight(link: VehiclePort) -> None:
     """Let what the procedure sent before the restore land: :data:`CONFIRM_VEHICLE_S` of vehicle time
     and the link's in-flight window of wall clock (:func:`_in_flight_wall_s`), reading telemetry
     meanwhile; nothing to wait for in lockstep or without telemetry."""
@@ -154,17 +149,15 @@ def wait_in_flight(link) -> None:
         telemetry = link.next_telemetry()
 
 
-def pump_vehicle_time(link, seconds: float) -> None:
+def pump_vehicle_time(link: VehiclePort, seconds: float) -> None:
     """Keep reading telemetry for ``seconds`` of vehicle time (what is held is refreshed, what is
-    released is sent, with every snapshot); nothing without telemetry."""
-    if not callable(getattr(link, "next_telemetry", None)):
-        return
+    released is sent, with every snapshot)."""
     first = link.next_telemetry()
     while link.next_telemetry().time_s - first.time_s < seconds:
         pass
 
 
-def write_if_changed(link, name: str, value: float) -> None:
+def write_if_changed(link: VehiclePort, name: str, value: float) -> None:
     """Write ``name`` back unless it already holds ``value`` (every write costs a flash write)."""
     current = link.get_param(name)
     if not (math.isfinite(current) and abs(current - value) <= 1e-6 * max(1.0, abs(value))):
@@ -176,9 +169,9 @@ class Reconnector:
     :data:`RESTORE_RECONNECTS` per restore, each bounded by the link's own wall-clock limit);
     once one fails, the link is taken as gone for the rest of the restore."""
 
-    def __init__(self, link) -> None:
-        self._reconnect = getattr(link, "reconnect", None)
-        self.left = RESTORE_RECONNECTS if callable(self._reconnect) else 0
+    def __init__(self, link: VehiclePort) -> None:
+        self._reconnect = link.reconnect
+        self.left = RESTORE_RECONNECTS
         self.gone: str | None = None  # why the rest of the restore is not tried (the link did not come back)
 
     def __call__(self) -> bool:
@@ -196,16 +189,14 @@ class Reconnector:
         return back
 
 
-def try_restore_item(what: str, action: Callable[[], None],
-                     reconnect: Callable[[], bool] = lambda: False) -> str | None:
+def try_restore_item(what: str, action: Callable[[], None], reconnect: Reconnector | None = None) -> str | None:
     """``action`` tried up to :data:`RESTORE_TRIES` times; None on success, else the last failure.
     A lost link is reconnected if it can be and the item tried again; otherwise it ends the tries at
     once (bounded: each attempt already waited out its timeout)."""
     from companion.link.errors import LinkLost, VehicleRebooted
 
-    gone = getattr(reconnect, "gone", None)
-    if gone:  # each try would fail on the closed connection, with a less useful message
-        return f"{what}: not tried: {gone}"
+    if reconnect is not None and reconnect.gone:  # each try would fail on the closed connection
+        return f"{what}: not tried: {reconnect.gone}"
     failure = "not tried"
     for attempt in range(1, RESTORE_TRIES + 1):
         try:
@@ -217,6 +208,6 @@ def try_restore_item(what: str, action: Callable[[], None],
         except Exception as exc:  # noqa: BLE001 - every item is tried whatever went wrong
             failure = f"{type(exc).__name__}: {exc}" if not str(exc) else str(exc)
             log.error("%s failed (try %d of %d): %s", what, attempt, RESTORE_TRIES, failure)
-            if isinstance(exc, LinkLost) and not reconnect():
+            if isinstance(exc, LinkLost) and (reconnect is None or not reconnect()):
                 break
     return f"{what}: {failure}"

@@ -23,6 +23,7 @@ from companion.interface import (Behavior, Command, NamedValue, OverrideActuator
                                  SetHeading, SetMode, SetParameters, SetRollingMass, SetThrust, StatusText, Telemetry)
 from companion.errors import UserError as _UserError
 from companion.link.errors import LinkError, VehicleRebooted
+from companion.link.port import VehiclePort
 from companion.procedures.limits import SafetyLimits
 from companion.procedures.restore import RestoreGuard, RestorePoint, reboots_seen
 from companion.procedures.results import ProcedureResult
@@ -44,44 +45,24 @@ class AbortProcedure(Exception):
         self.pilot_has_it = pilot_has_it
 
 
-class Link(Protocol):
-    """What the runner needs from ``companion.link.vehicle.VehicleLink``."""
-
-    def next_telemetry(self, timeout_s: float = ...) -> Telemetry: ...
-
-    def execute(self, commands: Sequence[Command]) -> None: ...
-
-    def get_params(self, neutral_names) -> dict: ...
-
-    def set_params(self, neutral_values: dict) -> dict: ...
-
-    def set_mode(self, neutral: str) -> None: ...
-
-    def release(self, actuator: str | None = None) -> None: ...
-
-    def status_text(self, text: str, severity: int = 6) -> None: ...
-
-    @property
-    def waits_for_companion(self) -> bool:
-        """The vehicle's time advances only as the companion reads it (a computation in the loop
-        costs no vehicle time)."""
-        ...
+#: what the runner needs of the vehicle: the one typed port (``companion.link.port``)
+Link = VehiclePort
 
 
-def _last_words(link, within_s: float = 10.0) -> str:
+def _last_words(link: VehiclePort, within_s: float = 10.0) -> str:
     """The vehicle's latest warnings (STATUSTEXT severity ≤ 4, within ``within_s`` of vehicle time)
     as a suffix for an abort reason: why ArduSub disarmed, for instance; empty when it said nothing."""
-    texts = getattr(link, "statustexts", None) or ()
-    now = getattr(link, "vehicle_time_s", math.nan)
+    texts = link.statustexts
+    now = link.vehicle_time_s
     recent = [text for when, severity, text in texts
               if severity <= 4 and not (math.isfinite(now) and math.isfinite(when) and now - when > within_s)]
     return f" (the vehicle said: {'; '.join(recent[-3:])})" if recent else ""
 
 
-def _foreign_change(link) -> str | None:
+def _foreign_change(link: VehiclePort) -> str | None:
     """Someone else changed one of the procedure's parameters (the link watches them from the
     restore point on): the procedure's assumptions no longer hold."""
-    foreign = getattr(getattr(link, "parameters", None), "foreign", None)
+    foreign = link.parameters.foreign
     if not foreign:
         return None
     change = next(iter(foreign.values()))
@@ -97,10 +78,9 @@ STATE_CHANGES = (SetParameters, SetMode, SetThrust, SetHeading, SetDepth, SetRol
 AFTER_REBOOT = (ReleaseActuator, StatusText, NamedValue)
 
 
-def _other_companion(link) -> str | None:
+def _other_companion(link: VehiclePort) -> str | None:
     """The link's report of another companion flying the same vehicle (None where it cannot tell)."""
-    check = getattr(link, "other_companion", None)
-    return check() if callable(check) else None
+    return link.other_companion()
 
 
 @dataclass
@@ -141,16 +121,14 @@ def run_behavior(
     commands that change the vehicle's state (:data:`STATE_CHANGES`) *before* they are sent (the
     trail a crash leaves for the next start).
     """
-    limits = limits if limits is not None else SafetyLimits.for_profile(getattr(link, "profile", None))
+    limits = limits if limits is not None else SafetyLimits.for_profile(link.profile)
     watchdog = _TakeoverWatchdog(limits, link)
     envelope = limits.watch()
-    if hasattr(link, "commanded_mode"):
-        link.commanded_mode = None  # only modes switched to during this run are the procedure's own
-    skip_to_now = getattr(link, "skip_to_now", None)
-    if skip_to_now is not None and skip_backlog:
+    link.commanded_mode = None  # only modes switched to during this run are the procedure's own
+    if skip_backlog:
         # snapshots queued during earlier blocking calls (a restore, a mode change) predate this
         # procedure: it must start from the vehicle as it is now (within a run, none is skipped)
-        skip_to_now()
+        link.skip_to_now()
     guard = getattr(abort_requested, "guard", None)
     if guard is not None:
         guard.active += 1
@@ -283,8 +261,8 @@ def run_procedure(
         outcome.restore = restore
         # what a procedure verified stays even when another part of it failed (a campaign's speed loop
         # verified beside a refused heading design); an abort puts everything back
-        keep = getattr(procedure, "kept_parameters", frozenset()) if outcome.status in ("completed", "failed") \
-            else frozenset()
+        keep: frozenset[str] = getattr(procedure, "kept_parameters", frozenset()) \
+            if outcome.status in ("completed", "failed") else frozenset()
         outcome.restore_problems += restore.restore(link, mode=not outcome.pilot_has_it, keep=keep, guard=guard)
         outcome.restore_notes = list(restore.notes)
         if outcome.status == "aborted":
@@ -299,10 +277,13 @@ def run_for_result(link: Link, procedure: Behavior, *, abort_requested: Callable
                    limits: SafetyLimits | None = None) -> ProcedureResult:
     """:func:`run_procedure`, then the procedure's own :class:`ProcedureResult` as the runner saw it end."""
     outcome = run_procedure(link, procedure, limits=limits, abort_requested=abort_requested)
-    return procedure.result().with_outcome(outcome)
+    result = procedure.result()
+    if not isinstance(result, ProcedureResult):
+        raise TypeError(f"{type(procedure).__name__}.result() gave {type(result).__name__}, not a ProcedureResult")
+    return result.with_outcome(outcome)
 
 
-def named_reboot(reason: str | None, link, boot: int) -> str | None:
+def named_reboot(reason: str | None, link: VehiclePort, boot: int) -> str | None:
     """An abort whose cause was the autopilot restarting (a crash, a power cycle: first seen as
     silence, then, once it answers again, as its new boot) named as a reboot; otherwise unchanged."""
     if reason is None or "rebooted" in reason or reboots_seen(link) <= boot:
@@ -322,11 +303,10 @@ class _TakeoverWatchdog:
     procedure asked for (the mode it was found in until then) for longer than the grace period.
     A procedure must then stop at once, not fight the pilot (SPEC §4: record, switch, restore)."""
 
-    def __init__(self, limits: SafetyLimits, link=None) -> None:
+    def __init__(self, limits: SafetyLimits, link: VehiclePort) -> None:
         self.limits = limits
         self.link = link
-        profile = getattr(link, "profile", None)
-        self._number = profile.mode_number if profile is not None else None
+        self._number = link.profile.mode_number
         self.expected_mode: str | None = None
         self.armed_seen = False
         self.foreign_since: float | None = None
@@ -336,8 +316,8 @@ class _TakeoverWatchdog:
             if isinstance(command, SetMode):
                 self.expected_mode = command.mode
         # a mode the companion switched to itself (an autopilot strategy's excitation mode) is ours
-        own = getattr(self.link, "commanded_mode", None)
-        if isinstance(own, str) and own:
+        own = self.link.commanded_mode
+        if own:
             self.expected_mode = own
 
     def _same(self, a: str, b: str) -> bool:
@@ -345,15 +325,15 @@ class _TakeoverWatchdog:
         if a == b:
             return True
         try:
-            return self._number is not None and self._number(a) == self._number(b)
+            return self._number(a) == self._number(b)
         except Exception:  # noqa: BLE001 - an unknown name is another mode
             return False
 
     def _before_own_change(self, telemetry: Telemetry) -> bool:
         """The snapshot predates the heartbeat that confirmed the companion's latest mode change: it
         may still show the mode before it, however late the link delivered it."""
-        confirmed = getattr(getattr(self.link, "modes", None), "commanded_at_s", math.nan)
-        return isinstance(confirmed, float) and math.isfinite(confirmed) and telemetry.time_s <= confirmed
+        confirmed = self.link.modes.commanded_at_s
+        return math.isfinite(confirmed) and telemetry.time_s <= confirmed
 
     def check(self, telemetry: Telemetry) -> str | None:
         if self.limits.require_armed:

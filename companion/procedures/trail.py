@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 from companion.interface import Command, OverrideActuator, ReleaseActuator, SetMode
+from companion.link.port import VehiclePort
 from companion.procedures.restore import RestoreGuard, RestorePoint
 from companion.procedures.restore_items import pump_vehicle_time
 from companion.records.owner import ProcessOwner
@@ -45,16 +46,13 @@ RELEASE_PUMP_S = 1.0
 PARAM_WRITE, MODE_REQUEST, CHANNEL_HELD = "ParamWrite", "ModeRequest", "ChannelHeld"
 
 
-def vehicle_identity(link) -> dict:
+def vehicle_identity(link: VehiclePort) -> dict:
     """Which vehicle a trail belongs to (system id, profile, the board's own id where the autopilot
     sends one), and where its clock and boot counter were (a later clock that is earlier, or a
     counter that moved, means it rebooted since)."""
-    transport = getattr(link, "transport", None)
-    identity = {"system_id": getattr(transport, "system_id", getattr(link, "system_id", None)),
-                "profile": getattr(getattr(link, "profile", None), "name", None),
-                "endpoint": getattr(transport, "endpoint", None),
-                "vehicle_time_s": _finite(getattr(link, "vehicle_time_s", math.nan))}
-    uid = getattr(getattr(link, "announcements", None), "hardware_uid", None)
+    identity = {"system_id": link.transport.system_id, "profile": link.profile.name,
+                "endpoint": link.transport.endpoint, "vehicle_time_s": _finite(link.vehicle_time_s)}
+    uid = link.announcements.hardware_uid
     if uid:
         identity["hardware_uid"] = uid
     boots = _boot_count(link)
@@ -63,12 +61,11 @@ def vehicle_identity(link) -> dict:
     return identity
 
 
-def _boot_count(link) -> float | None:
-    profile = getattr(link, "profile", None)
-    if profile is None or getattr(profile, "name", "").startswith("sim"):
+def _boot_count(link: VehiclePort) -> float | None:
+    if link.profile.name.startswith("sim"):
         return None
     try:
-        return float(link.get_param(BOOT_COUNT_PARAM, retries=3))
+        return float(link.get_param(BOOT_COUNT_PARAM))
     except Exception:  # noqa: BLE001 - an autopilot without a boot counter, or a link that lost the answers
         return None
 
@@ -83,19 +80,15 @@ class TrailRecorder:
     (subscribed here; :meth:`close` unsubscribes). An override is recorded once per actuator while
     it is held (a doublet changes its value every step; a recovery needs only which were held)."""
 
-    def __init__(self, store, trail_id: int, link) -> None:
+    def __init__(self, store, trail_id: int, link: VehiclePort) -> None:
         self.store, self.trail_id, self.link = store, trail_id, link
         self._overridden: set[str] = set()
-        self._unsubscribe: list[Callable[[], None]] = []
-        for part, hook, listener in (("parameters", "on_write", self._param_write),
-                                     ("modes", "on_request", self._mode_request),
-                                     ("overrides", "on_hold", self._channel_held)):
-            subscribe = getattr(getattr(link, part, None), hook, None)
-            if callable(subscribe):
-                self._unsubscribe.append(subscribe(listener))
+        self._unsubscribe: list[Callable[[], None]] = [link.parameters.on_write(self._param_write),
+                                                        link.modes.on_request(self._mode_request),
+                                                        link.overrides.on_hold(self._channel_held)]
 
     def _now(self) -> float | None:
-        return _finite(getattr(self.link, "vehicle_time_s", math.nan))
+        return _finite(self.link.vehicle_time_s)
 
     def __call__(self, commands: Sequence[Command]) -> None:
         for command in commands:
@@ -156,7 +149,8 @@ class Trail:
             elif change["kind"] == ReleaseActuator.__name__:
                 held = set() if detail.get("actuator") is None else held - {detail["actuator"]}
         for detail in self._of(CHANNEL_HELD):
-            name = (channel_names or {}).get(detail.get("channel"))
+            channel = detail.get("channel")
+            name = (channel_names or {}).get(channel) if isinstance(channel, int) else None
             held.add(name if name else f"channel {detail.get('channel')}")
         return sorted(held)
 
@@ -168,7 +162,7 @@ class Trail:
     @property
     def modes_asked(self) -> set[str]:
         """The modes the procedure asked for (its behaviour's, and its strategy's own switches)."""
-        return {d.get("mode") for d in self._of(MODE_REQUEST) + self._of(SetMode.__name__)} - {None}
+        return {d["mode"] for d in self._of(MODE_REQUEST) + self._of(SetMode.__name__) if isinstance(d.get("mode"), str)}
 
     @property
     def last_change_s(self) -> float | None:
@@ -209,17 +203,15 @@ class Recovery:
         return {**dataclasses.asdict(self), "complete": self.complete}
 
 
-def _channel_names(link) -> dict[int, str]:
-    channels = getattr(getattr(link, "profile", None), "channels", None) or {}
+def _channel_names(link: VehiclePort) -> dict[int, str]:
+    channels = link.profile.channels
     return {channel: name for name, channel in channels.items()}
 
 
-def _other_vehicle(link, trail: Trail) -> str | None:
+def _other_vehicle(link: VehiclePort, trail: Trail) -> str | None:
     """Why the trail is not this vehicle's (None when it is, or when nothing tells)."""
-    transport = getattr(link, "transport", None)
-    now = {"system_id": getattr(transport, "system_id", None),
-           "profile": getattr(getattr(link, "profile", None), "name", None),
-           "hardware_uid": getattr(getattr(link, "announcements", None), "hardware_uid", None)}
+    now = {"system_id": link.transport.system_id, "profile": link.profile.name,
+           "hardware_uid": link.announcements.hardware_uid}
     for key, what in (("hardware_uid", "board"), ("system_id", "system"), ("profile", "autopilot")):
         then = trail.vehicle.get(key)
         if then is not None and now[key] is not None and then != now[key]:
@@ -227,12 +219,12 @@ def _other_vehicle(link, trail: Trail) -> str | None:
     return None
 
 
-def _rebooted_since(link, trail: Trail) -> tuple[bool, str | None]:
+def _rebooted_since(link: VehiclePort, trail: Trail) -> tuple[bool, str | None]:
     """(rebooted, note): the vehicle's clock is now earlier than the trail's last change, or its boot
     counter moved; a boot counter recorded then and unreadable now counts as a reboot (said)."""
-    now = getattr(link, "vehicle_time_s", math.nan)
+    now = link.vehicle_time_s
     last = trail.last_change_s if trail.last_change_s is not None else trail.vehicle.get("vehicle_time_s")
-    if isinstance(now, float) and math.isfinite(now) and last is not None and now < last:
+    if math.isfinite(now) and last is not None and now < last:
         return True, None
     before = trail.vehicle.get("boot_count")
     if before is None:
@@ -244,7 +236,7 @@ def _rebooted_since(link, trail: Trail) -> tuple[bool, str | None]:
     return after != before, None
 
 
-def _parameters_now(link, restore: RestorePoint) -> dict[str, float | None]:
+def _parameters_now(link: VehiclePort, restore: RestorePoint) -> dict[str, float | None]:
     """Each restored parameter's value on the vehicle now (None: not readable)."""
     values: dict[str, float | None] = {}
     for name in restore.native:
@@ -259,7 +251,7 @@ def _same(a: float | None, b: float) -> bool:
     return a is not None and math.isfinite(a) and abs(a - b) <= 1e-6 * max(1.0, abs(b))
 
 
-def differences(link, trail: Trail, values: dict[str, float | None] | None = None) -> list[str]:
+def differences(link: VehiclePort, trail: Trail, values: dict[str, float | None] | None = None) -> list[str]:
     """What is not as the procedure found it, one line each."""
     restore = trail.restore
     out = [f"RC override of the {name} may still be held" for name in trail.overrides_held(_channel_names(link))]
@@ -273,21 +265,23 @@ def differences(link, trail: Trail, values: dict[str, float | None] | None = Non
         elif not _same(now, found):
             who = "" if trail.wrote(name, now) else " (a value the procedure never wrote)"
             out.append(f"{name} is {now:g}, found {found:g}{who}")
-    mode = getattr(link, "mode", None)
+    mode = link.mode
     if restore.mode and mode and mode != restore.mode:
         out.append(f"mode is {mode}, found {restore.mode}")
-    latest = getattr(link, "latest_telemetry", None)
+    latest = link.latest_telemetry
     if latest is not None and "thrust" in restore.setpoints and math.isfinite(latest.thrust_ratio) \
             and abs(latest.thrust_ratio - restore.setpoints["thrust"]) > 0.011:
         out.append(f"thrust is {latest.thrust_ratio:.2f}, found {restore.setpoints['thrust']:.2f}")
     return out
 
 
-def _plan(link, trail: Trail, values: dict[str, float | None], rebooted: bool) -> tuple[RestorePoint, bool, list[str]]:
+def _plan(link: VehiclePort, trail: Trail, values: dict[str, float | None], rebooted: bool) -> tuple[RestorePoint, bool, list[str]]:
     """The restore to run: parameters someone else set after the crash left out, the mode and
     set-points only where the vehicle is still in a mode of the procedure's (module docstring).
     Returns (restore point, whether the mode is put back, notes)."""
     restore = trail.restore
+    if restore is None:
+        raise ValueError("a trail without a restore point has nothing to plan")
     notes: list[str] = []
     native = {}
     for name, found in restore.native.items():
@@ -297,7 +291,7 @@ def _plan(link, trail: Trail, values: dict[str, float | None], rebooted: bool) -
             continue
         native[name] = found
     plan = dataclasses.replace(restore, native=native)
-    mode_now = getattr(link, "mode", None)
+    mode_now = link.mode
     ours = mode_now in trail.modes_asked or mode_now == restore.mode
     if rebooted:
         plan.setpoints = {}
@@ -310,7 +304,7 @@ def _plan(link, trail: Trail, values: dict[str, float | None], rebooted: bool) -
     return plan, True, notes
 
 
-def recover(link, store, trail: Trail, decide: Callable[[list[str]], bool | None],
+def recover(link: VehiclePort, store, trail: Trail, decide: Callable[[list[str]], bool | None],
             guard: RestoreGuard | None = None) -> Recovery:
     """Follow ``trail`` on the connected vehicle: say what differs, and if ``decide(differences)``
     agrees, put it back (module docstring); ``decide`` answers None when nobody could be asked (no
@@ -335,7 +329,7 @@ def recover(link, store, trail: Trail, decide: Callable[[list[str]], bool | None
     if trail.restore is not None:
         plan, mode, planned = _plan(link, trail, values, rebooted)
         notes += planned
-        reboots_now = int(getattr(getattr(link, "clock", None), "reboots", 0) or 0)
+        reboots_now = link.clock.reboots
         # the restore point's boot, counted on this link: one before now if the vehicle rebooted since
         # (the restore then keeps the new boot's mode and set-points), else now
         plan.boot = reboots_now - 1 if rebooted else reboots_now
@@ -354,20 +348,15 @@ def recover(link, store, trail: Trail, decide: Callable[[list[str]], bool | None
     return result
 
 
-def _release_held(link, trail: Trail) -> list[str]:
+def _release_held(link: VehiclePort, trail: Trail) -> list[str]:
     """Release what the dead companion may have held, through the autopilot's strategy, and keep
     reading telemetry :data:`RELEASE_PUMP_S` so the releases (and ArduSub's centring) go out."""
     names = _channel_names(link)
     held = [name for name in trail.overrides_held(names) if not name.startswith("channel ")]
     if not held:
         return []
-    strategy = getattr(link, "autopilot", None)
     try:
-        if callable(getattr(strategy, "release_after_crash", None)):
-            strategy.release_after_crash(held)
-        else:
-            for name in held:
-                link.release(name)
+        link.autopilot.release_after_crash(held)
         pump_vehicle_time(link, RELEASE_PUMP_S)
     except Exception as exc:  # noqa: BLE001 - said; the restore still runs
         return [f"release the overrides {', '.join(held)}: {exc}"]

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from behaviors.schedules import schedule_kind
+from companion.link.port import VehiclePort
 from companion.service.status import StatusBoard
 
 log = logging.getLogger(__name__)
@@ -37,7 +38,7 @@ MAV_SEVERITY_WARNING = 4
 class StatusFeed:
     """The resident loop's observer and the link's watcher (module docstring)."""
 
-    def __init__(self, board: StatusBoard, link, store, *, endpoint: str, report_dir: str | Path | None = None,
+    def __init__(self, board: StatusBoard, link: VehiclePort, store, *, endpoint: str, report_dir: str | Path | None = None,
                  refresh_s: float = 2.0, vehicle_period_s: float = 0.1, max_messages: int = 20,
                  health_windows: int = 10) -> None:
         self.board, self.link, self.store, self.endpoint = board, link, store, endpoint
@@ -59,49 +60,43 @@ class StatusFeed:
         with this feed as its observer) and its link."""
         self.companion = companion
         link = self.link
-        profile = getattr(link, "profile", None)
-        transport = getattr(link, "transport", None)
-        self.board.set("companion", {"version": version, "component": getattr(transport, "component", 191),
+        profile, transport = link.profile, link.transport
+        self.board.set("companion", {"version": version, "component": transport.component,
                                      "procedures_allowed": list(companion.config.procedures),
                                      "scheduling": companion.config.schedule_gains,
                                      "health": companion.config.health})
         self.board.set("connection", {"endpoint": self.endpoint,
-                                      "system_id": getattr(link, "system_id", None) or getattr(transport, "system_id", None),
-                                      "autopilot_component": getattr(transport, "autopilot_component", None),
-                                      "profile": getattr(profile, "name", None)})
+                                      "system_id": transport.system_id,
+                                      "autopilot_component": transport.autopilot_component,
+                                      "profile": profile.name})
         self.board.set("procedure", self.procedure)
         self.board.set("report", self._latest_report())
-        telemetry = getattr(link, "telemetry", None)
-        if callable(getattr(telemetry, "after_snapshot", None)):
-            telemetry.after_snapshot(self._on_snapshot)
-        ground = getattr(link, "ground", None)
-        if callable(getattr(ground, "on_report", None)):
-            ground.on_report(self.on_report)
+        link.telemetry.after_snapshot(self._on_snapshot)
+        link.ground.on_report(self.on_report)
         self._read_gains_once()
 
     def _read_gains_once(self) -> None:
         """The heading (and pitch) gains as found, so the page shows them before any write."""
         natives = self._gain_natives()
-        read = getattr(self.link, "get_param", None)
         cache = self._cache()
         for native in natives:
-            if native in cache or not callable(read):
+            if native in cache:
                 continue
             try:
-                read(native)
+                self.link.get_param(native)
             except Exception as exc:  # noqa: BLE001 - a gain not read is shown as unknown
                 log.debug("status page: %s not read: %s", native, exc)
 
     # ------------------------------------------------------------------ the resident loop's observer
     def procedure_started(self, name: str, command: int) -> None:
         self.procedure = {"state": "running", "name": name, "command": command, "progress_pct": None,
-                          "started_s": _finite(getattr(self.link, "vehicle_time_s", math.nan)),
+                          "started_s": _finite(self.link.vehicle_time_s),
                           "last": self.procedure.get("last")}
         self.board.set("procedure", self.procedure)
         self._dirty = True
 
     def procedure_finished(self, entry: dict) -> None:
-        last = {**entry, "finished_s": _finite(getattr(self.link, "vehicle_time_s", math.nan))}
+        last = {**entry, "finished_s": _finite(self.link.vehicle_time_s)}
         self.procedure = {"state": "idle", "name": None, "last": last}
         self.history = (self.history + [last])[-10:]
         self.board.set("procedure", self.procedure)
@@ -116,6 +111,9 @@ class StatusFeed:
             log.info("no report for campaign %d: the companion is stopping", campaign_id)
             return
         from companion.records.report import write_report  # matplotlib: only when a report is due
+
+        if self.report_dir is None:
+            return
 
         try:
             path = write_report(self.store, campaign_id, self.report_dir / f"campaign-{campaign_id}")
@@ -154,7 +152,7 @@ class StatusFeed:
             self._dirty = True
 
     def _on_snapshot(self) -> None:
-        telemetry = getattr(self.link, "latest_telemetry", None)
+        telemetry = self.link.latest_telemetry
         if telemetry is not None:
             self.on_telemetry(telemetry)
 
@@ -215,11 +213,9 @@ class StatusFeed:
     def _gain_natives(self, designs: list[tuple[int, Any]] | None = None) -> dict[str, str]:
         """native name → neutral name of the gains the page shows: every designed kind's, else the
         profile's heading schedule's."""
-        profile = getattr(self.link, "profile", None)
-        if profile is None:
-            return {}
+        profile = self.link.profile
         designs = self._designs() if designs is None else designs
-        kinds = [design.kind for _, design in designs] or [getattr(profile, "heading_schedule", "heading")]
+        kinds = [design.kind for _, design in designs] or [profile.heading_schedule]
         out: dict[str, str] = {}
         for name in kinds:
             try:
@@ -232,7 +228,7 @@ class StatusFeed:
         return out
 
     def _cache(self) -> dict:
-        return dict(getattr(getattr(self.link, "parameters", None), "cache", {}) or {})
+        return dict(self.link.parameters.cache)
 
     def _gains(self, designs: list[tuple[int, Any]]) -> dict:
         cache = self._cache()
@@ -266,7 +262,7 @@ class StatusFeed:
 
     def _alarms(self) -> list[dict]:
         alarms = [m for m in self.messages if m["severity"] <= MAV_SEVERITY_WARNING]
-        for time_s, severity, text in list(getattr(self.link, "statustexts", None) or [])[-20:]:
+        for time_s, severity, text in list(self.link.statustexts)[-20:]:
             if severity <= MAV_SEVERITY_WARNING:
                 alarms.append({"time_s": _finite(time_s), "severity": severity, "text": text, "source": "vehicle"})
         alarms.sort(key=lambda a: -math.inf if a["time_s"] is None else a["time_s"])

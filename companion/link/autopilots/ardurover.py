@@ -239,6 +239,8 @@ class Strategy(ArduPilotStrategy):
         steering override of 1519 µs came out at 0 — the speed then sagged 5 % within the
         identification record and biased a22 and b2. So a held output is trimmed on its read-back
         (:meth:`_trim_held`), and the correction learnt is kept for the next excitation."""
+        if self._excitation is None:
+            raise RuntimeError(f"{actuator} held with no excitation under way")
         command = target + self._override_bias.get(actuator, 0.0)
         self._excitation["held"][actuator] = {"target": target, "command": command, "sent_s": self.now,
                                               "last_read": math.nan}

@@ -69,6 +69,8 @@ class AutopilotStrategy:
 
     @property
     def profile(self) -> AutopilotProfile:
+        if self.ports.profile is None:
+            raise ProfileError("no profile yet (still connecting)")
         return self.ports.profile
 
     @property

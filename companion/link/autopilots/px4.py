@@ -233,8 +233,14 @@ class Px4Strategy(AutopilotStrategy):
             self._send_sticks()  # before the switch: MANUAL never sees a stopped stick
             self.ports.modes.set_mode("manual")
             return
-        self.sticks = self.with_actuator(self.sticks, actuator, value)
+        self.sticks = self.with_actuator(self._streaming(), actuator, value)
         self._send_sticks()
+
+    def _streaming(self) -> Sticks:
+        """The sticks being streamed (the vehicle is taken: :meth:`take` started them)."""
+        if self.sticks is None:
+            raise ProfileError("PX4: no sticks are streamed before the vehicle is taken")
+        return self.sticks
 
     def release(self, actuator: str | None) -> None:
         if not self.taken:
@@ -245,7 +251,7 @@ class Px4Strategy(AutopilotStrategy):
             base = self._excitation["held"] if self._excitation is not None else self.neutral_sticks()
             axis = self.AXES.get(actuator)
             if axis is not None:
-                self.sticks = replace(self.sticks, **{axis: getattr(base, axis)})
+                self.sticks = replace(self._streaming(), **{axis: getattr(base, axis)})
                 self._send_sticks()
             return
         if not self._companion_has_mode():  # the pilot chose a mode: never fight it

@@ -58,6 +58,8 @@ class Strategy(ArduPilotStrategy):
 
     #: the outputs whose function a simulated boat reports
     FUNCTION_OUTPUTS = (1, 3)
+    #: (trim, scale) of the current skid excitation (None between excitations)
+    _doublet: tuple[float, float] | None = None
 
     def configure(self):
         """A skid-steered boat (SERVO1/3_FUNCTION 73/74) reads its steering and throttle un-mixed from
@@ -71,7 +73,7 @@ class Strategy(ArduPilotStrategy):
         """An open-loop rudder on a skid boat is scaled into the mixer's room (``skid_room``), one factor
         per excitation (from its first override until the rudder is released)."""
         if actuator == "rudder" and self.profile.actuation is not None:
-            if getattr(self, "_doublet", None) is None:
+            if self._doublet is None:
                 latest = self.latest()
                 throttle = latest.thrust_ratio if latest is not None else math.nan
                 trim = latest.rudder if latest is not None and math.isfinite(latest.rudder) else 0.0

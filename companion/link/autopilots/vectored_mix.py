@@ -42,9 +42,15 @@ def unmix_vectored(pwm: list[float]) -> VectoredAxes | None:
     if any(o is None for o in outputs[:4]):
         return None
 
+    def output(motor: int) -> float:
+        value = outputs[motor]
+        if value is None:  # axis() is asked only for motors found present above
+            raise ValueError(f"motor {motor + 1} has no output")
+        return value
+
     def axis(index: int, motors: range) -> float:
         factors = [VECTORED_FACTORS[m][index] for m in motors]
-        return sum(f * outputs[m] for f, m in zip(factors, motors)) / sum(f * f for f in factors)
+        return sum(f * output(m) for f, m in zip(factors, motors)) / sum(f * f for f in factors)
 
     throttle = axis(2, range(4, 6)) if None not in outputs[4:] else math.nan
     return VectoredAxes(yaw=axis(1, range(4)), forward=axis(3, range(4)), throttle=throttle)
