@@ -138,6 +138,13 @@ class Behaviour:
     def done(self) -> bool:
         return self.status.finished
 
+    @property
+    def started_s(self) -> float:
+        """Vehicle time of the first tick (``start_time_s``); RuntimeError before it."""
+        if self.start_time_s is None:
+            raise RuntimeError(f"{self.name} has not started (no tick yet)")
+        return self.start_time_s
+
     # the runner's protocol (companion.interface.Behavior)
     def step(self, telemetry: Telemetry) -> list[Command]:
         return self.tick(telemetry)

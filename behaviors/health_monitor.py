@@ -80,8 +80,9 @@ class HealthMonitor:
     def evidence(self) -> dict:
         """The alarm and the windows before it, the configuration and the reference's range."""
         alarm = self.alarm
-        return {"parameter": alarm.alarm if alarm else None,
-                "change_pct": 100.0 * (alarm.ratio[alarm.alarm] - 1.0) if alarm else math.nan,
+        parameter = alarm.alarm if alarm else None  # an alarm verdict names its parameter
+        return {"parameter": parameter,
+                "change_pct": 100.0 * (alarm.ratio[parameter] - 1.0) if alarm and parameter is not None else math.nan,
                 "time_s": alarm.window.t_end if alarm else math.nan,
                 "speed": alarm.window.speed if alarm else math.nan,
                 "windows": [verdict_row(v) for v in self.verdicts[-EVIDENCE_WINDOWS:]],
@@ -89,10 +90,12 @@ class HealthMonitor:
 
     def result(self) -> dict:
         """Every window (the drift plot's data), the alarm if any, the configuration."""
+        alarm = self.alarm
+        parameter = alarm.alarm if alarm is not None else None  # an alarm verdict names its parameter
         return {"label": self.label, "config": asdict(self.config), "speed_range": list(self.detector.speed_range),
                 "windows": [verdict_row(v) for v in self.verdicts],
-                "alarm": None if self.alarm is None else {
-                    "parameter": self.alarm.alarm, "time_s": self.alarm.window.t_end,
-                    "change_pct": 100.0 * (self.alarm.ratio[self.alarm.alarm] - 1.0),
-                    "cusum": self.alarm.cusum[self.alarm.alarm]},
+                "alarm": None if alarm is None or parameter is None else {
+                    "parameter": parameter, "time_s": alarm.window.t_end,
+                    "change_pct": 100.0 * (alarm.ratio[parameter] - 1.0),
+                    "cusum": alarm.cusum[parameter]},
                 "restarts": self.estimator.restarts}

@@ -212,7 +212,7 @@ class IdentificationManoeuvre(Behaviour):
         self._trim: float = 0.0
         self.attempt = 0
         self.attempts: list[IdentificationAttempt] = []
-        self._identifier = None
+        self._identifier: YawIdentifier | PitchIdentifier | None = None
         self._training = _Record()
         self._validation = _Record()
         self._speeds: list[float] = []
@@ -255,9 +255,12 @@ class IdentificationManoeuvre(Behaviour):
 
     def update(self, telemetry: Telemetry) -> Sequence[Command]:
         now = telemetry.time_s
-        if now == self._stage_start and self.stage == SETTLE and not self.attempts:
+        stage_start = self._stage_start
+        if stage_start is None:  # initialise starts the first stage
+            raise RuntimeError(f"{self.name} updated before it was initialised")
+        if now == stage_start and self.stage == SETTLE and not self.attempts:
             return []  # the first snapshot only starts the settle (initialise)
-        t_rel = now - self._stage_start
+        t_rel = now - stage_start
         if self.stage == SETTLE:
             return self._step_settle(telemetry, t_rel)
         if self.stage == TRAIN:
@@ -286,8 +289,8 @@ class IdentificationManoeuvre(Behaviour):
             self.stage_times[self.stage] = self.stage_times.get(self.stage, 0.0) + (now - self._stage_start)
         self.stage = stage
         self._stage_start = now
-        if stage in (SETTLE, RESETTLE) and self._steadiness is not None:
-            rule = self.config.steadiness
+        rule = self.config.steadiness  # set when there is a detector (_new_steadiness)
+        if stage in (SETTLE, RESETTLE) and self._steadiness is not None and rule is not None:
             self._steadiness = SteadinessDetector(rule, self.config.axis, self._course)
 
     def _signal(self, telemetry: Telemetry) -> float:
@@ -381,6 +384,12 @@ class IdentificationManoeuvre(Behaviour):
             kwargs["bandwidth"] = self.config.svf_bandwidth
         return YawIdentifier(**kwargs) if self.config.axis == "yaw" else PitchIdentifier(**kwargs)
 
+    def _attempt_identifier(self) -> YawIdentifier | PitchIdentifier:
+        """The identifier of the attempt under way (made when its training starts)."""
+        if self._identifier is None:
+            raise RuntimeError("no identification attempt under way")
+        return self._identifier
+
     def _excitation(self, t_rel: float, amplitude: float) -> list[Command]:
         offset = doublet(t_rel, self.config.pre_excitation_s, self.config.doublet_period_s, amplitude)
         if offset is not None:
@@ -396,13 +405,13 @@ class IdentificationManoeuvre(Behaviour):
         self._watch_recovery(telemetry, t_rel)
         signal, actuator = self._signal(telemetry), self._actuator(telemetry)
         if math.isfinite(signal) and math.isfinite(actuator):
-            self._identifier.update(telemetry.time_s, signal, actuator)
+            self._attempt_identifier().update(telemetry.time_s, signal, actuator)
             self._training.add(telemetry.time_s, signal, actuator)
         if math.isfinite(telemetry.speed_water):
             self._speeds.append(telemetry.speed_water)
         commands += self._live_values(telemetry.time_s)
         after_excitation = t_rel >= self.config.excitation_end_s
-        converged = self.config.stop_on_convergence and after_excitation and self._identifier.converged
+        converged = self.config.stop_on_convergence and after_excitation and self._attempt_identifier().converged
         if converged or t_rel >= self.config.window_s:
             if self._overriding:  # never leave the stage holding the actuator
                 self._overriding = False
@@ -415,7 +424,7 @@ class IdentificationManoeuvre(Behaviour):
                 # resettle waits for may already have been seen (it still needs a full window)
                 self._steadiness = recovery
             commands += self._reengage()
-            model = self._identifier.model()
+            model = self._attempt_identifier().model()
             commands.append(self._status(f"trained in {t_rel:.1f} s: {self._describe(model)}"))
         return commands
 
@@ -434,7 +443,7 @@ class IdentificationManoeuvre(Behaviour):
         return commands
 
     def _finish_attempt(self, now: float) -> list[Command]:
-        model = self._identifier.model()
+        model = self._attempt_identifier().model()
         r2 = self._score(model)
         quality = {name: sampling_quality(record.time) for name, record in
                    (("training", self._training), ("validation", self._validation))}
@@ -444,7 +453,7 @@ class IdentificationManoeuvre(Behaviour):
         speed = sum(self._speeds) / len(self._speeds) if self._speeds else math.nan
         self.attempts.append(IdentificationAttempt(
             attempt=self.attempt, axis=self.config.axis, thrust=self.thrust, speed=speed, model=model, r2=r2,
-            accepted=accepted, converged=bool(self._identifier.converged), converged_s=self._converged_s(),
+            accepted=accepted, converged=bool(self._attempt_identifier().converged), converged_s=self._converged_s(),
             criterion_met_from_s=getattr(self._identifier, "criterion_met_from_s", None),
             training_s=self._training_time_s, samples=len(self._training.time),
             training=self._series(self._training, history=True),
@@ -502,7 +511,7 @@ class IdentificationManoeuvre(Behaviour):
     def _series(self, record: _Record, *, history: bool = False, model=None) -> dict:
         series: dict = {"time": list(record.time), "signal": list(record.signal), "actuator": list(record.actuator)}
         if history:
-            series["history"] = _history_dict(self._identifier.history_table)
+            series["history"] = _history_dict(self._attempt_identifier().history_table)
         if model is not None and len(record.time) >= 2:
             series["simulated"] = _simulate(self.config.axis, model, record)
         return series
@@ -511,7 +520,7 @@ class IdentificationManoeuvre(Behaviour):
         if now - self._last_live < self.config.live_value_period_s:
             return []
         self._last_live = now
-        model = _model_dict(self._identifier.model())
+        model = _model_dict(self._attempt_identifier().model())
         return [NamedValue(name[:10], value) for name, value in model.items() if isinstance(value, float)]
 
     def _describe(self, model) -> str:
@@ -548,7 +557,7 @@ def _nan_low(value: float) -> float:
 
 def _model_dict(model) -> dict:
     """Numbers of a YawModel/PitchModel as a plain dict (covariance as nested lists)."""
-    out = {}
+    out: dict[str, float | list[list[float]] | None] = {}
     for name, value in vars(model).items():
         if name == "covariance":
             out[name] = None if value is None else [[float(x) for x in row] for row in value]

@@ -327,11 +327,12 @@ class MinSpeedSeeking(Behaviour):
         """
         cfg = self.config
         curve = cfg.start_pitch_curve
-        if not self._initialised:
+        budget = cfg.start_depth_budget_m
+        if not self._initialised or budget is None:  # the caller governs only with a budget
             return self.thrust_ratio
         ratios = np.array([point[0] for point in curve])
         pitches = np.array([point[1] for point in curve])
-        allowed_pitch = self._integrator - abs(cfg.depth_p) * cfg.start_depth_budget_m
+        allowed_pitch = self._integrator - abs(cfg.depth_p) * budget
         allowed = float(np.interp(allowed_pitch, pitches, ratios))  # θ rises with T_R (config doc)
         return max(target, min(self.thrust_ratio, allowed))
 

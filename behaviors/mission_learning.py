@@ -300,14 +300,15 @@ class MissionLearner(Behaviour):
         window = self.estimator.add(t, telemetry.yaw, telemetry.rudder, telemetry.speed_water)
         if window is not None:
             self.windows.append(self.models.add(window))
-        if self.by_rate:
-            segment = self.recorder.add(t, telemetry.turn_rate_target if allowed else math.nan,
-                                        telemetry.turn_rate_achieved, telemetry.speed_water, telemetry.rudder)
+        recorder = self.recorder
+        if isinstance(recorder, RateSegmentRecorder):  # by_rate
+            segment = recorder.add(t, telemetry.turn_rate_target if allowed else math.nan,
+                                   telemetry.turn_rate_achieved, telemetry.speed_water, telemetry.rudder)
             if segment is not None:
                 self._segment_flown(segment)
         else:
-            turn = self.recorder.add(t, telemetry.yaw, telemetry.heading_target if allowed else math.nan,
-                                     telemetry.speed_water)
+            turn = recorder.add(t, telemetry.yaw, telemetry.heading_target if allowed else math.nan,
+                                telemetry.speed_water)
             if turn is not None:
                 self._turn_flown(turn)
         steady = self._steady(telemetry, allowed)
@@ -382,6 +383,8 @@ class MissionLearner(Behaviour):
         return [SetParameters(dict(gains))]
 
     def _write_design(self, t: float, speed: float, why: str) -> list[Command]:
+        if self.design is None:  # WAITING_TO_WRITE comes with a design (_maybe_design)
+            raise RuntimeError("no learned design to write")
         gains = self.design.gains_at(speed)
         self.written, self.written_at = gains, t
         text = "LEARN: wrote " + " ".join(f"{k.replace('heading_', '')}={v:.3g}" for k, v in gains.items())
@@ -401,11 +404,12 @@ class MissionLearner(Behaviour):
         figures = turn.figures()
         if not math.isfinite(figures["iae_s"]):
             return
-        learned = self.written is not None and turn.t_start >= self.written_at
+        written = self.written
+        learned = written is not None and turn.t_start >= self.written_at
         predicted, predicted_overshoot, original = math.nan, math.nan, math.nan
         if self.design is not None and math.isfinite(turn.speed):
-            if learned:
-                predicted, predicted_overshoot = self.design.predict(self.written, turn.speed, turn.step)
+            if learned and written is not None:
+                predicted, predicted_overshoot = self.design.predict(written, turn.speed, turn.step)
             original = self.design.predict(self.original, turn.speed, turn.step)[0]
         self.turns.append(TurnFigures(t_start=turn.t_start, speed=turn.speed, size=math.degrees(turn.step),
                                       gains="learned" if learned else "original", error=figures["iae_s"],
@@ -414,14 +418,15 @@ class MissionLearner(Behaviour):
                                       metric=STEP_ERROR))
 
     def _segment_flown(self, segment: FlownSegment) -> None:
-        learned = self.written is not None and segment.t_start >= self.written_at
+        written = self.written
+        learned = written is not None and segment.t_start >= self.written_at
         predicted, original, within = math.nan, math.nan, math.inf
         if self.design is not None and math.isfinite(segment.speed):
             within = self.config.rate_fraction * self.design.rate_limit(segment.speed)
             if segment.seconds_within(within) < self.config.min_segment_s:
                 return  # a turn the rudder flies at its stop: no gains would change it
-            if learned:
-                predicted = segment.error_deg_s(self.design.replay(self.written, segment.speed, segment), within)
+            if learned and written is not None:
+                predicted = segment.error_deg_s(self.design.replay(written, segment.speed, segment), within)
             original = segment.error_deg_s(self.design.replay(self.original, segment.speed, segment), within)
         self.turns.append(TurnFigures(t_start=segment.t_start, speed=segment.speed, size=segment.size_deg_s,
                                       gains="learned" if learned else "original",

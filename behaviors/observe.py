@@ -37,7 +37,7 @@ class Observe(Behaviour):
         self.series["time"].append(telemetry.time_s)
         for name in self.fields:
             self.series[name].append(getattr(telemetry, name))
-        if telemetry.time_s - self.start_time_s >= self.duration_s:
+        if telemetry.time_s - self.started_s >= self.duration_s:
             self.finish(Status.SUCCESS)
         return []
 

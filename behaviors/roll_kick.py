@@ -48,7 +48,7 @@ class RollKick(Behaviour):
             if self.kicked_at is None and abs(telemetry.roll - self._level) > math.radians(0.5 * abs(self.kick_deg)):
                 self.kicked_at = telemetry.time_s
         now = telemetry.time_s
-        if self.kicked_at is None and now - self.start_time_s > self.max_wait_s:
+        if self.kicked_at is None and now - self.started_s > self.max_wait_s:
             self.finish(Status.FAILURE, "the roll impulse was not seen in the telemetry")
         elif self.kicked_at is not None and now - self.kicked_at >= self.record_s:
             self.finish(Status.SUCCESS)

@@ -13,7 +13,7 @@ child only.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Iterable, Sequence, Union
+from typing import Any, Callable, Iterable, Sequence, Union
 
 from behaviors.base import Behaviour, Footprint, Status, footprint_of
 from companion.interface import (
@@ -135,7 +135,7 @@ class SequenceBehavior(Behaviour):
             return current.stop(self.reason or "aborted")
         return []
 
-    def result(self) -> dict:
+    def result(self) -> Any:  # a dict here; a procedure built on a sequence returns its ProcedureResult
         return {"name": self.name, "status": self.status.value, "reason": self.reason,
                 "steps": [b.result() for b in self.completed]}
 

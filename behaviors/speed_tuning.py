@@ -217,10 +217,17 @@ class SpeedTuning(Behaviour):
             self.error = str(exc)
             log.warning("speed loop not tuned: %s", exc)
 
+    def _designed(self) -> SpeedDesign:
+        """The design (set by ``_prepare`` with the surge model and the steps, or the behaviour fails at once)."""
+        if self.design is None:
+            raise RuntimeError(f"speed loop not designed: {self.error}")
+        return self.design
+
     def _steps(self, labels: Sequence[str]) -> SequenceBehavior:
-        gains = {"original": self.original, "design": self.design.gains.params()}
+        design = self._designed()
+        gains = {"original": self.original, "design": design.gains.params()}
         self._requested.update(labels)
-        steps = [SpeedStepTest(gains[label], self.design.step, self._per_thrust, self.config.steps, label)
+        steps = [SpeedStepTest(gains[label], design.step, self._per_thrust, self.config.steps, label)
                  for label in labels if gains[label]]
         return SequenceBehavior(steps, on_complete=self._on_step, name="speed steps")
 
@@ -229,10 +236,12 @@ class SpeedTuning(Behaviour):
         prediction (None: the original gains must be flown, or there are none)."""
         if "original" in self.step_results:
             return self.step_results["original"]
-        predicted = self.design.predicted
+        predicted = self._designed().predicted
         if not self.original or "original" not in predicted:
             return None
         design = self.step_results.get("design")
+        if design is None:  # asked only once the design's steps are flown (update)
+            raise RuntimeError("the design's speed steps were not flown")
         why = self.config.check.agree(design, [predicted["design"], predicted["design_back"]])
         if why is not None:
             self.original_flown_because = why
@@ -247,14 +256,17 @@ class SpeedTuning(Behaviour):
             self.step_results[step.label] = step.result()
 
     def initialise(self, telemetry: Telemetry) -> Sequence[Command]:
-        if self._sequence is None:
+        if self._sequence is None or self.surge is None:  # _prepare sets both, or neither
             self.finish(Status.FAILURE, f"speed loop not tuned: {self.error}")
             return [StatusText(f"speed loop not tuned: {self.error}"[:50], 4)]
         return [StatusText(f"speed loop: {self.surge.describe()}"[:50])]
 
     def update(self, telemetry: Telemetry) -> Sequence[Command]:
-        commands = list(self._sequence.tick(telemetry))
-        if self._sequence.done:
+        sequence = self._sequence
+        if sequence is None:  # initialise failed the behaviour: no update follows
+            raise RuntimeError("speed loop updated without its speed steps")
+        commands = list(sequence.tick(telemetry))
+        if sequence.done:
             design = self.step_results.get("design")
             original = None
             if design is not None and self.original:
@@ -270,7 +282,7 @@ class SpeedTuning(Behaviour):
                 self.verdict = self.config.check.verdict(original, design)
             self.original_figures = original
             if self.verdict is None:
-                self.kept = self.design.gains.params()
+                self.kept = self._designed().gains.params()
                 self.finish(Status.SUCCESS)
                 commands.append(StatusText("speed gains verified"))
             else:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import asdict, dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -302,7 +302,8 @@ class SteadyTurns(Behaviour):
         return [recorder.arrays() for recorder in self._recorders]
 
     def result(self) -> dict:
-        out = {"behavior": "turns", "status": self._status, "config": asdict(self.config), "turns": self._turns}
+        out: dict[str, Any] = {"behavior": "turns", "status": self._status, "config": asdict(self.config),
+                               "turns": self._turns}
         speeds = [(t["current_north"], t["current_east"]) for t in self._turns if "current_north" in t]
         if speeds:
             mean = np.mean(np.array(speeds), axis=0)

@@ -119,8 +119,11 @@ class VerificationStep(Behaviour):
         now = telemetry.time_s
         heading = self._unwrapped(telemetry.yaw)
         if self._phase == "settle":
-            self._steady.add(now, telemetry.speed_water, telemetry.yaw_rate, telemetry.pitch_rate, telemetry.yaw)
-            if self._steady.steady(now) or now - self._phase_start >= self.config.settle_max_s:
+            steady = self._steady
+            if steady is None:  # initialise and every settle after it make one
+                raise RuntimeError(f"{self.name} settling without a steadiness detector")
+            steady.add(now, telemetry.speed_water, telemetry.yaw_rate, telemetry.pitch_rate, telemetry.yaw)
+            if steady.steady(now) or now - self._phase_start >= self.config.settle_max_s:
                 return self._begin_step(now, heading)
             return []
         self._record(telemetry, now, heading)

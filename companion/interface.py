@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Protocol, Sequence, runtime_checkable
+from typing import Any, Protocol, Sequence, runtime_checkable
 
 NAN = float("nan")
 
@@ -143,7 +143,8 @@ class Behavior(Protocol):
 
     ``step`` is called once per telemetry snapshot (the attitude rate) and returns the commands to
     send now. ``abort`` returns the commands that put the vehicle back as the behaviour found it;
-    after it, ``done`` is true. ``result`` is a JSON-serialisable summary for the store.
+    after it, ``done`` is true. ``result`` is a JSON-serialisable summary for the store, or a typed
+    record (a procedure's ``ProcedureResult``, ``companion.procedures.results``).
     """
 
     @property
@@ -153,4 +154,4 @@ class Behavior(Protocol):
 
     def abort(self, reason: str) -> Sequence[Command]: ...
 
-    def result(self) -> dict: ...
+    def result(self) -> Any: ...

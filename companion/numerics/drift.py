@@ -227,8 +227,9 @@ class PassiveYawEstimator:
         if self.speed_exponents is not None:
             rate = yaw_rate if math.isfinite(yaw_rate) else turned / dt
             inputs = self._scaled_inputs(rate, rudder, speed)
-            scaled = tuple(f.update(v if math.isfinite(v) else 0.0, dt)[0]
-                           for f, v in zip(self._scaled_filters, inputs))
+            rate_scaled, rudder_scaled = (f.update(v if math.isfinite(v) else 0.0, dt)[0]
+                                          for f, v in zip(self._scaled_filters, inputs))
+            scaled = (rate_scaled, rudder_scaled)
         if t < self._ready_at:
             return None
         if self._window_start is None:
@@ -249,12 +250,15 @@ class PassiveYawEstimator:
         return estimate
 
     def _estimate(self, t_end: float) -> WindowEstimate | None:
+        window_start = self._window_start
+        if window_start is None:
+            raise RuntimeError("no window under way to estimate from")
         phi, y = np.asarray(self._rows), np.asarray(self._targets)
         speeds = np.asarray(self._speeds, dtype=float)
         speeds = speeds[np.isfinite(speeds)]
         speed = float(np.mean(speeds)) if speeds.size else math.nan
         spread = float((speeds.max() - speeds.min()) / speed) if speeds.size and speed > 0 else math.nan
-        duration = t_end - self._window_start
+        duration = t_end - window_start
         lags = max(1, int(round(self.config.hac_lag_s * (len(y) - 1) / max(duration, 1e-9))))
         try:
             theta, covariance = hac_least_squares(phi, y, lags)
@@ -265,7 +269,7 @@ class PassiveYawEstimator:
                               speed=np.asarray(self._speeds, dtype=float), hac_lags=lags,
                               scaled=np.asarray(self._scaled) if self.speed_exponents is not None else None,
                               scaled_exponents=self.speed_exponents) if self.keep_records else None
-        return WindowEstimate(t_start=float(self._window_start), t_end=float(t_end), samples=len(y), speed=speed,
+        return WindowEstimate(t_start=float(window_start), t_end=float(t_end), samples=len(y), speed=speed,
                               speed_spread=spread, rudder_std=float(np.std(self._rudders)),
                               heading_span_deg=math.degrees(max(self._headings) - min(self._headings)),
                               theta=[float(v) for v in theta], covariance=covariance.tolist(), record=record)

@@ -161,7 +161,7 @@ class _SvfRlsIdentifier:
             self._output_unwrapped = output
         self._last_raw_output = output
 
-        if self._first_time is None:
+        if self._first_time is None or self._last_time is None:  # set together: the first sample
             self._first_time = time_s
             self._output_filter.reset(self._output_unwrapped)
             self._input_filter.reset(actuator)
@@ -213,7 +213,7 @@ class _SvfRlsIdentifier:
         """The drift rule: over the last ``drift_window_s`` (all of it after ``min_time_s``) no
         estimate was farther than ``relative_drift``·‖Θ‖ from the current one."""
         rule = self.rule
-        if elapsed - rule.drift_window_s < rule.min_time_s:
+        if rule.relative_drift is None or elapsed - rule.drift_window_s < rule.min_time_s:
             return False
         scale = float(np.linalg.norm(theta))
         if not scale > 0.0:

@@ -192,7 +192,7 @@ def select_model(fits: dict[str, tuple[float, int, int]] | dict[str, EtaModelFit
         else:
             table[name] = (float(value[0]), int(value[1]), int(value[2]))
     ratio = {name: j / nu for name, (j, nu, _) in table.items()}
-    champion = min(ratio, key=ratio.get)
+    champion = min(ratio, key=ratio.__getitem__)
     j_c, nu_c, p_c = table[champion]
     p_values: dict[str, float] = {}
     for name, (j_s, _, p_s) in table.items():

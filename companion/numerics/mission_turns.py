@@ -281,20 +281,23 @@ def judge_turns(before: Sequence[TurnFigures], after: Sequence[TurnFigures], con
         source = "the original gains replayed on the same turn rates"
     else:
         reference, source = _mean([t.original_error for t in after]), "the original gains' prediction (none flown before)"
-    figures = dict(before_error=reference, after_error=after_error, predicted_error=predicted,
-                   after_overshoot_pct=worst_after, predicted_overshoot_pct=worst_predicted,
-                   turns_before=len(before), turns_after=len(after), metric=after[0].metric)
+
+    def verdict(keep: bool, reason: str) -> TurnVerdict:
+        return TurnVerdict(keep, reason, before_error=reference, after_error=after_error, predicted_error=predicted,
+                           after_overshoot_pct=worst_after, predicted_overshoot_pct=worst_predicted,
+                           turns_before=len(before), turns_after=len(after), metric=after[0].metric)
+
     if not (math.isfinite(after_error) and math.isfinite(predicted)):  # fail safe: nothing to judge by
-        return TurnVerdict(False, f"not as predicted: {name} {after_error:.2f} {unit} flown, no prediction to "
-                                  "compare with", **figures)
+        return verdict(False, f"not as predicted: {name} {after_error:.2f} {unit} flown, no prediction to "
+                              "compare with")
     if not after_error <= reference:
-        return TurnVerdict(False, f"worse than the original gains: {name} {after_error:.2f} {unit} against "
-                                  f"{reference:.2f} {unit} ({source})", **figures)
+        return verdict(False, f"worse than the original gains: {name} {after_error:.2f} {unit} against "
+                              f"{reference:.2f} {unit} ({source})")
     if abs(after_error - predicted) > config.error_tolerance * predicted:
-        return TurnVerdict(False, f"not as predicted: {name} {after_error:.2f} {unit} flown, {predicted:.2f} {unit} "
-                                  f"predicted (tolerance {100 * config.error_tolerance:.0f} %)", **figures)
+        return verdict(False, f"not as predicted: {name} {after_error:.2f} {unit} flown, {predicted:.2f} {unit} "
+                              f"predicted (tolerance {100 * config.error_tolerance:.0f} %)")
     if after[0].metric == STEP_ERROR and not worst_after <= worst_predicted + config.overshoot_margin_pct:
-        return TurnVerdict(False, f"not as predicted: overshoot {worst_after:.1f} % flown, {worst_predicted:.1f} % "
-                                  f"predicted (margin {config.overshoot_margin_pct:.1f} points)", **figures)
-    return TurnVerdict(True, f"{name} {after_error:.2f} {unit} against {reference:.2f} {unit} ({source}); "
-                             f"predicted {predicted:.2f} {unit}", **figures)
+        return verdict(False, f"not as predicted: overshoot {worst_after:.1f} % flown, {worst_predicted:.1f} % "
+                              f"predicted (margin {config.overshoot_margin_pct:.1f} points)")
+    return verdict(True, f"{name} {after_error:.2f} {unit} against {reference:.2f} {unit} ({source}); "
+                         f"predicted {predicted:.2f} {unit}")

@@ -91,22 +91,22 @@ def fit_yaw_offline(
     scipy's default simplex around a zero start (±0.00025) is already smaller than the 0.01
     parameter tolerance, so the search would stop at once without moving.
     """
-    times = np.asarray(times, dtype=float)
-    heading = np.asarray(heading, dtype=float)
-    rudder = np.asarray(rudder, dtype=float)
-    ok = np.isfinite(times) & np.isfinite(heading) & np.isfinite(rudder)
-    times, heading, rudder = times[ok], np.unwrap(heading[ok]), rudder[ok]
-    if times.size < 4:
+    all_times = np.asarray(times, dtype=float)
+    all_heading = np.asarray(heading, dtype=float)
+    all_rudder = np.asarray(rudder, dtype=float)
+    ok = np.isfinite(all_times) & np.isfinite(all_heading) & np.isfinite(all_rudder)
+    t, psi, delta = all_times[ok], np.unwrap(all_heading[ok]), all_rudder[ok]
+    if t.size < 4:
         raise ValueError("need at least 4 finite samples")
-    if np.any(np.diff(times) <= 0.0):
+    if np.any(np.diff(t) <= 0.0):
         raise ValueError("times must be strictly increasing")
-    time_list = times.tolist()
-    rudder_list = rudder.tolist()
-    heading0 = float(heading[0])
+    time_list = t.tolist()
+    rudder_list = delta.tolist()
+    heading0 = float(psi[0])
 
     def cost(theta: np.ndarray) -> float:
         simulated = simulate_yaw_rk4(theta[0], theta[1], theta[2], time_list, rudder_list, heading0, yaw_rate0)
-        value = math.sqrt(float(np.mean((heading - simulated) ** 2)))
+        value = math.sqrt(float(np.mean((psi - simulated) ** 2)))
         return value if math.isfinite(value) else 1e12
 
     start = np.asarray(theta0, dtype=float)
@@ -130,7 +130,7 @@ def fit_yaw_offline(
         iterations=int(result.nit),
         function_evaluations=int(result.nfev),
         cost=float(result.fun),
-        r2=r_squared(simulated, heading),
+        r2=r_squared(simulated, psi),
         success=bool(result.success),
         message=str(result.message),
     )

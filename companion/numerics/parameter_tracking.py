@@ -58,7 +58,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 
 from companion.checks import require_non_negative, require_positive, require_range
-from .drift import WindowEstimate, hac_least_squares
+from .drift import WindowEstimate, WindowRecord, hac_least_squares
 from .identification import YawModel
 from .validation import r_squared, simulate_yaw, simulate_yaw_scaled
 
@@ -137,9 +137,16 @@ def normalised(window: WindowEstimate, speed: float, config: TrackingConfig) -> 
     return replace(window, theta=[float(v) for v in theta], covariance=covariance.tolist(), record=rows)
 
 
+def _rows_of(window: WindowEstimate) -> WindowRecord:
+    """The window's rows: a tracker learns only from windows estimated with ``keep_records``."""
+    if window.record is None:
+        raise ValueError("the window was estimated without its rows (keep_records=False): nothing to track")
+    return window.record
+
+
 def _white_and_hac(window: WindowEstimate) -> tuple[float, float]:
     """The window's residual variance, and the ratio of its Newey–West to white-noise variance of θ."""
-    record = window.record
+    record = _rows_of(window)
     theta = np.asarray(window.theta)
     residual = record.y - record.phi @ theta
     sigma2 = float(np.mean(residual ** 2))
@@ -157,7 +164,7 @@ class ParameterTracker:
         self.filter = KalmanFilter(dim_x=3, dim_z=1)
         self.filter.x = np.asarray(first.theta, dtype=float).reshape(3, 1)
         sigma2, ratio = _white_and_hac(first)  # the same noise rule as every later window's rows
-        record = first.record
+        record = _rows_of(first)
         self.filter.P = ratio * sigma2 * np.linalg.inv(record.phi.T @ record.phi) \
             + np.diag(np.square(1e-6 * np.abs(first.theta)))
         self.filter.F = np.eye(3)
@@ -166,7 +173,7 @@ class ParameterTracker:
 
     def absorb(self, window: WindowEstimate) -> None:
         """Every row of ``window`` as one measurement, after the random walk since the last row."""
-        record = window.record
+        record = _rows_of(window)
         sigma2, ratio = _white_and_hac(window)
         noise = sigma2 * ratio
         kf = self.filter
@@ -193,7 +200,7 @@ class ParameterTracker:
 
 def validate_on(model: YawModel, window: WindowEstimate) -> float:
     """R² (eq. 3.35) of ``model``'s heading simulated on the window's recorded rudder."""
-    record = window.record
+    record = _rows_of(window)
     if record.a22_scale is not None and record.b2_scale is not None:  # rows at the band's speed (eq. L.3)
         simulated = simulate_yaw_scaled(model, record.times, record.rudder, float(record.heading[0]),
                                         record.yaw_rate0, record.a22_scale, record.b2_scale)

@@ -109,9 +109,10 @@ def rudder_limit_from_plateau(t: np.ndarray, rudder: np.ndarray, plateau_s: floa
 def _pieces(t: np.ndarray, ok: np.ndarray, max_gap_s: float) -> tuple[list[tuple[int, int]], list[Segment]]:
     """Continuous pieces (start, stop) between gaps, and the gaps as rejected segments."""
     breaks = np.flatnonzero((np.diff(t) > max_gap_s) | ~ok[1:] | ~ok[:-1])
-    pieces, gaps = [], []
+    pieces: list[tuple[int, int]] = []
+    gaps: list[Segment] = []
     start = 0
-    for b in breaks:
+    for b in breaks.tolist():
         if b + 1 - start > 1:
             pieces.append((start, b + 1))
         gap_end = b + 1
@@ -196,7 +197,8 @@ def _judge(a: int, b: int, t, heading, rudder, speed, thrust, smooth, heading_ra
         else:
             reason = (f"speed not steady: {np.min(smooth):.2f}–{np.max(smooth):.2f} m/s "
                       f"({100 * spread:.0f} % > {200 * rules.speed_tolerance:.0f} %)"
-                      + (f", thrust {np.nanmin(thrust_w):.2f}–{np.nanmax(thrust_w):.2f}" if thrust_range else ""))
+                      + (f", thrust {np.nanmin(thrust_w):.2f}–{np.nanmax(thrust_w):.2f}"
+                         if thrust_w is not None and thrust_range else ""))
     if not reason:  # start where the vehicle is quietest (the filters start at rest)
         search = np.flatnonzero(t[a:b] - t[a] <= rules.quiet_search_s)
         rates = heading_rate[a - piece_start: a - piece_start + search.size]

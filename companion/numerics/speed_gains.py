@@ -205,9 +205,9 @@ def design_speed_gains(model: SurgeModel, cruise_speed: float, speed_range: tupl
     up = start + rules.step
     step = (start, up) if up <= min(1.1 * high, speed_max) else (start, start - rules.step)
     i_min = max(rules.i_range[0], throttle / (20.0 * speed))
-    grid_p, grid_i = np.meshgrid(np.geomspace(rules.p_range[0], rules.p_range[1], 16),
+    mesh_p, mesh_i = np.meshgrid(np.geomspace(rules.p_range[0], rules.p_range[1], 16),
                                  np.geomspace(max(i_min, 1e-4), rules.i_range[1], 10))
-    grid_p, grid_i = grid_p.ravel(), grid_i.ravel()
+    grid_p, grid_i = mesh_p.ravel(), mesh_i.ravel()
     scores = []
     for begin, end in (step, (step[1], step[0])):
         times, speeds = simulate_speed_steps(model, speed, throttle, grid_p, grid_i, begin, end, accel_max)

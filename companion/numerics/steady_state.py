@@ -246,7 +246,8 @@ def fit_straight_legs(roll, pitch, yaw, vel_body, mask: np.ndarray | None = None
     # long log needs memory for one block, not for H; the solution is lstsq's on the full H.
     triangle = np.zeros((0, 6))
     for block in _blocks(z.shape[0]):
-        triangle = np.linalg.qr(np.vstack([triangle, rows(block)]), mode="r")
+        stacked = np.vstack([triangle, rows(block)])
+        triangle = np.linalg.qr(stacked, mode="r")  # type: ignore[assignment]  # numpy stub wrong: mode="r" returns R only
     r, qtz = triangle[:5, :5], triangle[:5, 5]
     theta, *_ = np.linalg.lstsq(r, qtz, rcond=None)
     residuals = np.empty((n, 3))
@@ -369,7 +370,8 @@ def _reduce(rows_of, n: int, width: int) -> np.ndarray:
     gives for consecutive blocks of the ``n`` samples (tall-skinny QR: memory of one block)."""
     triangle = np.zeros((0, width))
     for block in _blocks(n):
-        triangle = np.linalg.qr(np.vstack([triangle, rows_of(block)]), mode="r")
+        stacked = np.vstack([triangle, rows_of(block)])
+        triangle = np.linalg.qr(stacked, mode="r")  # type: ignore[assignment]  # numpy stub wrong: mode="r" returns R only
     if triangle.shape[0] < width:  # fewer rows than columns: pad (R's missing rows are zero)
         triangle = np.vstack([triangle, np.zeros((width - triangle.shape[0], width))])
     return triangle
@@ -494,8 +496,8 @@ def fit_steady_turn(t, north, east, yaw=None) -> TurnFit:
     if abs(rate0) < 1e-6:
         raise ValueError("no turning detected (heading rate ≈ 0): not a steady turn")
     scan = np.linspace(0.7 * rate0, 1.3 * rate0, 121)
-    ssr = [_linear_given_rate(tau, pos, w)[1] for w in scan]
-    rate_init = float(scan[int(np.argmin(ssr))])
+    scan_ssr = [_linear_given_rate(tau, pos, w)[1] for w in scan]
+    rate_init = float(scan[int(np.argmin(scan_ssr))])
     coef, _ = _linear_given_rate(tau, pos, rate_init)
     a, b = coef[4], coef[5]
     radius0, phase0 = math.hypot(a, b), math.atan2(b, a)

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.optimize import least_squares, minimize_scalar
 
 #: the bounds of γ searched (1/m): time constants from 5 ms to 500 s at 1 m/s
@@ -78,7 +79,8 @@ class SurgeModel:
         target = self.steady_speed(throttle)
         return self.gamma * (target * target - speed * abs(speed))
 
-    def simulate(self, times: Sequence[float], throttle: Sequence[float], speed0: float) -> np.ndarray:
+    def simulate(self, times: Sequence[float] | NDArray[np.float64], throttle: Sequence[float] | NDArray[np.float64],
+                 speed0: float) -> np.ndarray:
         """u over ``times`` from ``speed0`` (steady: the thrust at the first throttle), throttle held
         over each interval."""
         return simulate_surge(self.gain, self.exponent, self.gamma, times, throttle, speed0, self.lag)
@@ -92,8 +94,8 @@ class SurgeModel:
 MAX_STEP_S = 0.05
 
 
-def simulate_surge(gain: float, exponent: float, gamma: float, times: Sequence[float], throttle: Sequence[float],
-                   speed0: float, lag: float = 0.0) -> np.ndarray:
+def simulate_surge(gain: float, exponent: float, gamma: float, times: Sequence[float] | NDArray[np.float64],
+                   throttle: Sequence[float] | NDArray[np.float64], speed0: float, lag: float = 0.0) -> np.ndarray:
     """Eq. S.4 from ``speed0`` with the thrust starting at ``throttle[0]``; each interval in steps of
     at most :data:`MAX_STEP_S`: the lag exactly (throttle held), the speed by Heun."""
     n = len(times)

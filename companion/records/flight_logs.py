@@ -255,15 +255,15 @@ def _read_tlog(path: str, profile: AutopilotProfile, full_scale: float) -> Steer
     for time_s, pwm in servo:
         if mixed:
             axes = unmix_vectored(pwm)
-            rudder = axes.yaw * full_scale if axes is not None else math.nan
-            thrust = axes.forward if axes is not None else math.nan
+            rudder_at = axes.yaw * full_scale if axes is not None else math.nan
+            thrust_at = axes.forward if axes is not None else math.nan
         elif actuation is not None:
-            steering, thrust = actuation.demands(pwm)
-            rudder = steering * full_scale
+            steering, thrust_at = actuation.demands(pwm)
+            rudder_at = steering * full_scale
         else:
-            rudder = _scaled_angle(profile, pwm[rudder_output - 1], full_scale) if rudder_output else math.nan
-            thrust = profile.pwm_to_thrust(pwm[thrust_output - 1]) if thrust_output else math.nan
-        decoded.append((time_s, rudder, thrust))
+            rudder_at = _scaled_angle(profile, pwm[rudder_output - 1], full_scale) if rudder_output else math.nan
+            thrust_at = profile.pwm_to_thrust(pwm[thrust_output - 1]) if thrust_output else math.nan
+        decoded.append((time_s, rudder_at, thrust_at))
     srv = _series(decoded, "no SERVO_OUTPUT_RAW messages: the log carries no actuator output", path)
     checks: list[str] = []
     t = att[:, 0]
@@ -323,7 +323,11 @@ def _read_dataflash(path: str, profile: AutopilotProfile, full_scale: float) -> 
             reader = DFReader.DFReader_binary(path, zero_time_base=True)
     except Exception as exc:  # noqa: BLE001
         raise LogError(f"{path}: cannot open as an ArduPilot DataFlash log ({exc})") from None
-    att, rcou, gps, xkf, params = [], [], [], [], {}
+    att: list[tuple[float, float]] = []  # (time, yaw)
+    rcou: list[tuple[float, ...]] = []  # (time, C1..C14)
+    gps: list[tuple[float, float]] = []  # (time, speed)
+    xkf: list[tuple[float, float]] = []  # (time, horizontal speed)
+    params: dict[str, float] = {}
     units: dict[str, str] = {}
     try:
         with contextlib.redirect_stdout(said):

@@ -190,8 +190,9 @@ def read_csv(path: str) -> NavLog:
             raise LogError(f"{path}: repeated time stamps in column 't'")
     known = set(REQUIRED_COLUMNS) | set(OPTIONAL_COLUMNS)
     return NavLog(
-        **{name: table[name] for name in REQUIRED_COLUMNS},
-        **{name: table.get(name) for name in OPTIONAL_COLUMNS},
+        t=table["t"], north=table["north"], east=table["east"], down=table["down"], roll=table["roll"],
+        pitch=table["pitch"], yaw=table["yaw"], u=table["u"], v=table["v"], w=table["w"],  # REQUIRED_COLUMNS
+        rudder=table.get("rudder"), thrust=table.get("thrust"), force=table.get("force"),  # OPTIONAL_COLUMNS
         extra={k: v for k, v in table.items() if k not in known},
         source=path,
     )

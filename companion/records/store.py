@@ -258,6 +258,13 @@ def _statements(script: str) -> list[str]:
     return out
 
 
+def _row_id(cursor: sqlite3.Cursor) -> int:
+    """The id of the row an INSERT just made (``lastrowid``; None only where no row was inserted)."""
+    if cursor.lastrowid is None:
+        raise sqlite3.DatabaseError("the INSERT made no row")
+    return int(cursor.lastrowid)
+
+
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -374,7 +381,7 @@ class Store:
 
     def _insert(self, sql: str, args: tuple) -> int:
         with self._transaction():
-            return int(self._db.execute(sql, args).lastrowid)
+            return _row_id(self._db.execute(sql, args))
 
     def close(self) -> None:
         self._db.close()
@@ -394,17 +401,17 @@ class Store:
         """A campaign row, ``running``, with a trail naming this process as its owner (so another
         process can tell a live campaign from one whose process died)."""
         with self._transaction():
-            campaign_id = int(self._db.execute(
+            campaign_id = _row_id(self._db.execute(
                 "INSERT INTO campaigns(vehicle_id, kind, status, config_json, started_utc) VALUES (?,?,?,?,?)",
-                (vehicle_id, kind, "running", _json(config or {}), _now())).lastrowid)
+                (vehicle_id, kind, "running", _json(config or {}), _now())))
             self._open_trail(campaign_id)
         return campaign_id
 
     def _open_trail(self, campaign_id: int) -> int:
         owner = ProcessOwner.current()
-        return int(self._db.execute(
+        return _row_id(self._db.execute(
             "INSERT INTO trails(campaign_id, owner_pid, owner_host, owner_boot, owner_started, opened_utc)"
-            " VALUES (?,?,?,?,?,?)", (campaign_id, owner.pid, owner.host, owner.boot_id, owner.started, _now())).lastrowid)
+            " VALUES (?,?,?,?,?,?)", (campaign_id, owner.pid, owner.host, owner.boot_id, owner.started, _now())))
 
     def update_campaign_config(self, campaign_id: int, config: dict) -> None:
         """The campaign's configuration as resolved on the vehicle (what it read there, e.g. the
@@ -489,14 +496,14 @@ class Store:
         same transaction. The model is written by the one serialiser (its type tag included)."""
         model = to_json(attempt.model)
         with self._transaction():
-            run_id = int(self._db.execute(
+            run_id = _row_id(self._db.execute(
                 "INSERT INTO runs(campaign_id, axis, thrust, attempt, speed, r2, accepted, converged_s, training_s,"
                 " samples, model_json, series_json) VALUES (?,?,?,?,?,?,?,?,?,?,?,?)",
                 (campaign_id, attempt.axis, attempt.thrust, attempt.attempt, json_safe(attempt.speed),
                  json_safe(attempt.r2), int(bool(attempt.accepted)), json_safe(attempt.converged_s),
                  json_safe(attempt.training_s), attempt.samples,
                  _json(model), _json({"training": attempt.training, "validation": attempt.validation})),
-            ).lastrowid)
+            ))
             if attempt.accepted:
                 params = {k: v for k, v in model.items() if k not in ("covariance", "type")}
                 self._db.execute(
@@ -598,7 +605,8 @@ class Store:
         return out
 
     def latest_campaign_id(self, kind: str | None = None) -> int | None:
-        sql, args = "SELECT MAX(id) FROM campaigns", ()
+        sql = "SELECT MAX(id) FROM campaigns"
+        args: tuple[str, ...] = ()
         if kind:
             sql, args = sql + " WHERE kind=?", (kind,)
         value = self._db.execute(sql, args).fetchone()[0]

@@ -126,7 +126,7 @@ class SimulatorProcess:
         log_file = open(self.log_path, "w") if self.log_path else subprocess.DEVNULL  # noqa: SIM115
         self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=log_file, text=True,
                                         env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        if self.log_path:
+        if not isinstance(log_file, int):  # a file of ours (log_path), not DEVNULL
             log_file.close()
         deadline = time.monotonic() + self.ready_timeout_s
         assert self.process.stdout is not None

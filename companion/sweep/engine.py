@@ -28,10 +28,14 @@ import uuid
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TextIO
+from typing import TYPE_CHECKING, Any, Protocol, TextIO
 
 from companion.sweep.case import ERROR, FIGURES, STOPPED, CaseOptions, CaseResult, row_from_summary, run_case
 from companion.sweep.spec import Case
+
+if TYPE_CHECKING:
+    import dask.config
+    from distributed import Client, LocalCluster
 
 log = logging.getLogger(__name__)
 
@@ -62,17 +66,18 @@ def dask_case(case: Case, options: CaseOptions, stop_event: str | None = None) -
         from distributed import Event
 
         event = Event(stop_event)
-        state = {"checked": -math.inf, "set": False}
+        checked, stop_set = -math.inf, False
 
         def should_stop() -> bool:
+            nonlocal checked, stop_set
             now = time.monotonic()
-            if not state["set"] and now - state["checked"] >= 1.0:
-                state["checked"] = now
+            if not stop_set and now - checked >= 1.0:
+                checked = now
                 try:
-                    state["set"] = bool(event.is_set())
+                    stop_set = bool(event.is_set())
                 except Exception as exc:  # noqa: BLE001 - a scheduler unreachable for a moment: keep running
                     log.debug("stop event not readable: %s", exc)
-            return state["set"]
+            return stop_set
 
         if should_stop():
             return _stopped(case, "the sweep was stopped before this case started")
@@ -98,6 +103,23 @@ LOCAL_CLUSTER_CONFIG = {
 }
 
 
+class SweepEngine(Protocol):
+    """What :meth:`SweepRun.run` asks of an engine: :class:`DaskEngine`, or one with nothing to run."""
+
+    @property
+    def description(self) -> str: ...
+
+    def new_stop_event(self) -> tuple[str, Callable[[], None]]: ...
+
+    def submit(self, case: Case, options: CaseOptions, stop_event: str) -> Any: ...
+
+    def wait_any(self, pending: set, timeout_s: float) -> tuple[set, set]: ...
+
+    def result(self, future: Any, case: Case) -> CaseResult: ...
+
+    def cancel(self, futures: Iterable) -> None: ...
+
+
 class DaskEngine:
     """A ``dask.distributed`` client: on a local cluster it starts (``scheduler`` None) or on an
     existing one. Use as a context manager; the local cluster is closed on exit."""
@@ -107,9 +129,9 @@ class DaskEngine:
         self.scheduler = scheduler
         self.requested_workers = workers
         self.connect_timeout_s = connect_timeout_s
-        self.client = None
-        self.cluster = None
-        self._config = None
+        self.client: Client | None = None
+        self.cluster: LocalCluster | None = None
+        self._config: dask.config.set | None = None
 
     def __enter__(self) -> DaskEngine:
         import dask
@@ -147,13 +169,18 @@ class DaskEngine:
                 self._config.__exit__(None, None, None)
                 self._config = None
 
+    def _client(self) -> Client:
+        if self.client is None:
+            raise RuntimeError("the Dask engine is not started (use it as a context manager)")
+        return self.client
+
     @property
     def description(self) -> str:
-        where = self.scheduler or f"local cluster {self.client.scheduler.address}"
+        where = self.scheduler or f"local cluster {self._client().scheduler.address}"
         return f"Dask {where}, {self.workers()} worker(s)"
 
     def workers(self) -> int:
-        return len(self.client.scheduler_info().get("workers", {}))
+        return len(self._client().scheduler_info().get("workers", {}))
 
     def new_stop_event(self) -> tuple[str, Callable[[], None]]:
         """(name, set) of a fresh ``distributed.Event`` the tasks of one run watch."""
@@ -164,14 +191,14 @@ class DaskEngine:
         return name, event.set
 
     def submit(self, case: Case, options: CaseOptions, stop_event: str):
-        return self.client.submit(dask_case, case, options, stop_event, pure=False,
+        return self._client().submit(dask_case, case, options, stop_event, pure=False,
                                   key=f"sweep-case-{case.key[:16]}-{uuid.uuid4().hex[:8]}")
 
     def wait_any(self, pending: set, timeout_s: float) -> tuple[set, set]:
         """(done, not done) after the first of ``pending`` finished, or after ``timeout_s``."""
         from distributed import wait
 
-        if self.client.status in ("closing", "closed"):
+        if self._client().status in ("closing", "closed"):
             from companion.errors import UserError
 
             raise UserError(f"lost the Dask scheduler{' at ' + self.scheduler if self.scheduler else ''}; the rows "
@@ -196,7 +223,7 @@ class DaskEngine:
             return CaseResult(key=case.key, status=ERROR, reason=reason, row=row)
 
     def cancel(self, futures: Iterable) -> None:
-        self.client.cancel(list(futures))
+        self._client().cancel(list(futures))
 
 
 # ============================================================================================ recording
@@ -403,7 +430,7 @@ class SweepRun:
                 if case.key not in recorded or (self.retry_failed and recorded[case.key]["status"] != "completed")]
         return todo, len(self.cases) - len(todo)
 
-    def run(self, engine: DaskEngine) -> SweepOutcome:
+    def run(self, engine: SweepEngine) -> SweepOutcome:
         started = time.monotonic()
         todo, skipped = self.todo()
         progress = self.progress or SweepProgress(total=len(self.cases))

@@ -247,7 +247,7 @@ def write_sweep_report(rows: Sequence[dict], out_dir: str | Path, *, name: str =
     ]
     counts = failure_counts(rows)
     parts.append("<p>" + ", ".join(f"{html.escape(status)}: {n}" for status, n in
-                                   sorted(Counter(r.get("status") for r in rows).items())) + "."
+                                   sorted(Counter(r["status"] for r in rows).items())) + "."
                  + (f" Rows: <a href='{html.escape(csv_name)}'>{html.escape(csv_name)}</a>." if csv_name else "")
                  + " Figures: the simulator's linearised truth is the reference for identification errors;"
                    " every case is reproducible alone with the command shown.</p>")

@@ -111,9 +111,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     defaults = preset_defaults(args.preset)
     try:
-        current = defaults["current"] if args.current is None else tuple(float(v) for v in args.current.split(","))
-        assert len(current) == 2
-    except (ValueError, AssertionError):
+        if args.current is None:
+            current: tuple[float, float] = defaults["current"]
+        else:
+            north, east = (float(v) for v in args.current.split(","))  # ValueError unless two numbers
+            current = (north, east)
+    except ValueError:
         print("--current takes VN,VE in m/s", file=sys.stderr)
         return 2
     # the autopilot's thrusts, axes and doublets (ArduRover: fractions of WP_SPEED) where the user set none:

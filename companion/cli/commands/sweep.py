@@ -183,6 +183,12 @@ class _NoEngine:
     def submit(self, *args):  # pragma: no cover - never called without cases
         raise RuntimeError("nothing to run")
 
+    def wait_any(self, pending, timeout_s):  # pragma: no cover - never called without cases
+        raise RuntimeError("nothing to run")
+
+    def result(self, future, case):  # pragma: no cover - never called without cases
+        raise RuntimeError("nothing to run")
+
     def cancel(self, futures) -> None:
         pass
 
