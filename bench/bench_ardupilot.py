@@ -66,7 +66,7 @@ def main() -> int:
                         help="rudder: steering servo and throttle; skid: twin thrusters (ArduRover)")
     parser.add_argument("--physics", choices=("nomoto", "3dof", "ardupilot"), default="3dof",
                         help="nomoto: our first-order boat; 3dof: our surge-sway-yaw hull; ardupilot: SITL's own "
-                             "motorboat model (no truth)")
+                             "model (ArduRover's motorboat, ArduSub's vectored ROV; no truth)")
     parser.add_argument("--ardupilot-bin", default=os.environ.get("ARDUPILOT_SITL_BIN"))
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--speedup", type=float, default=10.0)
@@ -249,24 +249,30 @@ def speed_table(summaries) -> None:
 
 # ---------------------------------------------------------------------------- ArduPilot's own boat
 def motorboat(args) -> int:
-    """SITL's own motorboat (skid or rudder) and ``companion identify --connect`` against it."""
+    """SITL's own motorboat (skid or rudder), or ArduSub's own vectored ROV, as a user finds them
+    (their shipped defaults), and ``companion identify --connect`` against it. ArduSub's failsafes
+    for a pilot's sticks and the ground station's heartbeat are off (FS_PILOT_INPUT 0, FS_GCS_ENABLE
+    0) so the rig can arm it from one client."""
     from companion.link.vehicle import VehicleLink
     from companion.rehearsal.rehearsal import arm_when_ready
     from sim.ardupilot_sitl import free_instance
 
     source = Path(args.ardupilot_bin).resolve().parents[2] / "Tools" / "autotest" / "default_params"
-    model = "motorboat-skid" if args.frame == "skid" else "motorboat"
-    files = ["rover.parm", "motorboat.parm"] + (["rover-skid.parm"] if args.frame == "skid" else [])
+    sub = args.autopilot == "ardusub"
+    model = "vectored" if sub else "motorboat-skid" if args.frame == "skid" else "motorboat"
+    files = (["sub.parm"] if sub else
+             ["rover.parm", "motorboat.parm"] + (["rover-skid.parm"] if args.frame == "skid" else []))
     outcomes = []
     for repeat in range(args.repeats):
         with tempfile.TemporaryDirectory() as work:
             extra = Path(work) / "bench.parm"
-            extra.write_text(("SIM_WAVE_ENABLE 1\nSIM_WIND_SPD 3\n" if args.waves else "SIM_WAVE_ENABLE 0\nSIM_WIND_SPD 0\n")
+            extra.write_text("FS_PILOT_INPUT 0\nFS_GCS_ENABLE 0\n" if sub else
+                             ("SIM_WAVE_ENABLE 1\nSIM_WIND_SPD 3\n" if args.waves else "SIM_WAVE_ENABLE 0\nSIM_WIND_SPD 0\n")
                              + (f"WP_SPEED {args.wp_speed:g}\n" if args.wp_speed else ""))
             defaults = ",".join([str(source / f) for f in files] + [str(extra)])
             instance = free_instance()
             port = 5760 + 10 * instance
-            command = [str(Path(args.ardupilot_bin) / "ardurover"), "--model", model, "--speedup", f"{args.speedup:g}",
+            command = [str(Path(args.ardupilot_bin) / ("ardusub" if sub else "ardurover")), "--model", model, "--speedup", f"{args.speedup:g}",
                        "-I", str(instance), "--home", "-35.363262,149.165237,0,0", "--defaults", defaults]
             print(f"run {repeat + 1}: {' '.join(command)}")
             sitl = subprocess.Popen(command, cwd=work, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
@@ -282,6 +288,8 @@ def motorboat(args) -> int:
                             str(Path(work) / "s.sqlite"), "--step-deg", f"{args.step_deg:g}", "--json"]
                 if args.thrusts:
                     identify += ["--thrusts", args.thrusts]
+                if args.full_comparison:
+                    identify += ["--full-comparison"]
                 print("  " + " ".join(identify[2:]))
                 started = time.monotonic()
                 done = subprocess.run(identify, capture_output=True, text=True, timeout=3600)
