@@ -337,8 +337,8 @@ def _run_procedure(case: Case, link, store, abort) -> tuple[str, str | None, lis
         kept = dict(campaign.final_gains or {}) if outcome.status == "completed" else {}
         return outcome.status, outcome.reason, outcome.restore_problems, outcome.restore, kept
     out = run_named_behavior(case.procedure, link, store, vehicle_id=vehicle_id, campaign_id=None, abort=abort,
-                             preset="starfish", simulator=True, roll_config=roll_config(),
-                             min_speed_config=min_speed_config())
+                             preset="starfish", simulator=True,
+                             config={"roll": roll_config(), "min_speed": min_speed_config()}.get(case.procedure))
     return (out.result.status, out.result.reason, list(out.result.restore_problems),
             getattr(out.outcome, "restore", None), {})
 

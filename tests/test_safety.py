@@ -140,7 +140,7 @@ def test_a_refused_simulator_hook_keeps_the_measured_data_and_closes_the_record(
     config = RollProcedureConfig(settle_s=5.0, open_s=10.0, closed_s=15.0)
     with Store(":memory:") as store:
         out = run_named_behavior("roll", link, store, vehicle_id=store.add_vehicle("v"), campaign_id=None,
-                                 abort=AbortFlag(), simulator=True, roll_config=config)
+                                 abort=AbortFlag(), simulator=True, config=config)
         # a refused write aborts the procedure with the reason (never a warning that carries on)
         result = out.result
         assert result.status == "aborted" and "SIM_ROLL_KICK" in result.reason

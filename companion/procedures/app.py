@@ -16,7 +16,7 @@ import os
 import signal
 import sys
 from dataclasses import dataclass, replace
-from typing import Callable
+from typing import Any, Callable
 
 from pymavlink.dialects.v20.common import (MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED, MAV_RESULT_IN_PROGRESS,
                                            MAV_RESULT_TEMPORARILY_REJECTED)
@@ -363,16 +363,10 @@ def _tell(link, text: str, severity: int) -> None:
         log.debug("could not send status text %r", text)
 
 
-def run_named_behavior(name: str, link, store: Store, *, vehicle_id: int, campaign_id: int | None, abort,
-                       preset: str | None = None, simulator: bool = True, roll_config=None,
-                       min_speed_config=None, steady_config=None) -> NamedRun:
-    """:func:`run_named_procedure` for ``roll`` / ``min_speed`` / ``steady_state`` with their configurations."""
-    context = ProcedureContext(preset=preset, simulator=simulator)
-    if roll_config is not None:
-        context = replace(context, roll=roll_config)
-    if min_speed_config is not None:
-        context = replace(context, min_speed=min_speed_config)
-    if steady_config is not None:
-        context = replace(context, steady_state=steady_config)
+def run_named_behavior(name: str, link: VehiclePort, store: Store, *, vehicle_id: int, campaign_id: int | None,
+                       abort, preset: str | None = None, simulator: bool = True, config: Any = None) -> NamedRun:
+    """:func:`run_named_procedure` for a registered procedure with its configuration (None: its
+    registered default)."""
+    context = ProcedureContext(configs={} if config is None else {name: config}, preset=preset, simulator=simulator)
     return run_named_procedure(name, link, store, vehicle_id=vehicle_id, campaign_id=campaign_id, abort=abort,
                                context=context)

@@ -17,7 +17,7 @@ from behaviors.observe import Observe
 from behaviors.sequence import Instant, SequenceBehavior
 from companion.checks import require_positive, require_range
 from companion.interface import SetDepth, SetMode, SetThrust
-from companion.procedures.results import ProcedureResult, figures_of
+from companion.procedures.results import ProcedureResult, figures_of, finite_or_none
 from companion.procedures.runner import SafetyLimits, run_for_result
 
 log = logging.getLogger(__name__)
@@ -163,3 +163,18 @@ def min_speed_procedure(link, abort, config: MinSpeedProcedureConfig = MinSpeedP
     """Build and run the minimum-speed procedure under one restore point (module docstring)."""
     procedure = MinSpeedProcedure(config, depth_gains=read_depth_gains(link), analytic=analytic)
     return run_for_result(link, procedure, abort_requested=abort, limits=limits)
+
+
+#: the columns a parameter sweep's row holds of a minimum-speed result (:func:`min_speed_columns`)
+MIN_SPEED_COLUMNS = ("min_speed_status", "min_speed_tr_final", "min_speed_tr_star", "min_speed_tr_error_pct",
+                     "min_speed_settle_s", "min_speed_depth_error_m")
+
+
+def min_speed_columns(summary: dict) -> dict:
+    """A sweep row's seeker figures from the rehearsal summary's min_speed section (empty: not run);
+    the final thrust ratio's error against the analytic TR* in %."""
+    final, star = finite_or_none(summary.get("thrust_ratio_final")), finite_or_none(summary.get("thrust_ratio_star"))
+    return {"min_speed_status": summary.get("status"), "min_speed_tr_final": final, "min_speed_tr_star": star,
+            "min_speed_tr_error_pct": 100.0 * abs(final - star) / abs(star) if final is not None and star else None,
+            "min_speed_settle_s": finite_or_none(summary.get("settle_time_s")),
+            "min_speed_depth_error_m": finite_or_none(summary.get("max_depth_error_m"))}

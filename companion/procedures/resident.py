@@ -350,7 +350,7 @@ class Companion:
                 seconds = params[0] if params and math.isfinite(params[0]) and params[0] > 0 else None
                 if seconds is not None and seconds > MAX_PROCEDURE_S:
                     raise ValueError(f"param1 {seconds:g} s is beyond the {MAX_PROCEDURE_S:g} s a procedure may last")
-                context = ProcedureContext(roll=self.config.roll, min_speed=self.config.min_speed,
+                context = ProcedureContext(configs={"roll": self.config.roll, "min_speed": self.config.min_speed},
                                            preset=self.config.preset, simulator=False, seconds=seconds)
                 ran = run_named_procedure(name, self.link, self.store, vehicle_id=self.vehicle_id, campaign_id=None,
                                           abort=abort, context=context)

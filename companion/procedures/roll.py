@@ -21,7 +21,7 @@ from behaviors.roll_stabilisation import RollStabilisation, RollStabilisationCon
 from behaviors.sequence import Instant, SequenceBehavior
 from companion.checks import require_non_negative, require_positive
 from companion.interface import SetMode, SetParameters, SetRollingMass, SetThrust
-from companion.procedures.results import ProcedureResult, figures_of
+from companion.procedures.results import ProcedureResult, figures_of, finite_or_none
 from companion.procedures.runner import SafetyLimits, run_for_result
 
 
@@ -102,3 +102,14 @@ def roll_procedure(link, abort, config: RollProcedureConfig = RollProcedureConfi
     """Build and run the roll procedure under one restore point; its result as the runner saw it end."""
     return run_for_result(link, RollProcedure(config, simulator=simulator), abort_requested=abort,
                           limits=limits)
+
+
+#: the columns a parameter sweep's row holds of a roll result (:func:`roll_columns`)
+ROLL_COLUMNS = ("roll_status", "roll_std_open_deg", "roll_std_closed_deg", "roll_sigma_reduction")
+
+
+def roll_columns(summary: dict) -> dict:
+    """A sweep row's roll figures from the rehearsal summary's roll section (empty: not run)."""
+    open_deg, closed_deg = finite_or_none(summary.get("std_open_deg")), finite_or_none(summary.get("std_closed_deg"))
+    return {"roll_status": summary.get("status"), "roll_std_open_deg": open_deg, "roll_std_closed_deg": closed_deg,
+            "roll_sigma_reduction": open_deg / closed_deg if open_deg is not None and closed_deg else None}

@@ -109,3 +109,15 @@ def steady_summary(result: dict, true_current: tuple[float, float] | None = None
             turn_summary["current_error_mm_s"] = 1000 * math.hypot(turn["current_north"] - north,
                                                                    turn["current_east"] - east)
     return summary
+
+
+#: the columns a parameter sweep's row holds of a steady-state result (:func:`steady_columns`)
+STEADY_COLUMNS = ("steady_state_status", "squares_current_error_mm_s", "turns_current_error_max_mm_s")
+
+
+def steady_columns(summary: dict) -> dict:
+    """A sweep row's current-estimate errors from the rehearsal summary's steady_state section."""
+    turns = [e for e in (finite_or_none(t.get("current_error_mm_s")) for t in summary.get("turns", [])) if e is not None]
+    return {"steady_state_status": summary.get("status"),
+            "squares_current_error_mm_s": finite_or_none((summary.get("squares") or {}).get("current_error_mm_s")),
+            "turns_current_error_max_mm_s": max(turns) if turns else None}

@@ -15,7 +15,7 @@ import logging
 import math
 import textwrap
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Mapping
 
 import matplotlib
 
@@ -24,6 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from companion.numerics.turning import turning_performance  # noqa: E402
+from companion.records.report_section import ReportSection
 from companion.records.serialise import RECORD_TYPES, from_json, to_json
 from companion.records.store import Store  # noqa: E402
 
@@ -229,116 +230,6 @@ def plot_speed_loop(result: dict, path: Path) -> str | None:
     return _figure(path, draw, (12, 4.5))
 
 
-def plot_min_speed(result: dict, path: Path) -> str | None:
-    series = result.get("series") or {}
-    if not series.get("time"):
-        return None
-
-    def draw():
-        t = np.asarray(series["time"]) - series["time"][0]
-        panels = [("thrust_ratio", "thrust ratio", result.get("thrust_ratio_star")), ("speed", "speed (m/s)", result.get("v_min")),
-                  ("pitch", "pitch (deg)", None), ("elevator", "elevator (deg)", None), ("depth", "depth (m)", None)]
-        panels = [p for p in panels if series.get(p[0])]
-        for i, (key, label, mark) in enumerate(panels):
-            ax = plt.subplot(len(panels), 1, i + 1)
-            values = np.asarray(series[key], dtype=float)
-            if key in ("pitch", "elevator"):
-                values = np.degrees(values)
-            ax.plot(t, values)
-            if mark:
-                ax.axhline(mark, color="r", ls="--", lw=0.8, label="analytic")
-                ax.legend(fontsize=7)
-            ax.set_ylabel(label)
-            ax.grid(True, alpha=0.3)
-        ax.set_xlabel("time (s)")
-        plt.suptitle("Minimum-speed seeking (Fig. 5.22); red: analytic TR* and Vmin")
-
-    return _figure(path, draw, (9, 9))
-
-
-def plot_roll(result: dict, path: Path) -> str | None:
-    open_loop, closed_loop = result.get("open_series"), result.get("closed_series") or result.get("series")
-    if not (closed_loop and closed_loop.get("time")):
-        return None
-
-    def draw():
-        for i, (name, series) in enumerate((("open loop", open_loop), ("closed loop", closed_loop))):
-            if not series or not series.get("time"):
-                continue
-            t = np.asarray(series["time"]) - series["time"][0]
-            plt.subplot(2, 1, 1)
-            plt.plot(t, np.degrees(series["roll"]), label=name)
-            if series.get("mass_angle"):
-                plt.subplot(2, 1, 2)
-                plt.plot(t, np.degrees(series["mass_angle"]), label=name)
-        plt.subplot(2, 1, 1)
-        plt.ylabel("roll (deg)")
-        plt.title(f"Roll, open vs closed loop (Fig. 4.8): σ {result.get('std_open_deg', math.nan):.2f}° → "
-                  f"{result.get('std_closed_deg', math.nan):.2f}°")
-        plt.legend()
-        plt.grid(True, alpha=0.3)
-        plt.subplot(2, 1, 2)
-        plt.ylabel("mass angle (deg)")
-        plt.xlabel("time (s)")
-        plt.grid(True, alpha=0.3)
-
-    return _figure(path, draw, (9, 6))
-
-
-def plot_steady_state(result: dict, path: Path) -> str | None:
-    """Squares: measured path and the fitted current; turns: measured path, fitted path (eq. 9) and
-    the water-relative circle without current (Hegrenæs et al., Fig. 6–7)."""
-    squares, turns = result.get("squares") or {}, result.get("turns") or {}
-    paths = turns.get("paths") or []
-    if not (squares.get("path", {}).get("t") or paths):
-        return None
-
-    def draw():
-        ax = plt.subplot(1, 2, 1)
-        sq = squares.get("path") or {}
-        if sq.get("t"):
-            ax.plot(sq["east"], sq["north"], ".", ms=2, label="measured (1 Hz)")
-            if "current_north" in squares:
-                e0, n0 = np.mean(sq["east"]), np.mean(sq["north"])
-                scale = 0.25 * (max(sq["north"]) - min(sq["north"]) + 1.0) / max(squares["current_speed"], 1e-6)
-                ax.annotate("", xy=(e0 + scale * squares["current_east"], n0 + scale * squares["current_north"]),
-                            xytext=(e0, n0), arrowprops={"arrowstyle": "->", "color": "r", "lw": 2})
-                ax.plot([], [], "r-", label=f"current {1000 * squares['current_speed']:.1f} mm/s "
-                                            f"towards {squares['current_dir_deg']:.0f}°")
-            ax.set_title(f"Square pattern: surge {squares.get('surge_water', math.nan):.3f} m/s, "
-                         f"cond(H) {squares.get('condition_number', math.nan):.2f}", fontsize=9)
-        ax.set_xlabel("east (m)")
-        ax.set_ylabel("north (m)")
-        ax.axis("equal")
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7)
-        ax = plt.subplot(1, 2, 2)
-        for turn, measured in zip(turns.get("turns", []), paths):
-            if not measured.get("t"):
-                continue
-            line, = ax.plot(measured["east"], measured["north"], ".", ms=2,
-                            label=f"rudder {turn.get('rudder_deg', math.nan):+.1f}° measured")
-            if "radius_m" not in turn:
-                continue
-            t = np.asarray(measured["t"]) - turn["t0"]
-            angle = math.radians(turn["turn_rate_deg_s"]) * t - turn["phase_rad"]
-            circle = turn["radius_m"] * np.column_stack([np.cos(angle), np.sin(angle)])
-            drift = np.outer(t, [turn["current_north"], turn["current_east"]])
-            center = np.array([turn["center_north"], turn["center_east"]])
-            fitted = center + drift + circle
-            still = center + circle
-            ax.plot(fitted[:, 1], fitted[:, 0], "-", color=line.get_color(), lw=0.8,
-                    label=f"fit R {turn['radius_m']:.2f} m, σ {turn['residual_std_m']:.2f} m")
-            ax.plot(still[:, 1], still[:, 0], ":", color=line.get_color(), lw=0.8)
-        ax.set_title("Steady turns: measured, fitted (—), circle without current (···)", fontsize=9)
-        ax.set_xlabel("east (m)")
-        ax.axis("equal")
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7)
-
-    return _figure(path, draw, (12, 5.5))
-
-
 def plot_health(result: dict, path: Path) -> str | None:
     """The drift of the passive estimates: a22 and b2 over their reference at the same
     speed per window (±σ, with the tolerance band), and the CUSUM statistics against the threshold."""
@@ -426,12 +317,16 @@ def _speed_loop_html(result: dict) -> str:
 
 
 def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: dict | None = None,
-                 extra_results: dict | None = None, summary: dict | None = None, delta_max: float = 0.26) -> Path:
+                 extra_results: dict | None = None, summary: dict | None = None, delta_max: float = 0.26,
+                 sections: Mapping[str, ReportSection] | None = None) -> Path:
     """Write ``report.html`` and its PNGs into ``out_dir``; returns the HTML path.
 
     ``truth`` maps thrust (as a string) to the simulator's linearised {a22, b2, delta0, speed};
-    ``extra_results`` maps a behaviour kind to its result dict (roll, min_speed, ...).
+    ``extra_results`` maps a behaviour kind to its result dict; ``sections`` the behaviours' figures
+    by kind (``companion.procedures.registry.report_sections``): a stored result of a kind there is
+    drawn.
     """
+    sections = dict(sections or {})
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     campaign = store.campaign(campaign_id)
@@ -442,7 +337,7 @@ def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: 
     steps = [b["result"] for b in behaviour_rows if b["kind"] == "heading_steps"]
     extra = dict(extra_results or {})
     for row in behaviour_rows:
-        if row["kind"] in ("roll", "min_speed", "steady_state", "health") and row["kind"] not in extra:
+        if (row["kind"] in sections or row["kind"] == "health") and row["kind"] not in extra:
             extra[row["kind"]] = row["result"]
     speed_loop = next((from_json_tree(row["result"]) for row in behaviour_rows if row["kind"] == "speed_loop"), None)
     alarms = [row["result"] for row in behaviour_rows if row["kind"] == "health_alarm"]
@@ -457,12 +352,10 @@ def write_report(store: Store, campaign_id: int, out_dir: str | Path, *, truth: 
         ("Heading steps", plot_heading_steps(steps, out / "heading_steps.png")),
         ("Speed loop: surge model and speed steps",
          plot_speed_loop(speed_loop, out / "speed_loop.png") if speed_loop else None),
-        ("Roll stabilisation", plot_roll(extra["roll"], out / "roll.png") if "roll" in extra else None),
-        ("Minimum-speed seeking", plot_min_speed(extra["min_speed"], out / "min_speed.png") if "min_speed" in extra else None),
+        *[(section.title, section.plot(extra[kind], out / section.file)) for kind, section in sections.items()
+          if kind in extra],
         ("Health: drift of the identified parameters",
          plot_health(extra["health"], out / "health.png") if "health" in extra else None),
-        ("Steady-state manoeuvres under current",
-         plot_steady_state(extra["steady_state"], out / "steady_state.png") if "steady_state" in extra else None),
     ]
     run_rows = [{"axis": r["axis"], "thrust": r["thrust"], "attempt": r["attempt"], "speed": r["speed"], "r2": r["r2"],
                  "accepted": "yes" if r["accepted"] else "no", "converged_s": r["converged_s"],

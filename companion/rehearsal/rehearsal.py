@@ -21,6 +21,7 @@ from companion.checks import is_number, require_non_negative, require_positive
 from companion.link.autopilots.ardusub import CAMPAIGN_DEFAULTS as ARDUSUB_CAMPAIGN
 from companion.procedures.app import AbortFlag, ConsoleProgress, run_campaign, vehicle_record
 from companion.procedures.campaign import CampaignConfig
+from companion.procedures.registry import rehearsal_behaviors, report_sections
 from companion.procedures.results import finite_or_none
 from companion.records.store import Store, json_safe
 
@@ -119,9 +120,10 @@ class RehearsalConfig:
         require_positive(self, "noise")
         if not (isinstance(self.current, tuple) and len(self.current) == 2 and all(is_number(v) for v in self.current)):
             raise ValueError(f"RehearsalConfig.current must be (north, east) in m/s, not {self.current!r}")
-        unknown = set(self.behaviors) - {"roll", "min_speed"}
+        known = rehearsal_behaviors()
+        unknown = set(self.behaviors) - set(known)
         if unknown:
-            raise ValueError(f"RehearsalConfig.behaviors: unknown {', '.join(sorted(unknown))} (roll, min_speed)")
+            raise ValueError(f"RehearsalConfig.behaviors: unknown {', '.join(sorted(unknown))} ({', '.join(known)})")
 
     @property
     def variant(self) -> bool:
@@ -130,17 +132,28 @@ class RehearsalConfig:
 
 
 def preset_defaults(preset: str) -> dict:
-    """What a rehearsal does on each kind of preset unless told otherwise.
+    """What a rehearsal does on a preset unless told otherwise: its JSON's ``rehearsal`` section
+    (``behaviors`` flown after the campaign, ``steady_state``, the ``current`` north/east in m/s), read
+    as data. The STARFISH presets (the seeds' small AUV) fly roll stabilisation and minimum-speed
+    seeking in still water; the HUGIN-like AUV the steady-state squares and turns in a known current
+    of 14 mm/s towards 300°; the boats neither (no rolling mass, no depth). A vehicle file without
+    the section flies the campaign alone, in still water."""
+    from companion.records.vehicle_files import preset_path
 
-    STARFISH presets are the seeds' small AUV (Tables 3.1, 4.1, 5.1): identification, roll
-    stabilisation and minimum-speed seeking in still water. The HUGIN-like preset is the large AUV of
-    Hegrenæs et al.: identification plus the steady-state squares and turns, in a known current of
-    14 mm/s towards 300° (0.007 N, −0.012 E m/s) so the current estimate can be scored."""
-    if preset.startswith("hugin"):
-        return {"behaviors": (), "steady_state": True, "current": (0.007, -0.012)}
-    if preset == "boat" or preset.startswith("boat-"):  # no rolling mass, no depth: neither behaviour applies
-        return {"behaviors": (), "steady_state": False, "current": (0.0, 0.0)}
-    return {"behaviors": ("roll", "min_speed"), "steady_state": False, "current": (0.0, 0.0)}
+    defaults = {"behaviors": (), "steady_state": False, "current": (0.0, 0.0)}
+    try:
+        section = json.loads(preset_path(preset).read_text(encoding="utf-8")).get("rehearsal") or {}
+    except (OSError, ValueError) as exc:
+        log.warning("no rehearsal defaults for preset %r: %s", preset, exc)
+        return defaults
+    behaviors = tuple(section.get("behaviors", ()))
+    unknown = set(behaviors) - set(rehearsal_behaviors())
+    if unknown:
+        raise ValueError(f"preset {preset!r}: its rehearsal names unknown behaviours {sorted(unknown)}")
+    current = tuple(float(v) for v in section.get("current", (0.0, 0.0)))
+    if len(current) != 2:
+        raise ValueError(f"preset {preset!r}: its rehearsal current must be [north, east] in m/s")
+    return {"behaviors": behaviors, "steady_state": bool(section.get("steady_state", False)), "current": current}
 
 
 #: ArduSub's campaign defaults (thrusts and doublets that keep its motors out of saturation) live in
@@ -380,7 +393,7 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
 
             write_report(store, campaign_id, out, truth={k: v for k, v in truth.items() if v}, extra_results=extra,
                          summary={k: v for k, v in summary.items() if k != "design"},
-                         delta_max=campaign.config.yaw.training_amplitude)
+                         delta_max=campaign.config.yaw.training_amplitude, sections=report_sections())
         summary["wall_time_s"] = round(time.monotonic() - started, 2)
     # after the simulator stopped: its exit report says whether lockstep held
     summary["reproducibility"] = reproducibility_record(config.autopilot, simulator.lockstep, simulator.stats,

@@ -110,13 +110,15 @@ class StatusFeed:
         if self.companion is not None and self.companion.stop():
             log.info("no report for campaign %d: the companion is stopping", campaign_id)
             return
+        from companion.procedures.registry import report_sections
         from companion.records.report import write_report  # matplotlib: only when a report is due
 
         if self.report_dir is None:
             return
 
         try:
-            path = write_report(self.store, campaign_id, self.report_dir / f"campaign-{campaign_id}")
+            path = write_report(self.store, campaign_id, self.report_dir / f"campaign-{campaign_id}",
+                                sections=report_sections())
         except Exception as exc:  # noqa: BLE001 - a report that fails must not stop the companion
             log.warning("report of campaign %d not written: %s", campaign_id, exc)
             return

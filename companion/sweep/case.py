@@ -31,6 +31,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from companion.procedures.registry import sweep_columns, sweep_row
 from companion.sweep.spec import Case
 
 log = logging.getLogger(__name__)
@@ -114,17 +115,19 @@ def failure_kind(reason: str | None) -> str | None:
     return text.strip()[:120] or "unknown"
 
 
-#: the row's figure columns, in order (inputs and outcome come first, :func:`row_from_summary`)
-FIGURES = (
+#: the campaign's figure columns, in order; each procedure's follow (its registry entry's), then
+#: :data:`CLOSING` (inputs and outcome come first, :func:`row_from_summary`, :func:`figure_columns`)
+CAMPAIGN_FIGURES = (
     "models", "a22_error_max_pct", "a22_error_median_pct", "b2_error_max_pct", "b2_error_median_pct",
     "r2_min", "r2_median", "converged_max_s",
     "overshoot_scheduled_max_pct", "overshoot_constant_max_pct", "overshoot_original_max_pct",
-    "roll_status", "roll_std_open_deg", "roll_std_closed_deg", "roll_sigma_reduction",
-    "min_speed_status", "min_speed_tr_final", "min_speed_tr_star", "min_speed_tr_error_pct", "min_speed_settle_s",
-    "min_speed_depth_error_m",
-    "steady_state_status", "squares_current_error_mm_s", "turns_current_error_max_mm_s",
-    "exact", "vehicle_time_s",
 )
+CLOSING = ("exact", "vehicle_time_s")
+
+
+def figure_columns() -> tuple[str, ...]:
+    """The row's figure columns, in order: the campaign's, every registered procedure's, the closing ones."""
+    return CAMPAIGN_FIGURES + sweep_columns() + CLOSING
 
 
 def row_from_summary(case: Case, summary: dict | None, status: str | None = None, reason: str | None = None) -> dict:
@@ -156,20 +159,7 @@ def row_from_summary(case: Case, summary: dict | None, status: str | None = None
         row[f"overshoot_{label}_max_pct"] = _max(_finite(s.get("max_overshoot_pct")) for s in steps
                                                  if s.get("label") == label)
 
-    roll = summary.get("roll") or {}
-    open_deg, closed_deg = _finite(roll.get("std_open_deg")), _finite(roll.get("std_closed_deg"))
-    row.update(roll_status=roll.get("status"), roll_std_open_deg=open_deg, roll_std_closed_deg=closed_deg,
-               roll_sigma_reduction=open_deg / closed_deg if open_deg is not None and closed_deg else None)
-    seek = summary.get("min_speed") or {}
-    tr_final, tr_star = _finite(seek.get("thrust_ratio_final")), _finite(seek.get("thrust_ratio_star"))
-    row.update(min_speed_status=seek.get("status"), min_speed_tr_final=tr_final, min_speed_tr_star=tr_star,
-               min_speed_tr_error_pct=_rel_error_pct(tr_final, tr_star),
-               min_speed_settle_s=_finite(seek.get("settle_time_s")),
-               min_speed_depth_error_m=_finite(seek.get("max_depth_error_m")))
-    steady = summary.get("steady_state") or {}
-    row.update(steady_state_status=steady.get("status"),
-               squares_current_error_mm_s=_finite((steady.get("squares") or {}).get("current_error_mm_s")),
-               turns_current_error_max_mm_s=_max(_finite(t.get("current_error_mm_s")) for t in steady.get("turns", [])))
+    row.update(sweep_row(summary))
     row.update(exact=(summary.get("reproducibility") or {}).get("exact"),
                vehicle_time_s=_finite(summary.get("vehicle_time_s")))
     return row

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, TextIO
 
-from companion.sweep.case import ERROR, FIGURES, STOPPED, CaseOptions, CaseResult, row_from_summary, run_case
+from companion.sweep.case import ERROR, STOPPED, CaseOptions, CaseResult, figure_columns, row_from_summary, run_case
 from companion.sweep.spec import Case
 
 if TYPE_CHECKING:
@@ -50,7 +50,7 @@ RUN_COLUMNS = ("wall_s", "host", "command")
 def columns_for(cases: Sequence[Case]) -> list[str]:
     """The CSV columns of a sweep over ``cases`` (one ``perturb_NAME`` column per perturbed parameter)."""
     names = sorted({name for case in cases for name, _ in case.perturb})
-    return [*INPUT_COLUMNS, *(f"perturb_{name}" for name in names), *OUTCOME_COLUMNS, *FIGURES, *RUN_COLUMNS]
+    return [*INPUT_COLUMNS, *(f"perturb_{name}" for name in names), *OUTCOME_COLUMNS, *figure_columns(), *RUN_COLUMNS]
 
 
 # ============================================================================================ tasks

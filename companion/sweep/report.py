@@ -26,7 +26,9 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt
+import matplotlib.pyplot as plt  # noqa: E402
+
+from companion.procedures.registry import PROCEDURES  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -57,10 +59,10 @@ def failure_counts(rows: Sequence[dict]) -> Counter:
         if row.get("status") != "completed":
             counts[f"{row.get('status')}: {row.get('failure') or 'no reason given'}"] += 1
             continue
-        for column, name in (("roll_status", "roll"), ("min_speed_status", "min-speed"),
-                             ("steady_state_status", "steady-state")):
+        for spec in PROCEDURES.values():  # each procedure's row holds its outcome as <name>_status
+            column = f"{spec.name}_status"
             if row.get(column) not in (None, "completed"):
-                counts[f"{name} {row[column]} (campaign completed)"] += 1
+                counts[f"{spec.cli_name} {row[column]} (campaign completed)"] += 1
     return counts
 
 

@@ -38,14 +38,13 @@ import math
 import re
 import shlex
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 from companion.errors import UserError
+from companion.procedures.registry import rehearsal_behaviors
 
-#: the behaviours a rehearsal may run after its campaign
-BEHAVIORS = ("roll", "min_speed")
 AXES = ("yaw", "pitch")
 
 
@@ -219,14 +218,17 @@ def perturbation_strings(items: Sequence[str]) -> dict[str, str]:
     return out
 
 
-def _names(value: Any, what: str, allowed: Sequence[str] | None = None, none_ok: bool = False) -> tuple[str, ...]:
+def _names(value: Any, what: str, allowed: Sequence[str] | None = None, none_ok: bool = False,
+           dashed: bool = False) -> tuple[str, ...]:
+    """A list of names (a comma-separated string or a list) among ``allowed``; ``dashed``: a name may
+    be written with dashes (``min-speed``) for its underscores."""
     if isinstance(value, str):
         value = [v for v in value.split(",") if v.strip()]
         if none_ok and [v.strip() for v in value] == ["none"]:
             value = []
     if not isinstance(value, Sequence) or not all(isinstance(v, str) for v in value):
         raise SpecError(f"{what}: expected a list of names, not {value!r}")
-    names = tuple(v.strip().replace("-", "_") if allowed is BEHAVIORS else v.strip() for v in value)
+    names = tuple(v.strip().replace("-", "_") if dashed else v.strip() for v in value)
     if allowed is not None:
         unknown = [n for n in names if n not in allowed]
         if unknown:
@@ -261,7 +263,7 @@ class Case:
     perturb: tuple[tuple[str, float], ...] = ()
     axes: tuple[str, ...] = AXES
     steps: bool = True
-    behaviors: tuple[str, ...] = BEHAVIORS
+    behaviors: tuple[str, ...] = field(default_factory=rehearsal_behaviors)
     steady_state: bool = False
     schedules: tuple[str, ...] = ("heading",)
     thesis_estimator: bool = False
@@ -343,7 +345,10 @@ class SweepSpec:
         combos = list(itertools.product(*(factors for _, factors in self.perturb))) or [()]
         out = []
         for preset in self.presets:
-            defaults = preset_defaults(preset)
+            try:
+                defaults = preset_defaults(preset)
+            except ValueError as exc:
+                raise SpecError(f"presets: {exc}") from None
             currents = self.currents if self.currents is not None else (tuple(defaults["current"]),)
             for seed, current, noise, combo, thrusts in itertools.product(self.seeds, currents, self.noise, combos,
                                                                           self.thrusts):
@@ -386,7 +391,7 @@ _READERS = {
     "thrusts": thrust_sets,
     "axes": lambda v: _names(v, "axes", AXES),
     "steps": lambda v: _flag(v, "steps"),
-    "behaviors": lambda v: _names(v, "behaviors", BEHAVIORS, none_ok=True),
+    "behaviors": lambda v: _names(v, "behaviors", rehearsal_behaviors(), none_ok=True, dashed=True),
     "steady_state": lambda v: _flag(v, "steady_state"),
     "schedules": lambda v: _schedules(v),
     "thesis_estimator": lambda v: _flag(v, "thesis_estimator"),

@@ -95,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     from companion.procedures.app import ConsoleProgress, run_campaign, vehicle_record
     from companion.procedures.limits import SafetyLimits
+    from companion.procedures.registry import report_sections
     from companion.records.report import write_report
     from companion.records.store import Store
 
@@ -126,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
             link_quality = link_quality_record(link, campaign)
             if link_quality.get("warning"):
                 print(f"warning: {link_quality['warning']}", file=sys.stderr)
-            report = str(write_report(store, campaign_id, args.report)) if args.report and not outcome.store_problems \
+            report = str(write_report(store, campaign_id, args.report, sections=report_sections())) if args.report and not outcome.store_problems \
                 else None
     except ConnectFailed as exc:
         print(exc, file=sys.stderr)

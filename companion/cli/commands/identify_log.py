@@ -39,6 +39,7 @@ def run_log(args: argparse.Namespace) -> int:
     from companion.link.profiles import get_profile
     from companion.procedures.log_identification import identify_log, log_summary, store_log_identification
     from companion.records.flight_logs import LogError, read_steering_log
+    from companion.procedures.registry import report_sections
     from companion.records.report import write_report
     from companion.records.serialise import null_reasons, to_json
     from companion.records.store import Store
@@ -53,7 +54,7 @@ def run_log(args: argparse.Namespace) -> int:
         return 1
     with Store(args.store) as store:
         campaign_id = store_log_identification(store, result, config, profile.name)
-        report = str(write_report(store, campaign_id, args.report)) if args.report else None
+        report = str(write_report(store, campaign_id, args.report, sections=report_sections())) if args.report else None
     out = {"campaign_id": campaign_id, "status": result.status, "reason": result.reason, "profile": profile.name,
            "log": log_summary(record), "segments": [s.summary() for s in result.segments],
            "accepted": [a.summary() for a in result.accepted],

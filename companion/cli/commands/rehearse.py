@@ -7,6 +7,7 @@ from dataclasses import replace
 
 from companion.cli.commands._campaign_text import loop_lines, phase_line, verification_lines
 from companion.cli.commands._common import add_procedure_argument, apply_procedure, add_schedules_argument, print_json, thrust_list
+from companion.procedures.registry import PROCEDURES, rehearsal_behaviors
 
 
 def add_parser(subparsers) -> None:
@@ -28,9 +29,11 @@ def add_parser(subparsers) -> None:
     add_procedure_argument(parser)
     parser.add_argument("--thesis-estimator", action="store_true",
                         help="the seeds' exact estimator (P0 = 100·I, zero-order holds) instead of the defaults")
+    names = [PROCEDURES[name].cli_name for name in rehearsal_behaviors()]
     parser.add_argument("--behaviors", default=None,
-                        help="behaviours to run after the campaign: roll,min-speed or 'none' "
-                             "(default: both on STARFISH presets, none on hugin)")
+                        help=f"behaviours to run after the campaign: {','.join(names)} or 'none' "
+                             "(default: the preset's own, its JSON's rehearsal section: both on STARFISH presets, "
+                             "none on hugin and the boats)")
     parser.add_argument("--steady-state", action=argparse.BooleanOptionalAction, default=None,
                         help="run the steady-state squares and turns (default: on for hugin)")
     parser.add_argument("--current", default=None, metavar="VN,VE",
@@ -109,7 +112,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"--autopilot {args.autopilot} needs --ardupilot-bin DIR (or ARDUPILOT_SITL_BIN): the folder of "
               "ArduPilot SITL binaries built from ArduPilot's sources", file=sys.stderr)
         return 2
-    defaults = preset_defaults(args.preset)
+    try:
+        defaults = preset_defaults(args.preset)
+    except ValueError as exc:  # a vehicle file whose rehearsal section cannot be used
+        print(exc, file=sys.stderr)
+        return 2
     try:
         if args.current is None:
             current: tuple[float, float] = defaults["current"]
@@ -137,9 +144,11 @@ def run(args: argparse.Namespace) -> int:
         behaviors = ()
     else:
         behaviors = tuple(b.strip().replace("-", "_") for b in args.behaviors.split(",") if b.strip())
-    unknown = set(behaviors) - {"roll", "min_speed"}
+    known = rehearsal_behaviors()
+    unknown = set(behaviors) - set(known)
     if unknown:
-        print(f"unknown behaviour(s) {', '.join(sorted(unknown))}: use roll, min-speed or none", file=sys.stderr)
+        print(f"unknown behaviour(s) {', '.join(sorted(unknown))}: use "
+              f"{', '.join(PROCEDURES[name].cli_name for name in known)} or none", file=sys.stderr)
         return 2
     steady = defaults["steady_state"] if args.steady_state is None else args.steady_state
     perturb = dict(pair for group in args.perturb for pair in group)  # a name given twice: the last wins

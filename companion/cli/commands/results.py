@@ -39,13 +39,14 @@ def run(args: argparse.Namespace) -> int:
     with Store(args.store, read_only=True) as store:  # a reading command never writes to the file
         campaign_id = args.campaign
         if args.report:
+            from companion.procedures.registry import report_sections
             from companion.records.report import write_report
 
             campaign_id = campaign_id or store.latest_campaign_id("identification")
             if campaign_id is None:
                 print("error: no identification campaign in the store", file=sys.stderr)
                 return 1
-            print(f"report: {write_report(store, campaign_id, args.report)}", file=sys.stderr)
+            print(f"report: {write_report(store, campaign_id, args.report, sections=report_sections())}", file=sys.stderr)
         if campaign_id is None:
             data = {"store": args.store, "schema_version": store.schema_version,
                     "campaigns": [_as_seen(c, gone) for gone in (_process_gone(store),) for c in store.campaigns()]}

@@ -10,6 +10,7 @@ from dataclasses import replace
 from companion.cli.commands._common import (ConnectFailed, add_connect_arguments, add_recovery_argument,
                                             add_store_argument, connected_vehicle, follow_interrupted_trails,
                                             print_json)
+from companion.procedures.registry import PROCEDURES
 
 
 def add_parser(subparsers) -> None:
@@ -22,7 +23,7 @@ def add_parser(subparsers) -> None:
                     "the rudder held at +-12.5 deg for --duration s each; prints the water-relative speed, the "
                     "current and the turning radius. Ctrl-C aborts: mass centred / thrust, rudder, mode and "
                     "gains restored.")
-    parser.add_argument("behavior", choices=("roll", "min-speed", "steady-state"))
+    parser.add_argument("behavior", choices=[spec.cli_name for spec in PROCEDURES.values()])
     add_connect_arguments(parser)
     add_store_argument(parser)
     add_recovery_argument(parser)
@@ -108,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
                 return 1
             outcome = run_named_behavior(name, link, store, vehicle_id=vehicle_record(store, link), campaign_id=None,
                                          abort=abort, preset=args.preset, simulator=args.simulator_hooks,
-                                         roll_config=roll, min_speed_config=min_speed, steady_config=steady)
+                                         config={"roll": roll, "min_speed": min_speed, "steady_state": steady}.get(name))
     except ConnectFailed as exc:
         print(exc, file=sys.stderr)
         return 1
