@@ -106,13 +106,15 @@ def test_a_registered_behaviour_runs_by_name_and_its_figure_is_in_the_report(wav
     assert "<h2>Waving</h2><img src='wave.png'" in html
 
 
-def test_a_registered_autopilot_is_detected_and_offered(monkeypatch):
+def test_a_registered_autopilot_is_detected_offered_and_designed_for(monkeypatch, capsys):
     from companion.cli.commands._common import add_connect_arguments
     from companion.link import profiles
 
     toy = types.ModuleType("companion.link.autopilots.toy")
-    toy.PROFILE = AutopilotProfile(name="toy", modes={"hold": 1}, channels={}, params={"heading_p": "TOY_P"},
-                                   marker_param="TOY_P", strategy="toy")
+    toy.PROFILE = AutopilotProfile(name="toy", modes={"hold": 1}, channels={},
+                                   params={"heading_p": "TOY_P", "heading_i": "TOY_I", "rudder_trim": "TOY_TRIM"},
+                                   marker_param="TOY_P", strategy="toy", heading_controller="pi",
+                                   shipped_gains={"TOY_P": 0.5, "TOY_I": 0.01, "TOY_TRIM": 0.0})
     monkeypatch.setitem(sys.modules, "companion.link.autopilots.toy", toy)
     monkeypatch.setattr(autopilots, "MODULES", autopilots.MODULES + ("toy",))  # the one registration line
     monkeypatch.setattr(profiles, "PROFILES", {p.name: p for p in autopilots.registered_profiles()})
@@ -120,6 +122,11 @@ def test_a_registered_autopilot_is_detected_and_offered(monkeypatch):
     parser = argparse.ArgumentParser()
     add_connect_arguments(parser)
     assert parser.parse_args(["--connect", "udp:127.0.0.1:1", "--profile", "toy"]).profile == "toy"
+    from companion.cli.main import main
+
+    # the designer predicts its steps under the controller its module declares, from its shipped gains
+    assert main(["design", "--autopilot", "toy", "--a22", "-0.9", "--b2", "1.1", "--speed", "1.5"]) == 0
+    assert "TOY_P" in capsys.readouterr().out
 
 
 def test_a_boat_says_in_its_file_what_a_rehearsal_flies_on_it(tmp_path):

@@ -80,7 +80,14 @@ class AutopilotProfile:
     # HEARTBEAT.type (MAV_TYPE) values this profile flies, where one autopilot's profiles share a
     # marker (PX4's rover and UUV builds have the same parameters); empty: any
     mav_types: tuple[int, ...] = ()
-    heading_schedule: str = "heading"  # the gain schedule of its heading loop (procedures.registry)
+    heading_schedule: str = "heading"  # the gain schedule of its heading loop (behaviors.schedules)
+    # the step model of its heading controller, for predicted steps (companion.numerics.step_response):
+    # "pi" (eq. A.1), "cascade" (A.2; ArduSub's shaping A.2s is read from its parameters), "px4_rover"
+    # (A.4), "px4_uuv" (A.5)
+    heading_controller: str = "pi"
+    # its heading gains and limits as it ships them (native names): a design's "original" candidate
+    # when the vehicle's own are not known (``companion design --autopilot``)
+    shipped_gains: dict[str, float] = field(default_factory=dict)
     strategy: str = "sim"  # module of companion.link.autopilots that commands this autopilot
     water_speed_sensor: bool = True  # False: VFR_HUD.airspeed is not a water speed; ground speed stands in
     depth_from_pressure: bool = True  # False: depth is the autopilot's own estimate (GLOBAL_POSITION_INT)

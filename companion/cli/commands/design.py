@@ -27,7 +27,7 @@ from companion.cli.commands._common import print_json
 from companion.numerics.gains import GainBounds, design_heading_gains
 from companion.numerics.identification import YawModel
 from companion.numerics.turning import DEFAULT_DELTA_MAX, turning_performance
-from companion.cli.commands.design_autopilot import AUTOPILOT_CHOICES, run_for_autopilot
+from companion.cli.commands.design_autopilot import autopilot_profiles, run_for_autopilot
 
 #: the largest rudder limit accepted, rad: a deflection beyond 90° is not a rudder angle (degrees?)
 MAX_RUDDER = math.pi / 2
@@ -50,7 +50,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument(
         "--delta-max", type=float, default=DEFAULT_DELTA_MAX, help=f"rudder limit, rad (default {DEFAULT_DELTA_MAX})"
     )
-    parser.add_argument("--autopilot", choices=AUTOPILOT_CHOICES, default=None,
+    parser.add_argument("--autopilot", choices=tuple(autopilot_profiles()), default=None,
                         help="design for this autopilot's own heading controller by its predicted steps (eq. D.1: "
                              "builtin PI, ArduPilot cascade, PX4 rover or UUV); default: the thesis PI rule")
     parser.add_argument("--original", default=None, metavar="NAME=VALUE,...",

@@ -1,7 +1,7 @@
 """``companion design --autopilot NAME``: the campaign's designer for one model at one speed (eq. D.1).
 
 The autopilot's profile gives its heading controller (eq. A.1, A.2, A.4 or A.5), parameter names, full
-scale and gain ranges; :data:`SHIPPED_DEFAULTS` the gains and limits a vehicle has as shipped, which
+scale, gain ranges and the gains and limits a vehicle has as shipped (``shipped_gains``), which
 ``--original NAME=VALUE,...`` (native names) replaces one by one. The design is
 ``companion.procedures.heading_design``'s, on one case: the model given, at the speed given. Every
 candidate's predicted ±20° and ±40° steps are printed (overshoot, time to within 5 %, step error).
@@ -13,7 +13,8 @@ import sys
 from dataclasses import replace
 
 from companion.cli.commands._common import print_json
-from companion.link.autopilots import module_of
+from companion.link.autopilots import registered_profiles
+from companion.link.profile import AutopilotProfile
 from companion.numerics.cascade_gains import CascadeRules
 from companion.numerics.gains import CAMPAIGN_DAMPING, GainBounds
 from companion.numerics.identification import YawModel
@@ -22,31 +23,14 @@ from companion.numerics.step_response import predict_step
 from companion.procedures.heading_design import family_for, step_case
 from companion.procedures.verified_design import CONTROLLERS, HeadingLimits
 
-#: the --autopilot choices and their modules under companion.link.autopilots
-AUTOPILOT_MODULES = {"builtin": "sim", "ardurover": "ardurover", "ardusub": "ardusub",
-                     "px4-rover": "px4_rover", "px4-uuv": "px4_uuv"}
-AUTOPILOT_CHOICES = tuple(AUTOPILOT_MODULES)
+#: the --autopilot choices: every registered autopilot by its profile's name, our simulator's as
+#: "builtin" (as ``rehearse --autopilot`` names it)
+ALIASES = {"sim": "builtin"}
 
-#: heading gains and limits as each autopilot ships them (native names): our simulator's PROTOCOL.md
-#: defaults; ArduPilot 4.7's AR_AttitudeControl (Rover) and AC_AttitudeControl_Sub parameter defaults;
-#: PX4's generic Ackermann rover airframe (51000: ROMFS rc defaults, RO_YAW_RATE_TH from
-#: rovercontrol_params.yaml) and uuv_att_control_params.yaml (the HippoCampus airframe sets none of them)
-SHIPPED_DEFAULTS: dict[str, dict[str, float]] = {
-    "px4-rover": {"RO_YAW_P": 3.0, "RO_YAW_RATE_P": 0.25, "RO_YAW_RATE_I": 0.01, "RA_WHEEL_BASE": 0.5,
-                  "RO_YAW_RATE_CORR": 1.0, "RO_YAW_RATE_LIM": 130.0, "RO_YAW_ACCEL_LIM": 800.0,
-                  "RA_STR_RATE_LIM": 360.0, "RA_MAX_STR_ANG": 0.5236, "RO_YAW_RATE_TH": 3.0},
-    "px4-uuv": {"UUV_YAW_P": 4.0, "UUV_YAW_D": 2.0, "UUV_TORQUE_SAT": 0.3},
-    "builtin": {"HDG_P": 1.0, "HDG_I": 0.05, "HDG_IMAX": 0.15, "HDG_TRIM": 0.0, "RUD_MAX": 0.35, "RUD_RATE": 0.5},
-    "ardurover": {"ATC_STR_ANG_P": 2.0, "ATC_STR_RAT_P": 0.2, "ATC_STR_RAT_I": 0.2, "ATC_STR_RAT_FF": 0.2,
-                  "ATC_STR_RAT_IMAX": 1.0, "ATC_STR_RAT_MAX": 120.0, "ATC_STR_ACC_MAX": 120.0,
-                  "MOT_SPD_SCA_BASE": 1.0},
-    # AC_AttitudeControl_Sub sets ANG_YAW_P 6 (AC_ATC_SUB_ANGLE_P) and ACCEL_Y_MAX 110000 cdeg/s²; the rest
-    # are AC_AttitudeControl's (INPUT_TC 0.15, SLEW_YAW 6000 cdeg/s, RATE_FF_ENAB 1, RATE_Y_MAX 0: no limit)
-    "ardusub": {"ATC_ANG_YAW_P": 6.0, "ATC_RAT_YAW_P": 0.18, "ATC_RAT_YAW_I": 0.018, "ATC_RAT_YAW_FF": 0.0,
-                "ATC_RAT_YAW_IMAX": 0.222, "ATC_ACCEL_Y_MAX": 110000.0, "ATC_INPUT_TC": 0.15, "ATC_SLEW_YAW": 6000.0,
-                "ATC_RATE_FF_ENAB": 1.0},
-}
 
+def autopilot_profiles() -> dict[str, AutopilotProfile]:
+    """The registered autopilots by their ``--autopilot`` name."""
+    return {ALIASES.get(profile.name, profile.name): profile for profile in registered_profiles()}
 
 class DesignInputError(ValueError):
     """An --original entry that cannot be used (one sentence)."""
@@ -76,9 +60,8 @@ def parse_original(text: str | None, params: dict[str, str]) -> dict[str, float]
 
 
 def run_for_autopilot(args) -> int:
-    module = module_of(AUTOPILOT_MODULES[args.autopilot])
-    profile = module.PROFILE
-    kind_name = "cascade" if profile.heading_schedule == "cascade" else profile.heading_schedule
+    profile = autopilot_profiles()[args.autopilot]
+    kind_name = profile.heading_schedule
     if kind_name not in CONTROLLERS:
         print(f"companion design: error: {args.autopilot}'s heading controller ({kind_name}) has no step model, "
               "so no design by prediction is possible for it; use no --autopilot for the thesis PI rule",
@@ -89,8 +72,7 @@ def run_for_autopilot(args) -> int:
               "the gains are for)", file=sys.stderr)
         return 2
     params = profile.params
-    shipped = {neutral: SHIPPED_DEFAULTS.get(args.autopilot, {}).get(native)
-               for neutral, native in params.items()}
+    shipped = {neutral: profile.shipped_gains.get(native) for neutral, native in params.items()}
     found = {k: v for k, v in shipped.items() if v is not None}
     try:
         found.update(parse_original(args.original, params))

@@ -73,6 +73,11 @@ PROFILE = AutopilotProfile(
     int_encoding="cast",
     flown=True,  # campaign, gain check and restores run against ArduRover 4.7 SITL (tests/test_ardupilot_rover.py)
     heading_schedule="cascade",
+    heading_controller="cascade",
+    # AR_AttitudeControl's defaults (ArduPilot 4.7)
+    shipped_gains={"ATC_STR_ANG_P": 2.0, "ATC_STR_RAT_P": 0.2, "ATC_STR_RAT_I": 0.2, "ATC_STR_RAT_FF": 0.2,
+                   "ATC_STR_RAT_IMAX": 1.0, "ATC_STR_RAT_MAX": 120.0, "ATC_STR_ACC_MAX": 120.0,
+                   "MOT_SPD_SCA_BASE": 1.0},
     strategy="ardurover",
     # in AUTO the navigation asks the rate loop for a turn rate: learning verifies its tracking
     learning_verification="turn_rate",

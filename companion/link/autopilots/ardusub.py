@@ -95,6 +95,12 @@ PROFILE = AutopilotProfile(
     mass_servo=None,
     int_encoding="cast",
     heading_schedule="cascade",
+    heading_controller="cascade",
+    # AC_AttitudeControl_Sub sets ANG_YAW_P 6 (AC_ATC_SUB_ANGLE_P) and ACCEL_Y_MAX 110000 cdeg/s²; the rest
+    # are AC_AttitudeControl's (INPUT_TC 0.15, SLEW_YAW 6000 cdeg/s, RATE_FF_ENAB 1, RATE_Y_MAX 0: no limit)
+    shipped_gains={"ATC_ANG_YAW_P": 6.0, "ATC_RAT_YAW_P": 0.18, "ATC_RAT_YAW_I": 0.018, "ATC_RAT_YAW_FF": 0.0,
+                   "ATC_RAT_YAW_IMAX": 0.222, "ATC_ACCEL_Y_MAX": 110000.0, "ATC_INPUT_TC": 0.15,
+                   "ATC_SLEW_YAW": 6000.0, "ATC_RATE_FF_ENAB": 1.0},
     strategy="ardusub",
     water_speed_sensor=False,
     depth_from_pressure=False,

@@ -62,6 +62,12 @@ PROFILE = Px4Profile(
     int_encoding="bytewise",
     flown=True,  # campaign, gain check and restores run against PX4 SITL (tests/test_px4_sitl.py)
     heading_schedule="px4_rover",
+    heading_controller="px4_rover",
+    # the generic Ackermann rover airframe (51000: ROMFS rc defaults, RO_YAW_RATE_TH from
+    # rovercontrol_params.yaml)
+    shipped_gains={"RO_YAW_P": 3.0, "RO_YAW_RATE_P": 0.25, "RO_YAW_RATE_I": 0.01, "RA_WHEEL_BASE": 0.5,
+                   "RO_YAW_RATE_CORR": 1.0, "RO_YAW_RATE_LIM": 130.0, "RO_YAW_ACCEL_LIM": 800.0,
+                   "RA_STR_RATE_LIM": 360.0, "RA_MAX_STR_ANG": 0.5236, "RO_YAW_RATE_TH": 3.0},
     strategy="px4_rover",
     water_speed_sensor=False,
     depth_from_pressure=False,

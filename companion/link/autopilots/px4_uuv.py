@@ -56,6 +56,9 @@ PROFILE = Px4Profile(
     int_encoding="bytewise",
     flown=True,  # campaign, gain check and restores run against PX4 SITL (tests/test_px4_sitl.py)
     heading_schedule="px4_uuv",
+    heading_controller="px4_uuv",
+    # uuv_att_control_params.yaml (the HippoCampus airframe sets none of them)
+    shipped_gains={"UUV_YAW_P": 4.0, "UUV_YAW_D": 2.0, "UUV_TORQUE_SAT": 0.3},
     strategy="px4_uuv",
     water_speed_sensor=False,
     depth_from_pressure=False,
