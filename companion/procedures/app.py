@@ -28,7 +28,7 @@ from companion.procedures.campaign import (AttemptRecorded, CampaignConfig, Desi
 from behaviors.base import footprint_of
 from companion.procedures.readiness import await_ready
 from companion.procedures.registry import PROCEDURES, ProcedureContext
-from companion.procedures.results import ProcedureResult
+from companion.procedures.results import Outcome, ProcedureResult
 from companion.procedures.runner import (RestoreGuard, RestorePoint, RunOutcome, SafetyLimits, not_started,
                                          run_procedure)
 from companion.procedures.trail import TrailRecorder, vehicle_identity
@@ -218,7 +218,7 @@ def run_campaign(
     except LinkError as exc:  # lost while waiting: nothing was changed
         objection = f"{type(exc).__name__}: {exc}"
     if objection is not None:  # nothing was changed: refuse, with the vehicle's reason
-        outcome = RunOutcome("aborted", f"not started: the vehicle is not ready: {objection}", {})
+        outcome = RunOutcome(Outcome.ABORTED, f"not started: the vehicle is not ready: {objection}", {})
         _close_record(store, campaign_id, outcome)
         if gcs is not None:
             gcs.finish(outcome)
@@ -245,7 +245,7 @@ def run_campaign(
     try:
         trail_id = store.save_restore_point(campaign_id, original.as_json(), vehicle_identity(link))
     except StoreError as exc:  # nothing was changed: a procedure without its trail is not started
-        outcome = RunOutcome("aborted", f"not started: the restore point could not be stored: {exc}", {})
+        outcome = RunOutcome(Outcome.ABORTED, f"not started: the restore point could not be stored: {exc}", {})
         _close_record(store, campaign_id, outcome)
         if gcs is not None:
             gcs.finish(outcome)
@@ -316,12 +316,12 @@ def run_named_procedure(name: str, link: VehiclePort, store: Store, *, vehicle_i
     own = campaign_id is None
     if campaign_id is None:
         campaign_id = store.start_campaign(vehicle_id, name, {"preset": getattr(context, "preset", None)})
-    result = ProcedureResult(name, "not started", "not started")
+    result = ProcedureResult(name, Outcome.NOT_STARTED, "not started")
     outcome = None
     profile = link.profile
     refusal = spec.applies(profile)
     if refusal is not None:  # never "completed": the procedure does not apply to this vehicle
-        result = ProcedureResult(name, "refused", refusal)
+        result = ProcedureResult(name, Outcome.REFUSED, refusal)
         store.add_behavior_result(campaign_id, name, "refused", result.to_json())
         if own:
             store.finish_campaign(campaign_id, "refused", refusal)
@@ -337,7 +337,7 @@ def run_named_procedure(name: str, link: VehiclePort, store: Store, *, vehicle_i
             try:
                 trail_id = store.save_restore_point(campaign_id, restore.as_json(), vehicle_identity(link))
             except StoreError as exc:  # nothing was changed: a procedure without its trail is not started
-                outcome = RunOutcome("aborted", f"not started: the restore point could not be stored: {exc}", {})
+                outcome = RunOutcome(Outcome.ABORTED, f"not started: the restore point could not be stored: {exc}", {})
                 result = procedure.result().with_outcome(outcome)
                 return NamedRun(result, spec.summary(result.to_json()), outcome)
             recorder = TrailRecorder(store, trail_id, link)

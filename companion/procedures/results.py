@@ -1,7 +1,8 @@
 """What a procedure reports, in one type with one status vocabulary (the procedures' leaf module).
 
 A procedure (a behaviour run by ``companion.procedures.runner`` under one restore point) ends in
-one of :data:`STATUSES`:
+one :class:`Outcome` (a ``StrEnum``: its members compare equal to, and are stored and printed as,
+these words; :data:`STATUSES` lists them):
 
 * ``completed`` — its goal was reached (a model accepted and verified, the roll loop ran ...);
 * ``failed`` — it ended without reaching its goal (no model passed validation, the seeker found
@@ -19,18 +20,39 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from enum import StrEnum
 from typing import Any
 
 from behaviors.base import Status
 
-STATUSES = ("completed", "failed", "aborted", "refused", "not started", "running")
 
-_STATUS_NAMES = {Status.SUCCESS: "completed", Status.FAILURE: "failed", Status.ABORTED: "aborted",
-                 Status.RUNNING: "running", Status.INVALID: "not started"}
+class Outcome(StrEnum):
+    """How a procedure ended (module docstring)."""
+
+    COMPLETED = "completed"
+    FAILED = "failed"
+    ABORTED = "aborted"
+    REFUSED = "refused"
+    NOT_STARTED = "not started"
+    RUNNING = "running"
+
+    @classmethod
+    def of(cls, value: "str | Outcome") -> "Outcome":
+        """``value`` as an outcome; ValueError naming the words for anything else."""
+        try:
+            return cls(value)
+        except ValueError:
+            raise ValueError(f"an outcome is one of {', '.join(STATUSES)}, not {value!r}") from None
 
 
-def status_name(status: Status) -> str:
-    """The product's word for a behaviour's lifecycle status (module docstring)."""
+STATUSES = tuple(outcome.value for outcome in Outcome)
+
+_STATUS_NAMES = {Status.SUCCESS: Outcome.COMPLETED, Status.FAILURE: Outcome.FAILED, Status.ABORTED: Outcome.ABORTED,
+                 Status.RUNNING: Outcome.RUNNING, Status.INVALID: Outcome.NOT_STARTED}
+
+
+def status_name(status: Status) -> Outcome:
+    """The product's outcome for a behaviour's lifecycle status (module docstring)."""
     return _STATUS_NAMES[status]
 
 
@@ -55,15 +77,14 @@ class ProcedureResult:
     """A procedure's outcome and figures (module docstring)."""
 
     procedure: str
-    status: str
+    status: Outcome
     reason: str | None = None
     figures: dict = field(default_factory=dict)
     pilot_has_it: bool = False  # aborted because someone else took the vehicle
     restore_problems: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        if self.status not in STATUSES:
-            raise ValueError(f"ProcedureResult.status must be one of {', '.join(STATUSES)}, not {self.status!r}")
+        object.__setattr__(self, "status", Outcome.of(self.status))  # a word given is checked and typed
 
     @classmethod
     def of(cls, procedure: str, status: Status, reason: str | None, figures: dict) -> "ProcedureResult":

@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Iterable, Protocol, Sequence
+from typing import Any, Callable, Iterable, Protocol, Sequence
 
 from behaviors.base import Status, footprint_of
 from companion.interface import (Behavior, Command, NamedValue, OverrideActuator, ReleaseActuator, SetDepth,
@@ -26,7 +26,7 @@ from companion.link.errors import LinkError, VehicleRebooted
 from companion.link.port import VehiclePort
 from companion.procedures.limits import SafetyLimits
 from companion.procedures.restore import RestoreGuard, RestorePoint, reboots_seen
-from companion.procedures.results import ProcedureResult
+from companion.procedures.results import Outcome, ProcedureResult
 
 __all__ = ["AbortProcedure", "Link", "RestoreGuard", "RestorePoint", "RunOutcome", "SafetyLimits", "not_started",
            "run_behavior", "run_for_result", "run_procedure"]
@@ -88,9 +88,9 @@ class RunOutcome:
     """What happened: ``completed`` (the goal was reached), ``failed`` (the procedure ended without
     reaching it) or ``aborted``, with the reason, plus the behaviour's result."""
 
-    status: str
+    status: Outcome
     reason: str | None
-    result: dict
+    result: Any
     restore_problems: list[str] = field(default_factory=list)
     samples: int = 0
     vehicle_time_s: float = 0.0
@@ -98,6 +98,9 @@ class RunOutcome:
     restore: "RestorePoint | None" = None  # the restore point run_procedure took
     restore_notes: list[str] = field(default_factory=list)  # what the restore decided (kept changes, a reboot)
     store_problems: list[str] = field(default_factory=list)  # what could not be stored (a full disk)
+
+    def __post_init__(self) -> None:
+        self.status = Outcome.of(self.status)
 
 
 def run_behavior(
@@ -213,9 +216,9 @@ def _run_guarded(behavior, link, limits, abort_requested, on_step, restore, rest
     notes = list(restore.notes) if restore is not None else []
     if not rebooted and restore is not None:
         reason = named_reboot(reason, link, restore.boot)
-    status = "aborted" if reason is not None else "completed"
+    status = Outcome.ABORTED if reason is not None else Outcome.COMPLETED
     if reason is None and getattr(behavior, "status", None) is Status.FAILURE:
-        status, reason = "failed", getattr(behavior, "reason", None) or "the procedure did not reach its goal"
+        status, reason = Outcome.FAILED, getattr(behavior, "reason", None) or "the procedure did not reach its goal"
     return RunOutcome(
         status=status,
         reason=reason,
@@ -295,7 +298,7 @@ def not_started(exc: Exception) -> RunOutcome:
     """The outcome of a procedure whose restore point could not be taken (the link lost the
     answers): aborted before its first step, so nothing was changed and nothing needs restoring."""
     log.error("restore point not taken: %s", exc)
-    return RunOutcome("aborted", f"restore point not taken: {type(exc).__name__}: {exc}", {})
+    return RunOutcome(Outcome.ABORTED, f"restore point not taken: {type(exc).__name__}: {exc}", {})
 
 
 class _TakeoverWatchdog:
