@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Callable, Sequence
+from typing import Callable, Protocol, Sequence
 
 from companion.interface import (
     Behavior,
@@ -173,15 +173,19 @@ class InProcessCommands:
         raise NotImplementedError("the in-process link carries no MAVLink command: nothing is ever sent late")
 
 
+class _Releasing(Protocol):
+    def release(self, actuator: str | None = None) -> None: ...
+
+
 class InProcessStrategy:
     """The autopilot strategy of the in-process link (``StrategyPort``): the simulator's autopilot
     keeps no set-point the restore must put back, and an override is released on the link itself."""
 
-    persistent_setpoints: tuple[str, ...] = ()
     streams: dict[int, float] = {}
 
-    def __init__(self, host: "_AutopilotHost") -> None:
+    def __init__(self, host: "_Releasing", persistent_setpoints: tuple[str, ...] = ()) -> None:
         self._host = host
+        self.persistent_setpoints = persistent_setpoints
 
     def release(self, actuator: str | None) -> None:
         self._host.release(actuator)

@@ -16,7 +16,7 @@ from companion.link.port import VehiclePort
 from companion.link.profile import AutopilotProfile
 from companion.link.profiles import SIM
 from harness.inprocess import (InProcessAnnouncements, InProcessCommands, InProcessModes, InProcessOverrides,
-                               InProcessTelemetry, InProcessTransport)
+                               InProcessStrategy, InProcessTelemetry, InProcessTransport)
 
 if TYPE_CHECKING:
     from companion.link.vehicle import VehicleLink
@@ -52,29 +52,27 @@ class StubParameters:
         return lambda: None
 
 
-class StrategyStub:
-    """An autopilot strategy that keeps the given set-points and does nothing else."""
+class _Releases:
+    """What a stub strategy's releases reach: a list of them."""
 
-    streams: dict[int, float] = {}
-
-    def __init__(self, persistent_setpoints: tuple[str, ...] = ()) -> None:
-        self.persistent_setpoints = persistent_setpoints
+    def __init__(self) -> None:
         self.released: list[str | None] = []
 
-    def release(self, actuator: str | None) -> None:
+    def release(self, actuator: str | None = None) -> None:
         self.released.append(actuator)
 
-    def forget_targets(self) -> None:
-        return None
 
-    def forget_excitation(self) -> None:
-        return None
+class StrategyStub(InProcessStrategy):
+    """An autopilot strategy that keeps the given set-points and records what it releases
+    (``released``), the in-process link's otherwise."""
 
-    def release_after_crash(self, actuators: list[str]) -> None:
-        self.released += actuators
+    def __init__(self, persistent_setpoints: tuple[str, ...] = ()) -> None:
+        self._releases = _Releases()
+        super().__init__(self._releases, persistent_setpoints)
 
-    def not_ready(self, telemetry: Telemetry) -> str | None:
-        return None
+    @property
+    def released(self) -> list[str | None]:
+        return self._releases.released
 
 
 class PortStub:
