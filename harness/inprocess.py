@@ -261,6 +261,25 @@ class InProcessTelemetry:
             listener()
 
 
+class NothingInFlight:
+    """The link members of ``VehiclePort`` that have nothing to do where every command is applied at
+    once and nobody else is on the link (the in-process link, the test stub)."""
+
+    def await_setpoints(self) -> None:
+        """Every set-point is applied when it is executed: nothing to wait for."""
+
+    def skip_to_now(self) -> int:
+        """No snapshot is ever queued."""
+        return 0
+
+    def other_companion(self) -> str | None:
+        return None
+
+    def reconnect(self, timeout_s: float | None = None) -> bool:
+        """A lost link here (``lose_link_at_s``) never comes back."""
+        return False
+
+
 class _AutopilotHost:
     """A simulated vehicle and autopilot (``simulated``) plus what the commands leave behind
     (overrides, texts, parameter writes, mode changes); shared by :class:`InProcessLink` and
@@ -350,7 +369,7 @@ class _AutopilotHost:
 
 
 @dataclass
-class InProcessLink(_AutopilotHost):
+class InProcessLink(NothingInFlight, _AutopilotHost):
     """The runner's Link protocol over the simulator's autopilot and physics in-process."""
 
     preset: str = "starfish"
@@ -426,20 +445,6 @@ class InProcessLink(_AutopilotHost):
     @property
     def armed(self) -> bool:
         return bool(self.simulated.armed)
-
-    def await_setpoints(self) -> None:
-        """Every set-point is applied when it is executed: nothing to wait for."""
-
-    def skip_to_now(self) -> int:
-        """No snapshot is ever queued in process."""
-        return 0
-
-    def other_companion(self) -> str | None:
-        return None
-
-    def reconnect(self, timeout_s: float | None = None) -> bool:
-        """A lost in-process link (``lose_link_at_s``) never comes back."""
-        return False
 
     # ------------------------------------------------------------------ ground station
     @property

@@ -16,7 +16,7 @@ from companion.link.port import VehiclePort
 from companion.link.profile import AutopilotProfile
 from companion.link.profiles import SIM
 from harness.inprocess import (InProcessAnnouncements, InProcessCommands, InProcessModes, InProcessOverrides,
-                               InProcessStrategy, InProcessTelemetry, InProcessTransport)
+                               InProcessStrategy, InProcessTelemetry, InProcessTransport, NothingInFlight)
 
 if TYPE_CHECKING:
     from companion.link.vehicle import VehicleLink
@@ -75,7 +75,7 @@ class StrategyStub(InProcessStrategy):
         return self._releases.released
 
 
-class PortStub:
+class PortStub(NothingInFlight):
     """Every member of ``VehiclePort``, doing nothing (module docstring)."""
 
     waits_for_companion = True
@@ -132,18 +132,6 @@ class PortStub:
 
     def status_text(self, text: str, severity: int = 6) -> None:
         return None
-
-    def await_setpoints(self) -> None:
-        return None
-
-    def skip_to_now(self) -> int:
-        return 0
-
-    def other_companion(self) -> str | None:
-        return None
-
-    def reconnect(self, timeout_s: float | None = None) -> bool:
-        return False
 
     # the ground station's side (``GroundPort``)
     def send_command_ack(self, command: int, result: int, progress: int = 0, target_system: int = 0,
