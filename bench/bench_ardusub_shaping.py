@@ -32,7 +32,7 @@ def _limits(summary: dict) -> HeadingLimits:
     stored = (summary.get("verified") or {}).get("limits")
     if not stored:
         raise SystemExit("this run's summary holds no prediction limits (kept before they were recorded): run again")
-    values = {k: (math.inf if v is None and k not in ("output_scale_base",) else v) for k, v in stored.items()}
+    values = {k: (math.inf if v is None and k not in ("output_scale_base", "skid") else v) for k, v in stored.items()}
     return HeadingLimits(**values)
 
 

@@ -6,8 +6,10 @@ the angle-P ratio, the integral ratio and the feed-forward scale of a cascade (P
 the same four, its FF scale being RO_YAW_RATE_CORR; PX4's UUV the bandwidth and the angle-P ratio) —
 map a yaw model and a speed to the autopilot's gains. Which point of the family is best depends on
 what the rule does not see: the rudder's limit and slew rate, the integrator clamp, the turn-rate and
-turn-acceleration limits and the output's speed scaling. Those are all in the predicted step
-(``companion.numerics.step_response``, eq. A.1 / A.2 / A.4 / A.5), so the family is searched on it:
+turn-acceleration limits and the output's speed scaling; on a skid-steered boat the mixer that
+trades steering for throttle and the speed the turn costs (eq. A.2k, ``StepCase.skid``). Those are all
+in the predicted step (``companion.numerics.step_response``, eq. A.1 / A.2 / A.2k / A.4 / A.5), so the
+family is searched on it:
 
     minimise    J(x) = mean over speeds u_i and step sizes s_j of IAE(x; u_i, s_j)      [s]
     subject to  overshoot(x; u_i, s_j) ≤ target,  reversals ≤ max_reversals,  settled in the record
@@ -49,6 +51,7 @@ from .cascade_gains import CascadeRules, design_cascade_gains, output_speed_scal
 from .gains import GainBounds, design_heading_gains
 from .identification import YawModel
 from .px4_gains import design_ackermann_gains, design_uuv_gains
+from .skid_step import SkidDrive
 from .step_response import RudderPlant, simulate_step, step_metrics
 
 #: the highest rate bandwidth searched on PX4's Ackermann rover, rad/s (``px4_rover_family``)
@@ -102,13 +105,15 @@ class DesignObjective:
 class StepCase:
     """One identified speed: the model the step is flown on and the controller's limits there
     (``limits``: the keyword arguments of ``simulate_step`` for this controller, the output's speed
-    scaling included)."""
+    scaling included); ``skid``: a skid-steered boat's mixer, thrust and speed there (eq. A.2k), None
+    for every other vehicle."""
 
     speed: float
     model: YawModel
     plant: RudderPlant
     controller: str
     limits: Mapping[str, float] = field(default_factory=dict)
+    skid: SkidDrive | None = None
 
 
 @dataclass(frozen=True)
@@ -182,7 +187,8 @@ def score(cases: Sequence[StepCase], gains: Sequence[Gains], objective: DesignOb
         for size in objective.step_sizes_rad:
             try:
                 times, heading, _ = simulate_step(case.plant, case.controller, dict(case_gains), size,
-                                                  objective.duration_s, dt=objective.dt, **case.limits)
+                                                  objective.duration_s, dt=objective.dt, skid=case.skid,
+                                                  speed_trace=None, **case.limits)
             except ValueError:  # a configuration the autopilot refuses to fly (PX4: no wheel base): never settles
                 times, heading = np.array([0.0, objective.duration_s]), np.zeros(2)
             metrics = step_metrics(times, heading, 0.0, size, smooth=False)

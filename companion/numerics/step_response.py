@@ -30,6 +30,7 @@ from scipy.signal import savgol_filter
 
 from .attitude_shaping import ShapedYawTarget
 from .px4_step import PX4_CONTROLLERS, fly, px4_controller
+from .skid_step import SkidDrive, SkidState
 
 #: a reversal of the error counts only beyond this fraction of the step (noise stays inside)
 OSCILLATION_BAND = 0.03
@@ -114,6 +115,7 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
                   rate_accel_max: float = math.inf, output_scale: float = 1.0, rate_imax: float = 1.0,
                   speed: float = math.nan, steering_rate: float = math.inf, rate_threshold: float = 0.0,
                   torque_max: float = 1.0, input_tc: float = 0.0, yaw_slew_max: float = math.inf,
+                  skid: SkidDrive | None = None, speed_trace: list[float] | None = None,
                   dt: float = 0.01) -> tuple[np.ndarray, np.ndarray, float]:
     """Heading over time after a step of ``step`` rad from 0 (module docstring); also the largest
     rudder deflection reached. ``controller``: ``"pi"`` (gains ``heading_p``, ``heading_i``,
@@ -127,7 +129,16 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
     ``companion.numerics.attitude_shaping``: ATC_INPUT_TC, the yaw slew ``yaw_slew_max``).
     ``"px4_rover"`` / ``"px4_uuv"`` (eq. A.4 / A.5, ``companion.numerics.px4_step.px4_controller``)
     take ``full_scale``, ``rate_max``, ``rate_accel_max``, ``speed`` (PX4's speed estimate),
-    ``steering_rate``, ``rate_threshold`` and ``torque_max``."""
+    ``steering_rate``, ``rate_threshold`` and ``torque_max``.
+
+    ``skid`` (a skid-steered boat only, ``"pi"`` or ``"cascade"``): the controller's output is a
+    steering demand δ/``full_scale`` that the skid mixer scales with the throttle of the speed loop,
+    and the yaw moment and the speed follow the throttle it leaves (eq. A.2k,
+    ``companion.numerics.skid_step``); the largest deflection returned is then the one the
+    controller asked for, before the mixer, and the predicted speed at each time is appended to
+    ``speed_trace`` when one is given."""
+    if skid is not None and controller not in ("pi", "cascade"):
+        raise ValueError(f"a skid-steered step (eq. A.2k) is predicted under pi or cascade, not {controller!r}")
     if controller in PX4_CONTROLLERS:
         loop = px4_controller(controller, gains, full_scale=full_scale, speed=speed, rate_max=rate_max,
                               rate_accel_max=rate_accel_max, steering_rate=steering_rate,
@@ -154,9 +165,13 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
     else:
         raise ValueError(f"unknown heading controller {controller!r} (pi, cascade, {', '.join(PX4_CONTROLLERS)})")
     peak = abs(delta)
+    drive = SkidState(skid, plant.delta0 / full_scale) if skid is not None else None
+    previous_delta = delta
+    if drive is not None and speed_trace is not None:
+        speed_trace.append(drive.speed)
     for k in range(1, steps + 1):
         error = step - psi
-        if controller == "pi":
+        if controller == "pi":  # our simulator's PI knows its own saturation only, not the mixer's
             unsaturated = trim + kp * error + integral
             saturated = min(max(unsaturated, -plant.rudder_max), plant.rudder_max)
             if saturated == unsaturated or (ki * error) * unsaturated <= 0.0:
@@ -175,13 +190,25 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
             # the speed scaling comes before the output's limit (AP_MotorsUGV::output_regular), and
             # the integrator stops growing while the scaled output is at it
             output = output_scale * (rate_ff * rate_demand + rate_p * rate_error + integral)
-            if abs(output) < 1.0 or (rate_i * rate_error) * output <= 0.0:
+            # ArduRover's rate integrator also stops while the skid mixer limits the steering (eq. A.2k)
+            limited = drive is not None and drive.steering_limited
+            if (abs(output) < 1.0 and not limited) or (rate_i * rate_error) * output <= 0.0:
                 integral = min(max(integral + rate_i * rate_error * dt, -rate_imax), rate_imax)
             output = output_scale * (rate_ff * rate_demand + rate_p * rate_error + integral)
             demand = min(max(output, -1.0), 1.0) * full_scale
-        delta = _slew(delta, demand, plant.rudder_max, max_step)
-        peak = max(peak, abs(delta))
-        r += (plant.a22 * r + plant.b2 * (delta - plant.delta0)) * dt
+        if drive is None:
+            delta = _slew(delta, demand, plant.rudder_max, max_step)
+            peak = max(peak, abs(delta))
+            r += (plant.a22 * r + plant.b2 * (delta - plant.delta0)) * dt
+        else:  # eq. A.2k: the mixer, the throttle it leaves and the speed
+            peak = max(peak, abs(demand))
+            delta = drive.mix(demand / full_scale, dt) * full_scale
+            if math.isfinite(max_step) or abs(delta) > plant.rudder_max:  # a slewed or narrower rudder
+                delta = _slew(previous_delta, delta, plant.rudder_max, max_step)
+            previous_delta = delta
+            r += drive.accelerate(plant.a22, plant.b2, full_scale, r, delta / full_scale, dt) * dt
+            if speed_trace is not None:
+                speed_trace.append(drive.speed)
         psi += r * dt
         heading[k] = psi
     return times, heading, peak
@@ -232,9 +259,14 @@ def simulate_rate_tracking(plant: RudderPlant, gains: dict[str, float], times: A
 def predict_step(plant: RudderPlant, controller: str, gains: dict[str, float], step: float,
                  duration_s: float = 30.0, **limits) -> dict:
     """The figures of merit (:func:`step_metrics`) of a step flown on the model, and whether the
-    rudder saturated (``rudder_peak`` against its limit; PX4's UUV: its torque limit's, eq. A.5)."""
-    times, heading, peak = simulate_step(plant, controller, gains, step, duration_s, **limits)
+    rudder saturated (``rudder_peak`` against its limit; PX4's UUV: its torque limit's, eq. A.5); a
+    skid-steered boat's (``skid``, eq. A.2k) also the speed it loses (``speed_dip_pct``, % of its
+    speed at the step's start, at the lowest)."""
+    speeds: list[float] = []
+    times, heading, peak = simulate_step(plant, controller, gains, step, duration_s, speed_trace=speeds, **limits)
     metrics = step_metrics(times, heading, 0.0, step, smooth=False)
+    if speeds:
+        metrics["speed_dip_pct"] = 100.0 * (1.0 - min(speeds) / speeds[0])
     limit = plant.rudder_max
     if controller == "px4_uuv":
         limit = min(limit, limits.get("torque_max", 1.0) * limits.get("full_scale", limit))

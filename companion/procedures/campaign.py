@@ -40,7 +40,10 @@ from behaviors.sequence import Deferred, Instant, ParallelBehavior, SequenceBeha
 from behaviors.speed_tuning import SPEED_CONTEXT, SPEED_GAINS, SpeedTuning, SurgeRecorder
 from behaviors.verification import VerificationStep
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
+from companion.numerics.identification import YawModel
 from companion.numerics.quicktune import quicktune_gains, record_feed_forward
+from companion.numerics.skid_step import SkidPlant
+from companion.numerics.surge import SurgeModel, fit_surge_model
 from companion.numerics.thrust_levels import respaced, same_speed_as
 from companion.procedures.campaign_config import (AXES, CHECKS, DEFAULT_THRUSTS, PROCEDURES,  # noqa: F401 - re-exported
                                                   QUICK_CONVERGENCE_DELAY_S, QUICK_NOISE_BAND, QUICK_PITCH_DOUBLET,
@@ -49,7 +52,7 @@ from companion.procedures.campaign_phases import PhaseClock, add_times, phase_of
 from companion.procedures.campaign_verification import CampaignVerification
 from companion.procedures.heading_design import HeadingDesign, choose_heading_design, optimisable, with_design
 from companion.procedures.results import ProcedureResult
-from companion.procedures.verified_design import CONTROLLERS, LIMIT_PARAMETERS, HeadingLimits
+from companion.procedures.verified_design import CONTROLLERS, LIMIT_PARAMETERS, HeadingLimits, skid_plant
 
 log = logging.getLogger(__name__)
 
@@ -141,6 +144,7 @@ class IdentificationCampaign(Behaviour):
         if config.speed.enabled:
             parameters |= set(SPEED_GAINS + SPEED_CONTEXT)
         self.verifier: CampaignVerification | None = None  # the short campaign's ("verify")
+        self._skid: tuple[tuple[int, int], SkidPlant | None] | None = None  # eq. A.2k's, and what it was made from
         if self.checks == "verify" and self.heading_kind is not None:
             parameters |= set(LIMIT_PARAMETERS)  # read for the predictions (restored unchanged)
         if config.cascade.output_scale_base is not None:
@@ -298,17 +302,48 @@ class IdentificationCampaign(Behaviour):
         return self._verifier().own_step(self.accepted, thrust)
 
     def _limits(self) -> HeadingLimits:
-        """What bounds a heading step besides the gains, read with the original gains."""
-        return HeadingLimits.from_vehicle(self.original_gains, full_scale=self.config.cascade.full_scale,
-                                          rudder_rate=self.config.rudder_rate,
-                                          output_scale_base=self.config.cascade.output_scale_base
-                                          if self._yaw_kind().name == "cascade" else None)
+        """What bounds a heading step besides the gains, read with the original gains; on a
+        skid-steered boat also its mixer, thrust and speed (eq. A.2k) from what has been measured."""
+        limits = HeadingLimits.from_vehicle(self.original_gains, full_scale=self.config.cascade.full_scale,
+                                            rudder_rate=self.config.rudder_rate,
+                                            output_scale_base=self.config.cascade.output_scale_base
+                                            if self._yaw_kind().name == "cascade" else None)
+        skid = self._skid_plant()
+        return replace(limits, skid=skid) if skid is not None else limits
+
+    def _skid_plant(self) -> SkidPlant | None:
+        """Eq. A.2k's knowledge of a skid-steered boat (None for any other): the surge model fitted on
+        the settles flown so far (as the speed loop's design will be), the accepted yaw models' speed
+        laws and the speed loop as found; computed again only when a model or a level was added."""
+        mixer = self.config.skid_mixer
+        if mixer is None:
+            return None
+        yaw = [(a.speed, a.model) for a in self.accepted
+               if a.axis == "yaw" and isinstance(a.model, YawModel) and math.isfinite(a.speed)]
+        record = self.surge.record
+        key = (len(yaw), len(record.levels))
+        if self._skid is not None and self._skid[0] == key:
+            return self._skid[1]
+        levels = list(record.levels.values())
+        try:
+            surge: SurgeModel | None = fit_surge_model(record.time, record.throttle, record.speed, levels,
+                                                       record.stretches())
+        except ValueError as exc:
+            log.info("skid step predictions without a surge model (the speed held): %s", exc)
+            surge = None
+        plant = skid_plant(mixer, levels, surge, [u for u, _ in yaw], [m.a22 for _, m in yaw],
+                           [m.b2 for _, m in yaw], self.config.speed_law, self.original_gains)
+        self._skid = (key, plant)
+        return plant
 
     def _verifier(self) -> CampaignVerification:
-        """The verification's bookkeeping, made once the original gains (and limits) are known."""
+        """The verification's bookkeeping, made once the original gains (and limits) are known; its
+        limits follow what has been measured since (a skid boat's, eq. A.2k)."""
         if self.verifier is None:
             self.verifier = CampaignVerification(self._yaw_kind(), self.config.verification, self.config.keep,
                                                  self._limits())
+        elif self.config.skid_mixer is not None:
+            self.verifier.limits = self._limits()
         return self.verifier
 
     def _score_heading_design(self) -> HeadingDesign | None:

@@ -18,6 +18,7 @@ from companion.checks import check_thrust_levels, require_non_negative, require_
 from companion.link.profile import AutopilotProfile
 from companion.numerics.cascade_gains import CascadeRules
 from companion.numerics.gains import CAMPAIGN_DAMPING, GainBounds
+from companion.numerics.skid_step import SkidMixer
 from companion.numerics.step_design import DesignObjective
 from companion.procedures.verified_design import KeepRule
 from behaviors.speed_tuning import SpeedLoopConfig
@@ -98,6 +99,9 @@ class CampaignConfig:
     speed_law: str | None = None
     # the speed loop identified from the settles, designed and checked by speed steps (behaviors/speed_tuning.py)
     speed: SpeedLoopConfig = SpeedLoopConfig()
+    # a skid-steered boat's mixer (MOT_THST_ASYM, MOT_STR_THR_MIX as read: the profile's actuation,
+    # resolved_for): its heading steps are predicted through it (eq. A.2k); None for every other vehicle
+    skid_mixer: SkidMixer | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "thrusts", check_thrust_levels(self.thrusts, "CampaignConfig.thrusts"))
@@ -107,6 +111,8 @@ class CampaignConfig:
             require_positive(self, "depth")
         if self.speed_law not in (None, "u2", "u"):
             raise ValueError(f"CampaignConfig.speed_law must be 'u2', 'u' or None, not {self.speed_law!r}")
+        if self.skid_mixer is not None and not isinstance(self.skid_mixer, SkidMixer):
+            raise ValueError(f"CampaignConfig.skid_mixer must be a SkidMixer or None, not {self.skid_mixer!r}")
         if self.design not in DESIGNS:
             raise ValueError(f"CampaignConfig.design must be one of {', '.join(DESIGNS)}, not {self.design!r}")
         if self.checks not in CHECKS:
@@ -213,6 +219,9 @@ class CampaignConfig:
             config = replace(config, speed=replace(config.speed, enabled="speed_p" in profile.params))
         if actuation is not None and config.speed_law is None:
             config = replace(config, speed_law="u" if actuation.skid else "u2")
+        if actuation is not None and actuation.skid and config.skid_mixer is None:
+            config = replace(config, skid_mixer=SkidMixer(getattr(actuation, "thrust_asymmetry", 1.0),
+                                                          getattr(actuation, "steering_throttle_mix", 0.5)))
         # a modelled servo deflection is continuous (first-order hold); a raw loop output is held (zero-order)
         hold = "foh" if profile.actuator_rate_rad_s else profile.actuator_hold
         if hold != "foh":

@@ -13,7 +13,9 @@ of a campaign's time at sea. A product only needs to know that the gains it writ
   ends when it has decided.
 * **predicted**: every other step — the schedule at each identified speed, and the original gains
   everywhere — flown on the accepted model under the autopilot's own heading controller
-  (``companion.numerics.step_response``, eq. A.1 / A.2 / A.4 / A.5).
+  (``companion.numerics.step_response``, eq. A.1 / A.2 / A.4 / A.5), on a skid-steered boat through
+  its mixer, thrust and speed (eq. A.2k, :func:`skid_plant`): there the identified model alone
+  predicted ArduRover's quick steps 26–47 % faster than flown.
 
 :class:`KeepRule` decides. The gains are written only when (1) every flown step decided, overshot at
 most ``max_overshoot_pct`` and reversed at most ``max_oscillations`` times; (2) the model predicted
@@ -31,14 +33,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Iterable, Sequence
+from typing import Iterable, Mapping, Sequence
+
+import numpy as np
 
 from companion.checks import require_non_negative, require_positive
+from companion.link.autopilots import registered_profiles
+from companion.numerics.skid_step import SkidMixer, SkidPlant, SpeedHold
+from companion.numerics.speed_law import choose_speed_law
 from companion.numerics.step_design import StepCase, cascade_case, pi_case, px4_rover_case, px4_uuv_case
 from companion.numerics.step_response import predict_step
+from companion.numerics.surge import SurgeModel, steady_law
 
-#: the autopilot's heading controller each schedule kind is the gains of (eq. A.1, A.2, A.4, A.5)
-CONTROLLERS = {"heading": "pi", "cascade": "cascade", "px4_rover": "px4_rover", "px4_uuv": "px4_uuv"}
+#: the autopilot's heading controller each schedule kind is the gains of (eq. A.1, A.2, A.4, A.5), as
+#: each registered autopilot's module declares it (``AutopilotProfile.heading_controller``)
+CONTROLLERS = {profile.heading_schedule: profile.heading_controller for profile in registered_profiles()}
 #: read with the original gains (never written: a restore finds them unchanged), for the predictions;
 #: a profile declares those its autopilot has (PX4's rover: RA_MAX_STR_ANG, RA_STR_RATE_LIM,
 #: RO_YAW_RATE_LIM, RO_YAW_ACCEL_LIM, RO_YAW_RATE_TH; its UUV: UUV_TORQUE_SAT)
@@ -54,7 +63,8 @@ class HeadingLimits:
     limit (rad/s), turn-acceleration limit (rad/s²), the speed above which its output is scaled
     down (m/s, eq. A.2; None: never) and its rate integrator's clamp (fraction of the output); PX4's
     steering slew (RA_STR_RATE_LIM, rad/s), yaw-rate measurement threshold (RO_YAW_RATE_TH, rad/s)
-    and UUV torque limit (UUV_TORQUE_SAT, fraction of full torque), eq. A.4 / A.5."""
+    and UUV torque limit (UUV_TORQUE_SAT, fraction of full torque), eq. A.4 / A.5; a skid-steered
+    boat's mixer, thrust and speed, eq. A.2k."""
 
     rudder_max: float
     rudder_rate: float = math.inf
@@ -69,6 +79,12 @@ class HeadingLimits:
     torque_max: float = 1.0  # PX4 UUV: UUV_TORQUE_SAT
     input_tc: float = 0.0  # ArduSub: ATC_INPUT_TC where ATC_RATE_FF_ENAB shapes the set-point (eq. A.2s); 0: none
     yaw_slew_max: float = math.inf  # ArduSub: ATC_SLEW_YAW, rad/s
+    #: a skid-steered boat's mixer, thrust and speed (eq. A.2k; the campaign's :func:`skid_plant`), None otherwise
+    skid: SkidPlant | None = None
+
+    def __post_init__(self) -> None:
+        if self.skid is not None and not isinstance(self.skid, SkidPlant):
+            raise ValueError(f"HeadingLimits.skid must be a SkidPlant or None, not {self.skid!r}")
 
     @classmethod
     def from_vehicle(cls, values: dict[str, float], *, full_scale: float, rudder_rate: float | None,
@@ -103,9 +119,17 @@ class HeadingLimits:
 def limits_case(controller: str, model, speed: float | None, limits: HeadingLimits) -> StepCase:
     """One predicted-step case under ``controller`` (:data:`CONTROLLERS`' values: eq. A.1, A.2, A.4,
     A.5) on the yaw ``model`` at ``speed`` with the vehicle's ``limits`` (PX4's rover: ``rudder_max``
-    is RA_MAX_STR_ANG as read); ValueError for PX4's rover without a speed (its feed-forward divides
-    by it)."""
+    is RA_MAX_STR_ANG as read); a skid-steered boat's (``limits.skid``) at a known speed through its
+    mixer, thrust and speed (eq. A.2k). ValueError for PX4's rover without a speed (its feed-forward
+    divides by it)."""
     at = math.nan if speed is None else speed  # unknown: no output speed scaling (eq. A.2)
+    case = _case(controller, model, speed, at, limits)
+    if limits.skid is not None and case.controller in ("pi", "cascade") and math.isfinite(at) and at > 0.0:
+        case = replace(case, skid=limits.skid.at(at))
+    return case
+
+
+def _case(controller: str, model, speed: float | None, at: float, limits: HeadingLimits) -> StepCase:
     if controller == "cascade":
         return cascade_case(model, at, rudder_max=limits.rudder_max, rudder_rate=limits.rudder_rate,
                             full_scale=limits.full_scale, rate_max=limits.rate_max,
@@ -129,7 +153,44 @@ def predicted_step(controller: str, model, gains: dict[str, float], limits: Head
     ``speed`` (m/s: the output's speed scaling), scored over ``duration_s`` (a flown step's own
     length when compared with it: the step error integrates to the end of the record)."""
     case = limits_case(controller, model, speed, limits)
-    return predict_step(case.plant, case.controller, gains, abs(step), duration_s, **case.limits)
+    return predict_step(case.plant, case.controller, gains, abs(step), duration_s, skid=case.skid, **case.limits)
+
+
+def skid_plant(mixer: SkidMixer, levels: Sequence[tuple[float, float]], surge: SurgeModel | None,
+               speeds: Sequence[float], a22: Sequence[float], b2: Sequence[float], law: str | None,
+               speed_gains: Mapping[str, float]) -> SkidPlant | None:
+    """What eq. A.2k needs of a skid-steered boat, from what its campaign measured: the ``mixer``
+    (MOT_THST_ASYM, MOT_STR_THR_MIX read from the vehicle), the surge model (eq. S.4; without one,
+    the steady law of the settles' ``levels`` (throttle, speed) and the speed held), a22's slope
+    with the speed and b2's speed law (eq. S.3, ``law`` the actuation's prior) over the accepted yaw
+    models at ``speeds``, and ArduRover's speed loop as found (``speed_p``, ``speed_i``; the steps are
+    flown at a speed demand, eq. S.5). None when no throttle is known at any speed."""
+    if surge is not None:
+        gain, exponent, gamma, lag = surge.gain, surge.exponent, surge.gamma, surge.lag
+    else:
+        try:
+            gain, exponent = steady_law(levels)
+        except ValueError:
+            return None
+        gamma = lag = 0.0
+    if not (math.isfinite(gain) and gain > 0.0 and 0.2 <= exponent <= 3.0):
+        return None
+    u, a, b = (np.asarray(v, dtype=float) for v in (speeds, a22, b2))
+    slope, b2_exponent, ratio = 0.0, 1.0, 0.0
+    if np.unique(u).size >= 2:
+        slope = float(np.polyfit(u, a, 1)[0])
+        if np.all(b > 0.0) and np.all(u > 0.0):
+            choice = choose_speed_law(u.tolist(), b.tolist(), prior=law)
+            if choice.slope > 0.0:
+                b2_exponent, ratio = choice.exponent_of_law, choice.intercept / choice.slope
+            else:  # b2 not growing with the speed over the flown ones: held
+                b2_exponent, ratio = 0.0, 0.0
+    loop = None
+    if all(name in speed_gains and math.isfinite(speed_gains[name]) for name in ("speed_p", "speed_i")):
+        imax = speed_gains.get("speed_imax", 1.0)
+        loop = SpeedHold(max(speed_gains["speed_p"], 0.0), max(speed_gains["speed_i"], 0.0),
+                         imax if math.isfinite(imax) and imax > 0.0 else 1.0)
+    return SkidPlant(mixer, gain, exponent, max(gamma, 0.0), max(lag, 0.0), slope, b2_exponent, ratio, loop)
 
 
 @dataclass(frozen=True)
