@@ -87,3 +87,17 @@ def test_a_skid_vehicles_schedule_kinds_carry_its_law():
     assert kind.fit(SPEEDS[:2], models).b2_law == "u"  # two speeds: the actuation's law
     assert schedule_kind("heading").fit(SPEEDS[:2], models).b2_law == "u2"
     assert schedule_kind("pitch", None, "u").name == "pitch"  # not a yaw kind: the law is not its business
+
+
+def test_a_schedule_states_its_invariants_where_it_is_made():
+    """A schedule is fitted on stable models over the speeds flown: an unstable mean, an empty or
+    inverted speed range or an unknown law is refused at construction, not at the first gain."""
+    from companion.numerics.schedule import YawSchedule
+
+    good = dict(a22=-0.9, b2_slope=0.3, b2_intercept=0.05, delta0=0.01, speed_range=(1.0, 2.0))
+    assert YawSchedule(**good).speed_range == (1.0, 2.0)
+    for bad, match in ((dict(a22=0.1), "negative"), (dict(a22=float("nan")), "negative"),
+                       (dict(speed_range=(2.0, 1.0)), "speed_range"), (dict(speed_range=(0.0, 1.0)), "speed_range"),
+                       (dict(b2_law="u3"), "b2_law"), (dict(b2_slope=float("inf")), "finite")):
+        with pytest.raises(ValueError, match=match):
+            YawSchedule(**{**good, **bad})

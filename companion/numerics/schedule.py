@@ -59,6 +59,20 @@ class YawSchedule:
     b2_exponent: float = math.nan  # n̂ of b2 = k·uⁿ
     b2_exponent_sigma: float = math.nan
 
+    def __post_init__(self) -> None:
+        """A schedule is fitted on accepted (stable) models over the speeds they were flown at: its
+        mean a22 is negative and its speed range is 0 < low ≤ high, both finite."""
+        if not (math.isfinite(self.a22) and self.a22 < 0.0):
+            raise ValueError(f"YawSchedule.a22 must be finite and negative (a stable yaw), not {self.a22!r}")
+        low, high = (float(v) for v in self.speed_range)
+        if not (math.isfinite(low) and math.isfinite(high) and 0.0 < low <= high):
+            raise ValueError(f"YawSchedule.speed_range must be 0 < low <= high, not {self.speed_range!r}")
+        self.speed_range = (low, high)
+        if self.b2_law not in LAW_EXPONENTS:
+            raise ValueError(f"YawSchedule.b2_law must be one of {', '.join(LAW_EXPONENTS)}, not {self.b2_law!r}")
+        if not (math.isfinite(self.b2_slope) and math.isfinite(self.b2_intercept) and self.margin >= 0.0):
+            raise ValueError("YawSchedule: b2's law and the extrapolation margin must be finite numbers")
+
     def clamp_speed(self, speed: float) -> float:
         """The speed at which the laws are evaluated (clamped extrapolation, see module docstring)."""
         low, high = self.speed_range
