@@ -146,7 +146,7 @@ def ours(args, preset: str) -> int:
     print(f"\nvehicle time per campaign: median {fmt(med(times), '.0f')} s ("
           + ", ".join(f"{k} {fmt(med(v), '.0f')} s" for k, v in sorted(phases.items()))
           + f"); wall time median {fmt(med(walls), '.0f')} s at {args.speedup:g}x")
-    print(f"outcomes: {[s.get('status') for s in summaries]}")
+    print(f"outcomes: {[str(s.get('status')) for s in summaries]}")
     return 0
 
 
