@@ -78,6 +78,9 @@ def main() -> int:
                              "the frame's, 3 m/s)")
     parser.add_argument("--procedure", choices=("quick", "thesis"), default="quick",
                         help="the campaign procedure (default: quick, what identify --connect flies)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="--physics ardupilot: a parameter set on the vehicle before the campaign (repeatable), "
+                             "as a user would change it")
     parser.add_argument("--keep", default=None, metavar="DIR",
                         help="our physics: keep each run's rehearsal folder (its store, with the flown steps) in "
                              "DIR/run-N")
@@ -266,9 +269,11 @@ def motorboat(args) -> int:
     for repeat in range(args.repeats):
         with tempfile.TemporaryDirectory() as work:
             extra = Path(work) / "bench.parm"
-            extra.write_text("FS_PILOT_INPUT 0\nFS_GCS_ENABLE 0\n" if sub else
-                             ("SIM_WAVE_ENABLE 1\nSIM_WIND_SPD 3\n" if args.waves else "SIM_WAVE_ENABLE 0\nSIM_WIND_SPD 0\n")
-                             + (f"WP_SPEED {args.wp_speed:g}\n" if args.wp_speed else ""))
+            found = ("FS_PILOT_INPUT 0\nFS_GCS_ENABLE 0\n" if sub else
+                     ("SIM_WAVE_ENABLE 1\nSIM_WIND_SPD 3\n" if args.waves else "SIM_WAVE_ENABLE 0\nSIM_WIND_SPD 0\n")
+                     + (f"WP_SPEED {args.wp_speed:g}\n" if args.wp_speed else ""))
+            extra.write_text(found + "".join(f"{name.strip()} {value.strip()}\n"
+                                             for name, _, value in (item.partition("=") for item in args.set)))
             defaults = ",".join([str(source / f) for f in files] + [str(extra)])
             instance = free_instance()
             port = 5760 + 10 * instance
