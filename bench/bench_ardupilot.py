@@ -82,8 +82,8 @@ def main() -> int:
                         help="--physics ardupilot: a parameter set on the vehicle before the campaign (repeatable), "
                              "as a user would change it")
     parser.add_argument("--keep", default=None, metavar="DIR",
-                        help="our physics: keep each run's rehearsal folder (its store, with the flown steps) in "
-                             "DIR/run-N")
+                        help="keep each run's folder (its store, with the flown steps; SITL's own vehicles: "
+                             "identify's JSON too) in DIR/run-N")
     parser.add_argument("--full-comparison", action="store_true",
                         help="fly the defaults, QuickTune's rule and the design at every speed (identify "
                              "--full-comparison) instead of verifying the design with two steps")
@@ -267,7 +267,7 @@ def motorboat(args) -> int:
              ["rover.parm", "motorboat.parm"] + (["rover-skid.parm"] if args.frame == "skid" else []))
     outcomes = []
     for repeat in range(args.repeats):
-        with tempfile.TemporaryDirectory() as work:
+        with _run_folder(args.keep, repeat) as work:
             extra = Path(work) / "bench.parm"
             found = ("FS_PILOT_INPUT 0\nFS_GCS_ENABLE 0\n" if sub else
                      ("SIM_WAVE_ENABLE 1\nSIM_WIND_SPD 3\n" if args.waves else "SIM_WAVE_ENABLE 0\nSIM_WIND_SPD 0\n")
@@ -299,6 +299,8 @@ def motorboat(args) -> int:
                 started = time.monotonic()
                 done = subprocess.run(identify, capture_output=True, text=True, timeout=3600)
                 wall = time.monotonic() - started
+                if args.keep:
+                    (Path(work) / "identify.json").write_text(done.stdout)
             finally:
                 sitl.terminate()
                 try:
