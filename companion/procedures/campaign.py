@@ -101,9 +101,11 @@ CampaignEvent = Union[AttemptRecorded, StepsChecked, DesignMade, GainsWritten, S
 
 def unstable_estimates(attempts: Sequence[IdentificationAttempt]) -> str:
     """Why no yaw model passed, when every yaw estimate came out unstable or inverted (a22 ≥ 0 or
-    b2 ≤ 0): on ArduPilot's own motorboat (a yaw time constant of 0.06–0.09 s at 3–5 m/s, telemetry
-    every 0.04 s) 27 of 33 estimates over four campaigns were, and 7 of 20 campaigns failed (measured);
-    its yaw is slower at lower speed. Empty otherwise."""
+    b2 ≤ 0). Measured on ArduPilot's own motorboat (a yaw time constant of 0.06–0.09 s at 3–5 m/s,
+    telemetry every 0.04 s): 27 of 33 estimates over four campaigns were, and 7 of 20 campaigns failed;
+    at a third of the speed (`--thrusts 0.3,0.4,0.5`) 3 of 3 completed, though 19 of 24 estimates
+    there were unstable too: the cause is not established, the slower yaw is what helped. Empty
+    otherwise."""
     yaw = [(a, a.model) for a in attempts if a.axis == "yaw" and isinstance(a.model, YawModel)]
     if not yaw or any(model.a22 < 0.0 and model.b2 > 0.0 for _, model in yaw):
         return ""
