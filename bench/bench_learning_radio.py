@@ -25,6 +25,7 @@ from pathlib import Path
 
 from companion.records.store import Store
 from harness.fault_schedule import TO_COMPANION
+from harness.mavlink_clients import set_param_echoed
 from harness.missions import SurveyPlan
 from harness.serial_bridge import BAUD, RadioConditions, SerialBridge
 from harness.simulator import start_sim
@@ -37,16 +38,6 @@ POOR = {"HDG_P": 0.4, "HDG_I": 0.02}
 MAX_VEHICLE_S = 300.0
 
 
-def _set_param(conn, name: str, value: float, timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        conn.mav.param_set_send(1, 1, name.encode(), value, 9)
-        msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
-        if msg is not None and msg.param_id == name and abs(msg.param_value - value) < 1e-6:
-            return
-    raise RuntimeError(f"{name} was never echoed as {value}")
-
-
 def run_case(folder: Path, conditions: RadioConditions, seed: int) -> dict:
     """One survey with learning over the radio (module docstring); what the store and the radio say."""
     sim = start_sim(transport="tcp", speedup=0, seed=3, lockstep=True)
@@ -54,7 +45,7 @@ def run_case(folder: Path, conditions: RadioConditions, seed: int) -> dict:
     try:
         station.start()
         for name, value in POOR.items():
-            _set_param(station.conn, name, value)
+            set_param_echoed(station.conn, name, value)
         store_path = folder / f"store-{seed}.sqlite"
         with SerialBridge(sim.port, conditions=conditions, seed=seed) as bridge:
             started = time.monotonic()

@@ -65,3 +65,15 @@ def arm_and_see_it(gcs, timeout_s: float = 20.0) -> None:
         if msg is not None and msg.get_srcComponent() == 1 and msg.base_mode & 128:  # SAFETY_ARMED
             return
     raise RuntimeError("the vehicle's heartbeat never showed it armed")
+
+
+def set_param_echoed(conn, name: str, value: float, timeout_s: float = 10.0) -> None:
+    """A ground station's PARAM_SET of ``name`` to the autopilot (system 1, component 1), sent again
+    until its PARAM_VALUE echoes ``value`` (wall clock: a test rig's set-up, not vehicle time)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        conn.mav.param_set_send(1, 1, name.encode(), value, 9)
+        msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
+        if msg is not None and msg.param_id == name and abs(msg.param_value - value) < 1e-6:
+            return
+    raise AssertionError(f"{name} was never echoed as {value}")

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 
 import pytest
 
 from companion.records.store import Store
+from harness.mavlink_clients import set_param_echoed
 from harness.missions import SurveyPlan
 from harness.survey_gcs import SurveyGroundStation
 
@@ -20,23 +20,13 @@ PLAN = SurveyPlan(thrusts=(0.7,), seconds_per_thrust=1e9, course_changes_deg=(30
 POOR = {"HDG_P": 0.4, "HDG_I": 0.02}
 
 
-def set_param(conn, name: str, value: float, timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        conn.mav.param_set_send(1, 1, name.encode(), value, 9)
-        msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
-        if msg is not None and msg.param_id == name and abs(msg.param_value - value) < 1e-6:
-            return
-    raise AssertionError(f"{name} was never echoed as {value}")
-
-
 def test_run_learn_tunes_a_vehicle_flying_its_own_survey(sim_factory, tmp_path):
     sim = sim_factory(transport="tcp", speedup=50, seed=3, lockstep=True)
     station = SurveyGroundStation(sim.endpoint, PLAN)
     station.start()
     try:
         for name, value in POOR.items():
-            set_param(station.conn, name, value)
+            set_param_echoed(station.conn, name, value)
         store_path = tmp_path / "store.sqlite"
         run = subprocess.run([sys.executable, "-m", "companion", "run", "--connect", sim.endpoint, "--lockstep",
                               "--learn", "--no-health", "--store", str(store_path), "--max-vehicle-time", "260"],

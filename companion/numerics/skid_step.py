@@ -122,6 +122,17 @@ class SpeedHold:
         require_positive(self, "imax")
 
 
+def _check_shared(record: "SkidDrive | SkidPlant") -> None:
+    """The fields a skid boat's drive at one speed and its plant over all speeds share."""
+    require_non_negative(record, "gamma", "lag", "b2_exponent")
+    require_finite(record, "a22_slope", "b2_intercept_ratio")
+    name = type(record).__name__
+    if not isinstance(record.mixer, SkidMixer):
+        raise ValueError(f"{name}.mixer must be a SkidMixer, not {record.mixer!r}")
+    if record.speed_loop is not None and not isinstance(record.speed_loop, SpeedHold):
+        raise ValueError(f"{name}.speed_loop must be a SpeedHold or None, not {record.speed_loop!r}")
+
+
 @dataclass(frozen=True)
 class SkidDrive:
     """Eq. A.2k at one speed (module docstring): the mixer, the trim throttle ``throttle`` (t0) that
@@ -144,12 +155,7 @@ class SkidDrive:
     def __post_init__(self) -> None:
         require_positive(self, "speed", "thrust_exponent")
         require_range(self, "throttle", 0.01, 1.0)
-        require_non_negative(self, "gamma", "lag", "b2_exponent")
-        require_finite(self, "a22_slope", "b2_intercept_ratio")
-        if not isinstance(self.mixer, SkidMixer):
-            raise ValueError(f"SkidDrive.mixer must be a SkidMixer, not {self.mixer!r}")
-        if self.speed_loop is not None and not isinstance(self.speed_loop, SpeedHold):
-            raise ValueError(f"SkidDrive.speed_loop must be a SpeedHold or None, not {self.speed_loop!r}")
+        _check_shared(self)
 
     # ------------------------------------------------------------------ eq. A.2k's pieces
     def thrust(self, demand: float) -> float:
@@ -196,12 +202,7 @@ class SkidPlant:
     def __post_init__(self) -> None:
         require_positive(self, "throttle_gain")
         require_range(self, "throttle_exponent", 0.2, 3.0)
-        require_non_negative(self, "gamma", "lag", "b2_exponent")
-        require_finite(self, "a22_slope", "b2_intercept_ratio")
-        if not isinstance(self.mixer, SkidMixer):
-            raise ValueError(f"SkidPlant.mixer must be a SkidMixer, not {self.mixer!r}")
-        if self.speed_loop is not None and not isinstance(self.speed_loop, SpeedHold):
-            raise ValueError(f"SkidPlant.speed_loop must be a SpeedHold or None, not {self.speed_loop!r}")
+        _check_shared(self)
 
     def throttle_at(self, speed: float) -> float:
         """The throttle that holds ``speed`` (eq. S.4's steady law), within the mixer's 0.01–1."""
