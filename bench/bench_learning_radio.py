@@ -27,7 +27,7 @@ from companion.records.store import Store
 from harness.fault_schedule import TO_COMPANION
 from harness.mavlink_clients import set_param_echoed
 from harness.missions import SurveyPlan
-from harness.serial_bridge import BAUD, RadioConditions, SerialBridge
+from harness.serial_bridge import RadioConditions, SerialBridge, add_radio_arguments, radio_from
 from harness.simulator import start_sim
 from harness.survey_gcs import SurveyGroundStation
 
@@ -80,18 +80,16 @@ def _fmt(value, spec: str = ".1f") -> str:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--loss", type=float, default=0.02, help="fraction of bytes lost on the air (default 0.02)")
-    parser.add_argument("--burst", type=int, default=32, help="mean run of bytes lost together (1: one by one)")
-    parser.add_argument("--seeds", default="1,2,3", help="radio seeds, comma-separated (default 1,2,3)")
+    add_radio_arguments(parser)
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING, format="%(message)s", stream=sys.stdout)
     log.setLevel(logging.INFO)
-    conditions = RadioConditions(rate_bytes_s=BAUD / 10.0, byte_loss=args.loss, loss_burst_bytes=args.burst)
+    conditions, seeds = radio_from(args)
     log.info("radio each way: %s; survey: a course change every 30 s at thrust 0.7, gains %s", conditions.describe(),
              POOR)
     rows = []
     with tempfile.TemporaryDirectory() as folder:
-        for seed in (int(s) for s in args.seeds.split(",") if s.strip()):
+        for seed in seeds:
             row = run_case(Path(folder), conditions, seed)
             rows.append(row)
             radio = row["radio"].get(TO_COMPANION, {})

@@ -19,7 +19,7 @@ import tempfile
 from pathlib import Path
 
 from harness.fault_schedule import TO_COMPANION
-from harness.serial_bridge import BAUD, RadioConditions
+from harness.serial_bridge import add_radio_arguments, radio_from
 from harness.serial_campaign import run_serial_campaign
 from harness.simulator import start_sim
 
@@ -28,17 +28,15 @@ log = logging.getLogger("bench_serial_link")
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--loss", type=float, default=0.02, help="fraction of bytes lost on the air (default 0.02)")
-    parser.add_argument("--burst", type=int, default=32, help="mean run of bytes lost together (1: one by one)")
-    parser.add_argument("--seeds", default="1,2,3", help="radio seeds, comma-separated (default 1,2,3)")
+    add_radio_arguments(parser)
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING, format="%(message)s", stream=sys.stdout)
     log.setLevel(logging.INFO)  # the bench's own lines; the rest only when something is wrong
-    conditions = RadioConditions(rate_bytes_s=BAUD / 10.0, byte_loss=args.loss, loss_burst_bytes=args.burst)
+    conditions, seeds = radio_from(args)
     log.info("radio each way: %s", conditions.describe())
     runs = []
     with tempfile.TemporaryDirectory() as folder:
-        for seed in (int(s) for s in args.seeds.split(",") if s.strip()):
+        for seed in seeds:
             sim = start_sim(transport="tcp", speedup=0, seed=1, lockstep=True)
             try:
                 run = run_serial_campaign(sim, Path(folder) / f"store-{seed}.sqlite", conditions, seed)

@@ -376,3 +376,16 @@ class SerialBridge:
                 self.vehicle_closed = True
                 return
             del self._to_vehicle[:sent]
+
+
+def add_radio_arguments(parser) -> None:
+    """A bench's radio options: ``--loss``, ``--burst`` and ``--seeds`` (see :func:`radio_from`)."""
+    parser.add_argument("--loss", type=float, default=0.02, help="fraction of bytes lost on the air (default 0.02)")
+    parser.add_argument("--burst", type=int, default=32, help="mean run of bytes lost together (1: one by one)")
+    parser.add_argument("--seeds", default="1,2,3", help="radio seeds, comma-separated (default 1,2,3)")
+
+
+def radio_from(args) -> tuple[RadioConditions, list[int]]:
+    """The radio each way at 57600 baud with the options of :func:`add_radio_arguments`, and the seeds."""
+    conditions = RadioConditions(rate_bytes_s=BAUD / 10.0, byte_loss=args.loss, loss_burst_bytes=args.burst)
+    return conditions, [int(s) for s in args.seeds.split(",") if s.strip()]
