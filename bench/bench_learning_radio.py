@@ -25,7 +25,6 @@ from pathlib import Path
 
 from companion.records.store import Store
 from harness.fault_schedule import TO_COMPANION
-from harness.mavlink_clients import set_param_echoed
 from harness.missions import SurveyPlan
 from harness.serial_bridge import RadioConditions, SerialBridge, add_radio_arguments, radio_from
 from harness.simulator import start_sim
@@ -41,11 +40,9 @@ MAX_VEHICLE_S = 300.0
 def run_case(folder: Path, conditions: RadioConditions, seed: int) -> dict:
     """One survey with learning over the radio (module docstring); what the store and the radio say."""
     sim = start_sim(transport="tcp", speedup=0, seed=3, lockstep=True)
-    station = SurveyGroundStation(sim.endpoint, PLAN)
+    station = SurveyGroundStation(sim.endpoint, PLAN, parameters=POOR)
     try:
         station.start()
-        for name, value in POOR.items():
-            set_param_echoed(station.conn, name, value)
         store_path = folder / f"store-{seed}.sqlite"
         with SerialBridge(sim.port, conditions=conditions, seed=seed) as bridge:
             started = time.monotonic()

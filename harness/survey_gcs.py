@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping
 
-from harness.mavlink_clients import connect_client
+from harness.mavlink_clients import connect_client, set_param_echoed
 from harness.missions import SurveyPlan
 from harness.station_thread import StationThread
 
@@ -33,13 +34,19 @@ class SurveyGroundStation(StationThread):
 
     what = "survey ground station"
 
-    def __init__(self, endpoint: str, plan: SurveyPlan, *, source_system: int = 255) -> None:
+    def __init__(self, endpoint: str, plan: SurveyPlan, *, source_system: int = 255,
+                 parameters: Mapping[str, float] | None = None) -> None:
         super().__init__()
         self.endpoint, self.plan, self.source_system = endpoint, plan, source_system
+        self.parameters = dict(parameters or {})
         self.sent: list[tuple[float, float, float]] = []
 
     def start(self) -> "SurveyGroundStation":
+        """Connect, set ``parameters`` (each until echoed), then fly in the thread. The parameters are
+        set before the thread reads the connection: its reader would otherwise take the echoes."""
         self.conn = connect_client(self.endpoint, source_system=self.source_system)
+        for name, value in self.parameters.items():
+            set_param_echoed(self.conn, name, value)
         self._start_thread()
         return self
 

@@ -10,7 +10,6 @@ import sys
 import pytest
 
 from companion.records.store import Store
-from harness.mavlink_clients import set_param_echoed
 from harness.missions import SurveyPlan
 from harness.survey_gcs import SurveyGroundStation
 
@@ -22,11 +21,9 @@ POOR = {"HDG_P": 0.4, "HDG_I": 0.02}
 
 def test_run_learn_tunes_a_vehicle_flying_its_own_survey(sim_factory, tmp_path):
     sim = sim_factory(transport="tcp", speedup=50, seed=3, lockstep=True)
-    station = SurveyGroundStation(sim.endpoint, PLAN)
+    station = SurveyGroundStation(sim.endpoint, PLAN, parameters=POOR)
     station.start()
     try:
-        for name, value in POOR.items():
-            set_param_echoed(station.conn, name, value)
         store_path = tmp_path / "store.sqlite"
         run = subprocess.run([sys.executable, "-m", "companion", "run", "--connect", sim.endpoint, "--lockstep",
                               "--learn", "--no-health", "--store", str(store_path), "--max-vehicle-time", "260"],
