@@ -5,10 +5,11 @@ import math
 
 import numpy as np
 import pytest
+from scipy.signal import cont2discrete
 
 from companion.numerics.identification import PitchModel, YawModel
 from companion.numerics.offline import fit_yaw_offline, simulate_yaw_rk4
-from companion.numerics.validation import r_squared, simulate_yaw, validate_pitch, validate_yaw
+from companion.numerics.validation import r_squared, simulate_yaw, validate_pitch, validate_yaw, yaw_interval
 from tests.test_numerics_identification import HEADING_NOISE, PITCH_TRUE, pitch_record, yaw_record
 
 TRUE = YawModel(-1.12, 0.87, 0.012)
@@ -79,3 +80,14 @@ def test_offline_with_noise_validates_on_fresh_data():
     v_times, v_heading, v_rudder = yaw_record(TRUE, seed=26, noise=HEADING_NOISE, amplitude=0.15)
     assert validate_yaw(fit.model, v_times, v_heading, v_rudder) > 0.95
     assert fit.model.a22 == pytest.approx(TRUE.a22, rel=0.1)
+
+
+@pytest.mark.parametrize("alpha", [-2.5, -0.4, -1e-9, 0.0, 3e-8, 0.3])
+@pytest.mark.parametrize("dt", [0.02, 0.1, 1.3])
+def test_a_yaw_interval_written_out_equals_the_matrix_exponential(alpha, dt):
+    """The closed form of one held interval (eq. L.3) against scipy's zero-order-hold discretisation."""
+    x0, beta = np.array([0.7, -0.2]), 0.35
+    a = np.array([[0.0, 1.0], [0.0, alpha]])
+    ad, bd, *_ = cont2discrete((a, np.array([[0.0], [beta]]), np.eye(2), np.zeros((2, 1))), dt, method="zoh")
+    expected = ad @ x0 + bd[:, 0]
+    np.testing.assert_allclose(yaw_interval(x0, alpha, beta, dt), expected, rtol=1e-11, atol=1e-12)
