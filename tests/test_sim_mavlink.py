@@ -110,6 +110,13 @@ def client(shared_sim, mav_client):
     return mav_client(shared_sim.endpoint)
 
 
+@pytest.fixture
+def own_client(sim_factory, mav_client):
+    """A client of a simulator of its own: for the tests that assert what a closed loop did, whose
+    vehicle must not start where another test left the shared one (a dive, a turn, a speed)."""
+    return mav_client(sim_factory(transport="tcp", speedup=30).endpoint)
+
+
 # --------------------------------------------------------------------------- identity and streams
 def test_heartbeat_identity_and_modes(client):
     hb = recv_until(client, lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1)
@@ -227,7 +234,8 @@ def test_roll_kick_parameter(client):
 
 
 # --------------------------------------------------------------------------- RC override
-def test_rudder_override_in_alt_hold_then_release(client):
+def test_rudder_override_in_alt_hold_then_release(own_client):
+    client = own_client
     hold_mode(client)
     try:
         assert param_set(client, "RC_OVR_TIME", 30.0).param_value == 30.0
@@ -253,7 +261,8 @@ def test_rudder_override_in_alt_hold_then_release(client):
         param_set(client, "RC_OVR_TIME", 3.0)
 
 
-def test_override_expires_after_rc_ovr_time(client):
+def test_override_expires_after_rc_ovr_time(own_client):
+    client = own_client
     hold_mode(client)
     assert param_set(client, "RC_OVR_TIME", 2.0).param_value == 2.0
     try:
@@ -298,7 +307,8 @@ def test_manual_mode_rc_and_disarmed_outputs(client):
     override(client, 0, 0, 0)
 
 
-def test_guided_setpoints_and_ignored_rc(client):
+def test_guided_setpoints_and_ignored_rc(own_client):
+    client = own_client
     hold_mode(client)
     assert command(client, mav.MAV_CMD_DO_SET_MODE, 1, 4) == mav.MAV_RESULT_ACCEPTED
     assert command(client, mav.MAV_CMD_DO_CHANGE_SPEED, 0, -1, 80) == mav.MAV_RESULT_ACCEPTED
