@@ -9,7 +9,7 @@ from scipy.signal import cont2discrete
 
 from companion.numerics.identification import PitchModel, YawModel
 from companion.numerics.offline import fit_yaw_offline, simulate_yaw_rk4
-from companion.numerics.validation import r_squared, simulate_yaw, validate_pitch, validate_yaw, yaw_interval
+from companion.numerics.validation import r_squared, simulate_yaw, validate_pitch, validate_yaw, interval_factors
 from tests.test_numerics_identification import HEADING_NOISE, PITCH_TRUE, pitch_record, yaw_record
 
 TRUE = YawModel(-1.12, 0.87, 0.012)
@@ -90,4 +90,6 @@ def test_a_yaw_interval_written_out_equals_the_matrix_exponential(alpha, dt):
     a = np.array([[0.0, 1.0], [0.0, alpha]])
     ad, bd, *_ = cont2discrete((a, np.array([[0.0], [beta]]), np.eye(2), np.zeros((2, 1))), dt, method="zoh")
     expected = ad @ x0 + bd[:, 0]
-    np.testing.assert_allclose(yaw_interval(x0, alpha, beta, dt), expected, rtol=1e-11, atol=1e-12)
+    phi1, phi2 = interval_factors(alpha, dt)
+    written_out = [x0[0] + x0[1] * phi1 + beta * phi2, (1.0 + alpha * phi1) * x0[1] + beta * phi1]
+    np.testing.assert_allclose(written_out, expected, rtol=1e-11, atol=1e-12)

@@ -74,39 +74,35 @@ def simulate_yaw_scaled(model: YawModel, times: ArrayLike, rudder: ArrayLike, he
     headings = np.empty(times.size)
     if times.size == 0:
         return headings
-    x = np.array([heading0, yaw_rate0], dtype=float)
     headings[0] = heading0
     c0 = model.b2 * model.delta0
     finite = np.flatnonzero(np.isfinite(rudder))
     held = rudder[finite[0]] if finite.size else 0.0
+    dts = np.diff(times)
+    if np.any(~(dts > 0.0)):
+        raise ValueError(f"times must be strictly increasing (index {int(np.flatnonzero(~(dts > 0.0))[0]) + 1})")
+    alphas = model.a22 * a_scale[:-1]
+    phi1s, phi2s = interval_factors(alphas, dts)
+    heading, rate = float(heading0), float(yaw_rate0)
     for k in range(1, times.size):
-        dt = times[k] - times[k - 1]
-        if not dt > 0.0:
-            raise ValueError(f"times must be strictly increasing (index {k})")
-        x = yaw_interval(x, model.a22 * a_scale[k - 1], model.b2 * b_scale[k - 1] * held - c0, float(dt))
-        headings[k] = x[0]
+        phi1, phi2, beta = float(phi1s[k - 1]), float(phi2s[k - 1]), model.b2 * b_scale[k - 1] * held - c0
+        heading, rate = heading + rate * phi1 + beta * phi2, (1.0 + alphas[k - 1] * phi1) * rate + beta * phi1
+        headings[k] = heading
         if math.isfinite(rudder[k]):
             held = rudder[k]
     return headings
 
 
-def yaw_interval(x: np.ndarray, alpha: float, beta: float, dt: float) -> np.ndarray:
-    """(ψ, r) after ``dt`` of ψ̇ = r, ṙ = α·r + β with α, β held (eq. L.3, exact zero-order hold):
-
-        r⁺ = e^{αdt}·r + β·φ₁,   ψ⁺ = ψ + r·φ₁ + β·(φ₁ − dt)/α,   φ₁ = (e^{αdt} − 1)/α,
-
-    with the series φ₁ ≈ dt + α·dt²/2, (φ₁ − dt)/α ≈ dt²/2 + α·dt³/6 when |α·dt| < 1e-6. Written out
-    because the speed factors change α at every sample: ``cont2discrete`` per sample was a matrix
-    exponential each time, 5 ms, most of a learning session's computing."""
+def interval_factors(alpha: float | np.ndarray, dt: float | np.ndarray) -> tuple:
+    """φ₁ = (e^{αdt} − 1)/α and φ₂ = (φ₁ − dt)/α of one held interval (eq. L.3), by their series
+    dt·(1 + αdt/2) and dt²·(1/2 + αdt/6) where |α·dt| < 1e-6 (scalars or arrays alike)."""
+    alpha, dt = np.asarray(alpha, dtype=float), np.asarray(dt, dtype=float)
     ad = alpha * dt
-    if abs(ad) < 1e-6:
-        phi1 = dt * (1.0 + ad / 2.0)
-        phi2 = dt * dt * (0.5 + ad / 6.0)
-    else:
-        phi1 = math.expm1(ad) / alpha
-        phi2 = (phi1 - dt) / alpha
-    heading, rate = float(x[0]), float(x[1])
-    return np.array([heading + rate * phi1 + beta * phi2, (1.0 + alpha * phi1) * rate + beta * phi1])
+    small = np.abs(ad) < 1e-6
+    safe = np.where(small, 1.0, alpha)
+    phi1 = np.where(small, dt * (1.0 + ad / 2.0), np.expm1(ad) / safe)
+    phi2 = np.where(small, dt * dt * (0.5 + ad / 6.0), (phi1 - dt) / safe)
+    return phi1, phi2
 
 
 def simulate_pitch(
