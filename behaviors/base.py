@@ -15,13 +15,19 @@ behaviour touches is put back on abort without a hard-coded list anywhere else.
 
 ``step`` / ``abort`` / ``done`` keep the older protocol of :class:`companion.interface.Behavior`,
 so the runner and the sequence need nothing else.
+
+``result()`` gives what the behaviour found as a :class:`BehaviourResult`: a frozen record read by
+attribute, validated where it is made, whose ``to_dict()`` is its strict JSON (the store's and the
+printed form, taken only there). A behaviour that finds nothing but how it ended gives a
+:class:`LifecycleResult`; docs/store.md lists every result type and its JSON keys.
 """
 from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
-from typing import Any, Iterable, Sequence
+from typing import Iterable, Protocol, Sequence
 
+from companion.checks import require_instance
 from companion.interface import Command, Telemetry
 
 
@@ -37,6 +43,28 @@ class Status(enum.Enum):
     @property
     def finished(self) -> bool:
         return self in (Status.SUCCESS, Status.FAILURE, Status.ABORTED)
+
+
+class BehaviourResult(Protocol):
+    """What a behaviour found (module docstring): read by attribute; ``to_dict`` is its strict JSON."""
+
+    def to_dict(self) -> dict: ...
+
+
+@dataclass(frozen=True)
+class LifecycleResult:
+    """How a behaviour that finds nothing else ended: its name, its lifecycle status and why it failed
+    or was aborted."""
+
+    name: str
+    status: Status
+    reason: str | None = None
+
+    def __post_init__(self) -> None:
+        require_instance(self, "status", Status)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "status": self.status.value, "reason": self.reason}
 
 
 #: set-points a behaviour may change; a restore point records each one it can read back
@@ -99,9 +127,9 @@ class Behaviour:
         """Called once when the behaviour ends (any status): release what it holds."""
         return []
 
-    def result(self) -> Any:
-        """What the behaviour found (a typed record or a JSON-ready dict)."""
-        return {"name": self.name, "status": self.status.value, "reason": self.reason}
+    def result(self) -> BehaviourResult:
+        """What the behaviour found (module docstring); here only how it ended."""
+        return LifecycleResult(self.name, self.status, self.reason)
 
     # ------------------------------------------------------------------ lifecycle (final)
     def finish(self, status: Status = Status.SUCCESS, reason: str | None = None) -> None:

@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Sequence
 
 from behaviors.base import Behaviour, Footprint, Status
+from behaviors.json_form import json_form
 from companion.checks import require_non_negative, require_positive, require_range
 from companion.interface import Command, NamedValue, SetParameters, StatusText, Telemetry
 
@@ -126,6 +127,24 @@ def gains_differ(new: dict[str, float], old: dict[str, float] | None, config: Sc
     return False
 
 
+@dataclass(frozen=True)
+class SchedulingResult:
+    """What the scheduler wrote: each confirmed write (``time_s``, the filtered ``speed``, the gains),
+    in vehicle-time order, its configuration, and the gains it found (None: not read)."""
+
+    writes: tuple[dict, ...]
+    config: SchedulingConfig
+    original: dict[str, float] | None
+
+    def __post_init__(self) -> None:
+        times = [write["time_s"] for write in self.writes]
+        if any(later < earlier for earlier, later in zip(times, times[1:])):
+            raise ValueError(f"SchedulingResult.writes must be in vehicle-time order, not at {times}")
+
+    def to_dict(self) -> dict:
+        return json_form({"writes": self.writes, "config": asdict(self.config), "original": self.original})
+
+
 class GainScheduler(Behaviour):
     """Write ``gains_at(speed)`` (neutral names) as the speed changes, rate-limited with hysteresis."""
 
@@ -197,5 +216,6 @@ class GainScheduler(Behaviour):
             return [SetParameters(dict(self.original))]
         return []
 
-    def result(self) -> dict:
-        return {"writes": self.writes, "config": asdict(self.config), "original": self.original}
+    def result(self) -> SchedulingResult:
+        return SchedulingResult(tuple(dict(write) for write in self.writes), self.config,
+                                None if self.original is None else dict(self.original))

@@ -13,7 +13,8 @@ from typing import Sequence
 import numpy as np
 
 from behaviors.base import Behaviour, Footprint, Status
-from companion.checks import require_positive, require_range
+from behaviors.json_form import json_form
+from companion.checks import require_count, require_measured, require_positive, require_range
 from companion.interface import Command, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.angles import wrap_pi
 from companion.numerics.step_response import OSCILLATION_BAND, SETTLE_BAND, smooth_heading, step_metrics  # noqa: F401
@@ -39,6 +40,34 @@ class StepTestConfig:
     def __post_init__(self) -> None:
         require_range(self, "step", math.radians(1.0), math.radians(180.0))
         require_positive(self, "settle_s", "hold_s")
+
+
+@dataclass(frozen=True)
+class HeadingStepsResult:
+    """The step and its return flown with ``gains`` at ``thrust``: each step's metrics
+    (:func:`step_metrics` with ``step_deg`` and ``speed``), the largest overshoot (NaN: none measured),
+    the summed step error and the most reversals, the recorded series, and whether it was aborted."""
+
+    label: str
+    thrust: float
+    gains: dict[str, float]
+    steps: tuple[dict, ...]
+    max_overshoot_pct: float
+    iae_s: float
+    oscillations: int
+    config: StepTestConfig
+    series: dict[str, list[float]]
+    aborted: bool
+
+    def __post_init__(self) -> None:
+        require_measured(self, "max_overshoot_pct", "iae_s")
+        require_count(self, "oscillations")
+
+    def to_dict(self) -> dict:
+        return json_form({"label": self.label, "thrust": self.thrust, "gains": self.gains, "steps": self.steps,
+                          "max_overshoot_pct": self.max_overshoot_pct, "iae_s": self.iae_s,
+                          "oscillations": self.oscillations, "config": asdict(self.config), "series": self.series,
+                          "aborted": self.aborted})
 
 
 class HeadingStepTest(Behaviour):
@@ -123,17 +152,11 @@ class HeadingStepTest(Behaviour):
             return []
         return [SetHeading(wrap_pi(self._course))] if math.isfinite(self._course) else []
 
-    def result(self) -> dict:
+    def result(self) -> HeadingStepsResult:
         overshoots = [s["overshoot_pct"] for s in self.steps if math.isfinite(s["overshoot_pct"])]
-        return {
-            "label": self.label,
-            "thrust": self.thrust,
-            "gains": self.gains,
-            "steps": self.steps,
-            "max_overshoot_pct": max(overshoots) if overshoots else math.nan,
-            "iae_s": float(sum(s["iae_s"] for s in self.steps)) if self.steps else math.nan,
-            "oscillations": int(max((s["oscillations"] for s in self.steps), default=0)),
-            "config": asdict(self.config),
-            "series": self.series,
-            "aborted": self.aborted,
-        }
+        return HeadingStepsResult(
+            label=self.label, thrust=self.thrust, gains=dict(self.gains), steps=tuple(dict(s) for s in self.steps),
+            max_overshoot_pct=max(overshoots) if overshoots else math.nan,
+            iae_s=float(sum(s["iae_s"] for s in self.steps)) if self.steps else math.nan,
+            oscillations=int(max((s["oscillations"] for s in self.steps), default=0)), config=self.config,
+            series={k: list(v) for k, v in self.series.items()}, aborted=self.aborted)

@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from typing import Callable, Sequence
 
+from behaviors.json_form import json_form
+from companion.checks import require_choice, require_count, require_interval
 from companion.interface import Command, NamedValue, StatusText, Telemetry
 from companion.numerics.drift import DriftConfig, DriftDetector, DriftVerdict, PassiveYawEstimator
 
@@ -34,6 +36,47 @@ def verdict_row(verdict: DriftVerdict) -> dict:
             "reason": verdict.reason, "a22": w.a22, "b2": w.b2, "sigma_a22": w.sigma(0), "sigma_b2": w.sigma(1),
             "reference": dict(verdict.reference), "ratio": dict(verdict.ratio), "z": dict(verdict.z),
             "cusum": dict(verdict.cusum), "alarm": verdict.alarm}
+
+
+@dataclass(frozen=True)
+class HealthAlarm:
+    """The alarm: the parameter whose CUSUM reached the threshold (:data:`NAMES`' keys), the vehicle
+    time of the window that raised it, the parameter's change from the reference (%) and the CUSUM."""
+
+    parameter: str
+    time_s: float
+    change_pct: float
+    cusum: float
+
+    def __post_init__(self) -> None:
+        require_choice(self, "parameter", tuple(NAMES))
+
+    def to_dict(self) -> dict:
+        return json_form({"parameter": self.parameter, "time_s": self.time_s, "change_pct": self.change_pct,
+                          "cusum": self.cusum})
+
+
+@dataclass(frozen=True)
+class HealthResult:
+    """A monitoring session (module docstring): its label, configuration and the reference's speed
+    range, every window's verdict (the drift plot's data; stored as :func:`verdict_row`), the alarm
+    if one was raised, and how often the passive estimator restarted."""
+
+    label: str
+    config: DriftConfig
+    speed_range: tuple[float, float]
+    verdicts: tuple[DriftVerdict, ...]
+    alarm: HealthAlarm | None
+    restarts: int
+
+    def __post_init__(self) -> None:
+        require_interval(self, "speed_range")
+        require_count(self, "restarts")
+
+    def to_dict(self) -> dict:
+        return json_form({"label": self.label, "config": asdict(self.config), "speed_range": self.speed_range,
+                          "windows": [verdict_row(v) for v in self.verdicts],
+                          "alarm": None if self.alarm is None else self.alarm.to_dict(), "restarts": self.restarts})
 
 
 class HealthMonitor:
@@ -88,14 +131,13 @@ class HealthMonitor:
                 "windows": [verdict_row(v) for v in self.verdicts[-EVIDENCE_WINDOWS:]],
                 "speed_range": list(self.detector.speed_range), "config": asdict(self.config), "label": self.label}
 
-    def result(self) -> dict:
+    def result(self) -> HealthResult:
         """Every window (the drift plot's data), the alarm if any, the configuration."""
         alarm = self.alarm
         parameter = alarm.alarm if alarm is not None else None  # an alarm verdict names its parameter
-        return {"label": self.label, "config": asdict(self.config), "speed_range": list(self.detector.speed_range),
-                "windows": [verdict_row(v) for v in self.verdicts],
-                "alarm": None if alarm is None or parameter is None else {
-                    "parameter": parameter, "time_s": alarm.window.t_end,
-                    "change_pct": 100.0 * (alarm.ratio[parameter] - 1.0),
-                    "cusum": alarm.cusum[parameter]},
-                "restarts": self.estimator.restarts}
+        low, high = self.detector.speed_range
+        return HealthResult(self.label, self.config, (low, high), tuple(self.verdicts),
+                            None if alarm is None or parameter is None else HealthAlarm(
+                                parameter, alarm.window.t_end, 100.0 * (alarm.ratio[parameter] - 1.0),
+                                alarm.cusum[parameter]),
+                            self.estimator.restarts)

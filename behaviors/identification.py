@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Callable, Sequence
 
 from behaviors.base import Behaviour, Footprint, Status
+from behaviors.json_form import json_form
 from companion.checks import require_choice, require_non_negative, require_positive, require_range
 from companion.interface import (
     Command,
@@ -172,6 +173,38 @@ class IdentificationAttempt:
                 "converged_s": self.converged_s, "criterion_met_from_s": self.criterion_met_from_s,
                 "training_s": self.training_s, "samples": self.samples, "sampling": self.sampling,
                 "rejected_for": self.rejected_for}
+
+
+#: how a manoeuvre ended (None: not yet): a model accepted, every attempt rejected, stopped from
+#: outside, the vehicle not moving, or skipped (its thrust gives a speed already identified)
+OUTCOMES = (None, "accepted", "rejected", "aborted", "not moving", "skipped")
+
+
+@dataclass(frozen=True)
+class IdentificationResult:
+    """One axis identified at one thrust (module docstring): how it ended (:data:`OUTCOMES`), why it
+    was aborted, its configuration, every attempt and the best one (the accepted attempt, else the
+    highest R²; None without an attempt). The JSON holds each attempt's summary (no series)."""
+
+    axis: str
+    thrust: float | None
+    outcome: str | None
+    abort_reason: str | None
+    config: ManoeuvreConfig
+    attempts: tuple[IdentificationAttempt, ...]
+    best: IdentificationAttempt | None
+
+    def __post_init__(self) -> None:
+        require_choice(self, "axis", ("yaw", "pitch"))
+        require_choice(self, "outcome", OUTCOMES)
+        if (self.best is None) != (not self.attempts):
+            raise ValueError("IdentificationResult.best is one of its attempts, None only without any")
+
+    def to_dict(self) -> dict:
+        return json_form({"axis": self.axis, "thrust": self.thrust, "outcome": self.outcome,
+                          "abort_reason": self.abort_reason, "config": asdict(self.config),
+                          "attempts": [a.summary() for a in self.attempts],
+                          "best": self.best.summary() if self.best is not None else None})
 
 
 @dataclass
@@ -538,17 +571,9 @@ class IdentificationManoeuvre(Behaviour):
             return accepted[-1]
         return max(self.attempts, key=lambda a: _nan_low(a.r2)) if self.attempts else None
 
-    def result(self) -> dict:
-        best = self.best
-        return {
-            "axis": self.config.axis,
-            "thrust": self.thrust,
-            "outcome": self.outcome,
-            "abort_reason": self.abort_reason,
-            "config": asdict(self.config),
-            "attempts": [a.summary() for a in self.attempts],
-            "best": best.summary() if best is not None else None,
-        }
+    def result(self) -> IdentificationResult:
+        return IdentificationResult(self.config.axis, self.thrust, self.outcome, self.abort_reason, self.config,
+                                    tuple(self.attempts), self.best)
 
 
 def _nan_low(value: float) -> float:

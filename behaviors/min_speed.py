@@ -44,6 +44,7 @@ from companion.checks import require_finite, require_non_negative, require_posit
 
 from companion.interface import Command, NamedValue, SetDepth, SetThrust, StatusText, Telemetry
 from behaviors.base import Behaviour, Footprint, Status
+from behaviors.min_speed_result import MinSpeedResult
 from companion.numerics.fuzzy_seeker import (LowPass, SeekerConfig, decide, hold_decision, next_thrust,
                                              pitch_error_crossover)
 from companion.numerics.minspeed import THRUST_DEAD_ZONE
@@ -412,35 +413,22 @@ class MinSpeedSeeking(Behaviour):
         mask = times >= (self.config.transient_s if since_s is None else since_s)
         return float(np.max(np.abs(depth[mask] - self._depth_setpoint))) if mask.any() else math.nan
 
-    def result(self) -> dict:
-        """JSON-serialisable summary and the time series for plots (Fig. 5.22–5.24)."""
+    def result(self) -> MinSpeedResult:
+        """The figures and the time series for plots (Fig. 5.22–5.24)."""
         speed = np.asarray(self.series["speed"], dtype=float)
         times = np.asarray(self.series["time"], dtype=float)
         tail = times >= (times[-1] - 10.0) if len(times) else np.zeros(0, dtype=bool)
         tail_speed = speed[tail & np.isfinite(speed)] if len(speed) else speed
         end = float(times[-1]) if len(times) else 0.0
-
-        def clean(values: list[float]) -> list[float | None]:
-            return [float(v) if math.isfinite(v) else None for v in values]
-
-        return {
-            "behavior": "min_speed",
-            "aborted": self.aborted,
-            "abort_reason": self.reason or "",
-            "thrust_ratio_final": self.thrust_ratio,
-            "speed_final": float(np.mean(tail_speed)) if len(tail_speed) else None,
-            "settle_time_s": self.settle_time(),
-            "max_depth_error_m": self.max_depth_error(),
-            "max_depth_error_settled_m": (self.max_depth_error(settle) if (settle := self.settle_time()) is not None
-                                          else None),
-            "depth_setpoint_m": self._depth_setpoint if math.isfinite(self._depth_setpoint) else None,
-            "reversals_last_30s": self.reversals(end - 30.0),
-            "decisions": len(self.decisions),
-            "theta_e_crossover": self.seeker_config.theta_e_threshold,
-            "start_reached_s": self.ramp_done_s,
-            "governed_stalled": self.governed_stalled,
-            "depth_offset_max_m": self.max_depth_offset_m,
-            "depth_offset_faded_s": self.feedforward_faded_s,
-            "duration_s": end,
-            "series": {name: clean(values) for name, values in self.series.items()},
-        }
+        settle = self.settle_time()
+        return MinSpeedResult(
+            aborted=self.aborted, abort_reason=self.reason or "", thrust_ratio_final=self.thrust_ratio,
+            speed_final=float(np.mean(tail_speed)) if len(tail_speed) else None, settle_time_s=settle,
+            max_depth_error_m=self.max_depth_error(),
+            max_depth_error_settled_m=self.max_depth_error(settle) if settle is not None else None,
+            depth_setpoint_m=self._depth_setpoint if math.isfinite(self._depth_setpoint) else None,
+            reversals_last_30s=self.reversals(end - 30.0), decisions=len(self.decisions),
+            theta_e_crossover=self.seeker_config.theta_e_threshold, start_reached_s=self.ramp_done_s,
+            governed_stalled=self.governed_stalled, depth_offset_max_m=self.max_depth_offset_m,
+            depth_offset_faded_s=self.feedforward_faded_s, duration_s=end,
+            series={name: list(values) for name, values in self.series.items()})

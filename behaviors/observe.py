@@ -6,13 +6,37 @@ vehicle time. A pure step function of telemetry, like every behaviour.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from behaviors.base import Behaviour, Status
+from behaviors.json_form import finite_floats
 from behaviors.sequence import footprint_of_commands
+from companion.checks import require_non_negative
 from companion.interface import Command, Telemetry
+
+
+@dataclass(frozen=True)
+class ObserveResult:
+    """What was recorded: the label, how long it was to record (s of vehicle time), whether it was
+    aborted, and the named telemetry fields sample by sample beside ``time``."""
+
+    label: str
+    duration_s: float
+    aborted: bool
+    series: dict[str, list[float]]
+
+    def __post_init__(self) -> None:
+        require_non_negative(self, "duration_s")
+        if len({len(values) for values in self.series.values()}) > 1:
+            raise ValueError("ObserveResult.series must hold one value per sample in every field, not "
+                             f"{ {name: len(values) for name, values in self.series.items()} }")
+
+    def to_dict(self) -> dict:
+        return {"label": self.label, "duration_s": self.duration_s, "aborted": self.aborted,
+                "series": {name: finite_floats(values) for name, values in self.series.items()}}
 
 
 class Observe(Behaviour):
@@ -46,6 +70,6 @@ class Observe(Behaviour):
         values = values[np.isfinite(values)]
         return float(np.degrees(np.std(values))) if len(values) else math.nan
 
-    def result(self) -> dict:
-        return {"label": self.label, "duration_s": self.duration_s, "aborted": self.aborted,
-                "series": {k: [float(v) if math.isfinite(v) else None for v in vals] for k, vals in self.series.items()}}
+    def result(self) -> ObserveResult:
+        return ObserveResult(self.label, self.duration_s, self.aborted,
+                             {name: list(values) for name, values in self.series.items()})

@@ -9,14 +9,37 @@ not depend on when the parameter echo came back.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
 
 from behaviors.base import Behaviour, Footprint, Status
 from behaviors.roll_stabilisation import RollStabilisation, RollStabilisationConfig
+from companion.checks import require_instance, require_measured
 from companion.interface import Command, SetParameters, SetRollingMass, Telemetry
 from companion.numerics.roll import settle_time
+
+
+@dataclass(frozen=True)
+class RollKickResult:
+    """How the impulse test ended: its name and lifecycle status, the vehicle time the impulse was
+    seen (None: never), and the settling time after it (s; None: not seen, or never settled)."""
+
+    name: str
+    status: Status
+    kicked_at: float | None
+    settle_s: float | None
+
+    def __post_init__(self) -> None:
+        require_instance(self, "status", Status)
+        require_measured(self, "settle_s")
+        if self.kicked_at is None and self.settle_s is not None:
+            raise ValueError("RollKickResult: no settling time without an impulse seen")
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "status": self.status.value, "kicked_at": self.kicked_at,
+                "settle_s": self.settle_s}
 
 
 class RollKick(Behaviour):
@@ -71,6 +94,5 @@ class RollKick(Behaviour):
         value = settle_time(times[after] - self.kicked_at, roll[after], band=math.radians(self.settle_band_deg))
         return float(value) if value is not None and math.isfinite(value) else None
 
-    def result(self) -> dict:
-        return {"name": self.name, "status": self.status.value, "kicked_at": self.kicked_at,
-                "settle_s": self.settle_time_s()}
+    def result(self) -> RollKickResult:
+        return RollKickResult(self.name, self.status, self.kicked_at, self.settle_time_s())

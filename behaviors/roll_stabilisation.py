@@ -20,8 +20,9 @@ from typing import Sequence
 
 import numpy as np
 
-from companion.checks import require_non_negative, require_positive, require_range
+from companion.checks import require_count, require_measured, require_non_negative, require_positive, require_range
 from behaviors.base import Behaviour, Footprint, Status
+from behaviors.json_form import finite_floats, json_form
 from companion.interface import Command, SetRollingMass, StatusText, Telemetry
 from companion.numerics.roll import RollPI, RollPIGains, RollVehicle, linearise, rate_feedback_gains
 
@@ -45,6 +46,38 @@ class RollStabilisationConfig:
         require_range(self, "duration_s", 1e-3, 1e6, optional=True)
         if not (isinstance(self.record_stride, int) and self.record_stride >= 1):
             raise ValueError(f"RollStabilisationConfig.record_stride must be an integer ≥ 1, not {self.record_stride!r}")
+
+
+@dataclass(frozen=True)
+class RollStabilisationResult:
+    """The roll loop as run (module docstring): whether it was aborted and why, the samples in the
+    statistics, the mean and standard deviation of roll and of the mass angle (deg; None without a
+    sample), the fraction of them with the mass command at its limit, the gains, and the recorded
+    series (``time`` from the first sample, ``roll``, ``mass_command``, ``mass_angle``)."""
+
+    aborted: bool
+    abort_reason: str
+    samples: int
+    roll_mean_deg: float | None
+    roll_std_deg: float | None
+    mass_mean_deg: float | None
+    mass_std_deg: float | None
+    mass_saturated_fraction: float | None
+    gains: RollPIGains
+    series: dict[str, list[float]]
+
+    def __post_init__(self) -> None:
+        require_count(self, "samples")
+        require_measured(self, "roll_std_deg", "mass_std_deg")
+        require_range(self, "mass_saturated_fraction", 0.0, 1.0, optional=True)
+
+    def to_dict(self) -> dict:
+        return json_form({"behavior": "roll_stabilisation", "aborted": self.aborted, "abort_reason": self.abort_reason,
+                          "samples": self.samples, "roll_mean_deg": self.roll_mean_deg,
+                          "roll_std_deg": self.roll_std_deg, "mass_mean_deg": self.mass_mean_deg,
+                          "mass_std_deg": self.mass_std_deg, "mass_saturated_fraction": self.mass_saturated_fraction,
+                          "gains": asdict(self.gains),
+                          "series": {name: finite_floats(values) for name, values in self.series.items()}})
 
 
 class RollStabilisation(Behaviour):
@@ -110,7 +143,7 @@ class RollStabilisation(Behaviour):
             self.finish(Status.SUCCESS)
         return commands
 
-    def result(self) -> dict:
+    def result(self) -> RollStabilisationResult:
         roll = np.asarray(self._roll_all, dtype=float)
         command = np.asarray(self._command_all, dtype=float)
         limit = self.config.gains.limit
@@ -119,19 +152,9 @@ class RollStabilisation(Behaviour):
         def stat(values: np.ndarray, fn) -> float | None:
             return float(deg(fn(values))) if len(values) else None
 
-        def clean(values: list[float]) -> list[float | None]:
-            return [float(v) if math.isfinite(v) else None for v in values]
-
-        return {
-            "behavior": "roll_stabilisation",
-            "aborted": self.aborted,
-            "abort_reason": self.reason or "",
-            "samples": int(len(roll)),
-            "roll_mean_deg": stat(roll, np.mean),
-            "roll_std_deg": stat(roll, np.std),
-            "mass_mean_deg": stat(command, np.mean),
-            "mass_std_deg": stat(command, np.std),
-            "mass_saturated_fraction": float(np.mean(np.abs(command) >= limit - 1e-9)) if len(command) else None,
-            "gains": asdict(self.config.gains),
-            "series": {name: clean(values) for name, values in self.series.items()},
-        }
+        return RollStabilisationResult(
+            aborted=self.aborted, abort_reason=self.reason or "", samples=int(len(roll)),
+            roll_mean_deg=stat(roll, np.mean), roll_std_deg=stat(roll, np.std),
+            mass_mean_deg=stat(command, np.mean), mass_std_deg=stat(command, np.std),
+            mass_saturated_fraction=float(np.mean(np.abs(command) >= limit - 1e-9)) if len(command) else None,
+            gains=self.config.gains, series={name: list(values) for name, values in self.series.items()})

@@ -13,9 +13,10 @@ child only.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Sequence, Union
+from typing import Callable, Iterable, Sequence, Union
 
-from behaviors.base import Behaviour, Footprint, Status, footprint_of
+from behaviors.base import Behaviour, BehaviourResult, Footprint, Status, footprint_of
+from companion.checks import require_instance
 from companion.interface import (
     Command,
     OverrideActuator,
@@ -81,6 +82,23 @@ class Deferred:
 Item = Union[Behaviour, Deferred]
 
 
+@dataclass(frozen=True)
+class SequenceResult:
+    """How a sequence ended and what each of its finished steps found, in order."""
+
+    name: str
+    status: Status
+    reason: str | None
+    steps: tuple[BehaviourResult, ...]
+
+    def __post_init__(self) -> None:
+        require_instance(self, "status", Status)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "status": self.status.value, "reason": self.reason,
+                "steps": [step.to_dict() for step in self.steps]}
+
+
 class SequenceBehavior(Behaviour):
     """Behaviours in order; ``on_complete(behaviour)`` is called as each one finishes."""
 
@@ -135,9 +153,8 @@ class SequenceBehavior(Behaviour):
             return current.stop(self.reason or "aborted")
         return []
 
-    def result(self) -> Any:  # a dict here; a procedure built on a sequence returns its ProcedureResult
-        return {"name": self.name, "status": self.status.value, "reason": self.reason,
-                "steps": [b.result() for b in self.completed]}
+    def result(self) -> BehaviourResult:  # a procedure built on a sequence gives its ProcedureResult
+        return SequenceResult(self.name, self.status, self.reason, tuple(b.result() for b in self.completed))
 
 
 class ParallelBehavior(Behaviour):

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import Sequence
+from typing import Sequence, Union
 
 import numpy as np
 
 from behaviors.base import Behaviour, Footprint, Status
 from behaviors.heading_steps import step_metrics
-from companion.checks import require_positive
+from behaviors.json_form import json_form
+from companion.checks import require_measured, require_positive
 from companion.interface import Command, SetHeading, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.angles import wrap_pi
 
@@ -28,6 +29,57 @@ class SpeedStepConfig:
 
     def __post_init__(self) -> None:
         require_positive(self, "settle_s", "hold_s")
+
+
+@dataclass(frozen=True)
+class SpeedStepsResult:
+    """The speed step and its return flown with ``gains`` between ``speeds`` (m/s): each step's
+    metrics (:func:`step_metrics` with ``start`` and ``target``), the largest overshoot (NaN: none
+    measured), the summed settling time (a step that never settled counts as its hold; NaN: no step),
+    the recorded series, and whether it was aborted."""
+
+    label: str
+    gains: dict[str, float]
+    speeds: tuple[float, float]
+    steps: tuple[dict, ...]
+    max_overshoot_pct: float
+    settling_time_s: float
+    config: SpeedStepConfig
+    series: dict[str, list[float]]
+    aborted: bool
+
+    def __post_init__(self) -> None:
+        require_measured(self, "max_overshoot_pct", "settling_time_s")
+        if not (len(self.speeds) == 2 and all(speed > 0.0 for speed in self.speeds)):
+            raise ValueError(f"SpeedStepsResult.speeds must be two speeds > 0 (from, to), not {self.speeds!r}")
+
+    def to_dict(self) -> dict:
+        return json_form({"label": self.label, "gains": self.gains, "speeds": self.speeds, "steps": self.steps,
+                          "max_overshoot_pct": self.max_overshoot_pct, "settling_time_s": self.settling_time_s,
+                          "config": asdict(self.config), "series": self.series, "aborted": self.aborted})
+
+
+@dataclass(frozen=True)
+class PredictedSpeedSteps:
+    """Speed steps predicted on the surge model instead of flown (eq. S.7; the original gains' where
+    the design's flight showed the model predicts them): each step's predicted metrics, the largest
+    overshoot and the summed settling time (infinite: a step never settles)."""
+
+    label: str
+    steps: tuple[dict, ...]
+    max_overshoot_pct: float
+    settling_time_s: float
+
+    def __post_init__(self) -> None:
+        require_measured(self, "max_overshoot_pct", "settling_time_s")
+
+    def to_dict(self) -> dict:
+        return json_form({"label": self.label, "predicted": True, "steps": self.steps,
+                          "max_overshoot_pct": self.max_overshoot_pct, "settling_time_s": self.settling_time_s})
+
+
+#: the speed steps a design is compared with: flown, or predicted on the surge model
+SpeedStepFigures = Union[SpeedStepsResult, PredictedSpeedSteps]
 
 
 class SpeedStepTest(Behaviour):
@@ -97,12 +149,14 @@ class SpeedStepTest(Behaviour):
             return []
         return [self._thrust(self.speeds[0])]
 
-    def result(self) -> dict:
+    def result(self) -> SpeedStepsResult:
         overshoots = [s["overshoot_pct"] for s in self.steps if math.isfinite(s["overshoot_pct"])]
-        return {"label": self.label, "gains": self.gains, "speeds": list(self.speeds), "steps": self.steps,
-                "max_overshoot_pct": max(overshoots) if overshoots else math.nan,
-                "settling_time_s": _total([s["settling_time_s"] for s in self.steps], self.config.hold_s),
-                "config": asdict(self.config), "series": self.series, "aborted": self.status is Status.ABORTED}
+        return SpeedStepsResult(
+            label=self.label, gains=dict(self.gains), speeds=(self.speeds[0], self.speeds[1]),
+            steps=tuple(dict(s) for s in self.steps), max_overshoot_pct=max(overshoots) if overshoots else math.nan,
+            settling_time_s=_total([s["settling_time_s"] for s in self.steps], self.config.hold_s),
+            config=self.config, series={k: list(v) for k, v in self.series.items()},
+            aborted=self.status is Status.ABORTED)
 
 
 def _total(times: list[float], hold_s: float) -> float:

@@ -24,9 +24,11 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 from behaviors.base import Behaviour, Footprint, Status
+from behaviors.json_form import json_form
 from behaviors.sequence import SequenceBehavior
-from behaviors.speed_steps import SpeedStepConfig, SpeedStepTest
-from companion.checks import require_non_negative, require_positive
+from behaviors.speed_steps import (PredictedSpeedSteps, SpeedStepConfig, SpeedStepFigures, SpeedStepsResult,
+                                   SpeedStepTest)
+from companion.checks import require_instance, require_non_negative, require_positive
 from companion.interface import Command, StatusText, Telemetry
 from companion.numerics.speed_gains import SpeedDesign, SpeedLoopGains, SpeedRules, design_speed_gains
 from companion.numerics.surge import SurgeModel, fit_surge_model
@@ -62,10 +64,10 @@ class SpeedCheck:
         require_non_negative(self, "max_overshoot_pct")
         require_positive(self, "overshoot_tolerance_pct", "settling_tolerance_s")
 
-    def agree(self, flown: dict, predicted: Sequence[dict]) -> str | None:
-        """None when the flown steps (``flown["steps"]``) match ``predicted`` (the same steps, in order)
+    def agree(self, flown: SpeedStepsResult, predicted: Sequence[dict]) -> str | None:
+        """None when the flown steps (``flown.steps``) match ``predicted`` (the same steps, in order)
         within the tolerances, else how they do not (eq. S.7)."""
-        steps = flown.get("steps") or []
+        steps = flown.steps
         if len(steps) != len(predicted):
             return f"{len(steps)} speed steps flown where {len(predicted)} were predicted"
         for step, prediction in zip(steps, predicted):
@@ -74,22 +76,22 @@ class SpeedCheck:
                 return (f"speed step overshoot {step['overshoot_pct']:.1f} % where {prediction['overshoot_pct']:.1f} % "
                         f"was predicted")
         predicted_s = _summed(prediction["settling_time_s"] for prediction in predicted)
-        if not abs(flown["settling_time_s"] - predicted_s) <= self.settling_tolerance_s:
-            return f"speed steps settled in {flown['settling_time_s']:.1f} s where {predicted_s:.1f} s was predicted"
+        if not abs(flown.settling_time_s - predicted_s) <= self.settling_tolerance_s:
+            return f"speed steps settled in {flown.settling_time_s:.1f} s where {predicted_s:.1f} s was predicted"
         return None
 
-    def verdict(self, original: dict | None, design: dict) -> str | None:
+    def verdict(self, original: SpeedStepFigures | None, design: SpeedStepsResult) -> str | None:
         """None when the design passes, else the reason."""
-        for step in design["steps"]:
+        for step in design.steps:
             overshoot = step["overshoot_pct"]
             if not (isinstance(overshoot, float) and math.isfinite(overshoot)):
                 return "a speed step without a measured overshoot"
             if overshoot > self.max_overshoot_pct:
                 return f"speed step overshoot {overshoot:.1f} % > {self.max_overshoot_pct:.0f} %"
         if self.faster_than_original and original is not None:
-            new, old = design["settling_time_s"], original["settling_time_s"]
+            new, old = design.settling_time_s, original.settling_time_s
             if not new < old:
-                how = " (predicted)" if original.get("predicted") else ""
+                how = " (predicted)" if isinstance(original, PredictedSpeedSteps) else ""
                 return f"not faster than the original gains (settled in {new:.1f} s against {old:.1f} s{how})"
         return None
 
@@ -165,6 +167,46 @@ class SurgeRecorder:
         self._window = []
 
 
+@dataclass(frozen=True)
+class SpeedTuningResult:
+    """The speed loop as tuned (module docstring): how it ended, why it could not be designed
+    (``error``), the surge model and the design (typed records, tagged in the JSON as the store
+    writes them), the original speed gains and the context read with them, the speed steps flown
+    per gain set, the verdict ("passed", or why the design was refused; None: not decided), what the
+    design was compared with (flown or predicted) and why the original gains were flown, the gains
+    kept, and every n-th sample of the surge record (``time``, ``throttle``, ``speed``, ``levels``,
+    ``decimation``)."""
+
+    status: Status
+    reason: str | None
+    error: str | None
+    surge: SurgeModel | None
+    design: SpeedDesign | None
+    original: dict[str, float]
+    context: dict[str, float]
+    steps: dict[str, SpeedStepsResult]
+    verdict: str | None
+    original_steps: SpeedStepFigures | None
+    original_flown_because: str | None
+    kept: dict[str, float] | None
+    record: dict
+
+    def __post_init__(self) -> None:
+        require_instance(self, "status", Status)
+        if self.kept and (self.design is None or self.verdict != "passed"):
+            raise ValueError("SpeedTuningResult: gains are kept only from a design whose verdict passed, "
+                             f"not {self.verdict!r}")
+
+    def to_dict(self) -> dict:
+        return json_form({"status": self.status.value, "reason": self.reason, "error": self.error,
+                          "surge": self.surge, "design": self.design, "original": self.original,
+                          "context": self.context, "steps": {k: r.to_dict() for k, r in self.steps.items()},
+                          "verdict": self.verdict,
+                          "original_steps": None if self.original_steps is None else self.original_steps.to_dict(),
+                          "original_flown_because": self.original_flown_because, "kept": self.kept,
+                          "record": self.record})
+
+
 class SpeedTuning(Behaviour):
     """Design from the record, then the speed steps with the original gains and the design."""
 
@@ -178,7 +220,7 @@ class SpeedTuning(Behaviour):
         self.config = config
         self.fly_original = fly_original
         self.original_flown_because: str | None = None  # why the original gains' steps were flown
-        self.original_figures: dict | None = None  # flown, or predicted ("predicted": True)
+        self.original_figures: SpeedStepFigures | None = None  # flown, or predicted
         self._per_thrust = math.nan
         self._requested: set[str] = set()  # the gain sets whose speed steps were asked for
         self.original = {k: v for k, v in original.items() if k in SPEED_GAINS}
@@ -187,7 +229,7 @@ class SpeedTuning(Behaviour):
         self.surge: SurgeModel | None = None
         self.design: SpeedDesign | None = None
         self.error: str | None = None
-        self.step_results: dict[str, dict] = {}
+        self.step_results: dict[str, SpeedStepsResult] = {}
         self.kept: dict[str, float] | None = None
         self.verdict: str | None = None
         self._sequence: SequenceBehavior | None = None
@@ -231,7 +273,7 @@ class SpeedTuning(Behaviour):
                  for label in labels if gains[label]]
         return SequenceBehavior(steps, on_complete=self._on_step, name="speed steps")
 
-    def _original_figures(self) -> dict | None:
+    def _original_figures(self) -> SpeedStepFigures | None:
         """The original gains' steps as flown, or as predicted when the design's flight agreed with its
         prediction (None: the original gains must be flown, or there are none)."""
         if "original" in self.step_results:
@@ -246,10 +288,9 @@ class SpeedTuning(Behaviour):
         if why is not None:
             self.original_flown_because = why
             return None
-        steps = [predicted["original"], predicted["original_back"]]
-        return {"label": "original", "predicted": True, "steps": steps,
-                "max_overshoot_pct": max(step["overshoot_pct"] for step in steps),
-                "settling_time_s": _summed(step["settling_time_s"] for step in steps)}
+        steps = (predicted["original"], predicted["original_back"])
+        return PredictedSpeedSteps("original", steps, max(step["overshoot_pct"] for step in steps),
+                                   _summed(step["settling_time_s"] for step in steps))
 
     def _on_step(self, step: Behaviour) -> None:
         if isinstance(step, SpeedStepTest):
@@ -295,14 +336,13 @@ class SpeedTuning(Behaviour):
             return self._sequence.stop(self.reason or "aborted")
         return []
 
-    def result(self) -> dict:
-        """The figures, with the surge model and the design as typed records (the store serialises them)."""
-        return {"status": self.status.value, "reason": self.reason, "error": self.error, "surge": self.surge,
-                "design": self.design, "original": self.original, "context": self.context,
-                "steps": dict(self.step_results), "verdict": self.verdict or ("passed" if self.kept else None),
-                "original_steps": self.original_figures,
-                "original_flown_because": self.original_flown_because,
-                "kept": self.kept, "record": self._record_sample()}
+    def result(self) -> SpeedTuningResult:
+        return SpeedTuningResult(
+            status=self.status, reason=self.reason, error=self.error, surge=self.surge, design=self.design,
+            original=dict(self.original), context=dict(self.context), steps=dict(self.step_results),
+            verdict=self.verdict or ("passed" if self.kept else None), original_steps=self.original_figures,
+            original_flown_because=self.original_flown_because, kept=None if self.kept is None else dict(self.kept),
+            record=self._record_sample())
 
     def _record_sample(self) -> dict:
         n = self.RECORD_DECIMATION

@@ -12,7 +12,7 @@ Two behaviours, pure step functions of vehicle time and telemetry (SPEC §5):
   eq. 9–10 (radius, rate, current, residual σ).
 
 ``abort`` releases the rudder and restores the heading, thrust and mode the behaviour found;
-``result`` gives the fitted figures (JSON-serialisable).
+``result`` gives the fits (:class:`SquaresResult`, :class:`TurnsResult`; ``to_dict`` their JSON).
 """
 from __future__ import annotations
 
@@ -23,8 +23,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from companion.checks import require_positive, require_range
+from companion.checks import require_choice, require_count, require_positive, require_range
 from behaviors.base import Behaviour, Footprint, Status
+from behaviors.json_form import json_form
 from companion.interface import (
     Command,
     ReleaseActuator,
@@ -38,6 +39,8 @@ from companion.interface import (
 )
 from companion.numerics.angles import wrap_pi
 from companion.numerics.steady_state import (
+    StraightLegFit,
+    TurnFit,
     fit_steady_turn,
     fit_straight_legs,
     ned_to_body,
@@ -113,6 +116,41 @@ class SquareConfig:
             raise ValueError(f"SquareConfig.legs must be an integer in 1..16, not {self.legs!r}")
 
 
+#: where a square pattern is: not started, flying, fitted, not fitted, stopped from outside
+SQUARE_STATUSES = ("pending", "running", "completed", "failed", "aborted")
+
+
+@dataclass(frozen=True)
+class SquaresResult:
+    """The square pattern (eq. 7–8): where it is (:data:`SQUARE_STATUSES`), its configuration, the
+    navigation samples recorded, the fit of the steady straight legs and the samples it used once
+    completed, and why it has none once failed or aborted. The JSON holds the fit's figures
+    (``StraightLegFit.as_dict``: its ``samples`` is the fit's)."""
+
+    status: str
+    config: SquareConfig
+    samples: int
+    fit: StraightLegFit | None = None
+    samples_used: int | None = None
+    error: str | None = None
+
+    def __post_init__(self) -> None:
+        require_choice(self, "status", SQUARE_STATUSES)
+        require_count(self, "samples")
+        if (self.fit is not None) != (self.status == "completed") or (self.fit is None) != (self.samples_used is None):
+            raise ValueError(f"SquaresResult: a fit and the samples it used exactly when completed, not {self.status!r}")
+        if (self.error is not None) != (self.status in ("failed", "aborted")):
+            raise ValueError(f"SquaresResult: an error exactly when failed or aborted, not {self.status!r}")
+
+    def to_dict(self) -> dict:
+        out = {"behavior": "squares", "status": self.status, "config": asdict(self.config), "samples": self.samples}
+        if self.fit is not None:
+            out.update(self.fit.as_dict(), samples_used=self.samples_used)
+        if self.error is not None:
+            out["error"] = self.error
+        return json_form(out)
+
+
 class SquarePattern(Behaviour):
     """Square pattern at fixed thrust in the holding mode; fits eq. 7–8 at the end (SPEC C8)."""
 
@@ -125,7 +163,8 @@ class SquarePattern(Behaviour):
         self._leg = -1
         self._status = "pending"
         self._recorder = _Recorder([])
-        self._result: dict = {}
+        self._fit: tuple[StraightLegFit, int] | None = None  # the fit and the samples it used
+        self._error: str | None = None
 
     def leg_heading(self, leg: int) -> float:
         assert self._start is not None
@@ -160,12 +199,12 @@ class SquarePattern(Behaviour):
 
     def _finish(self) -> None:
         try:
-            self._result = analyse_square(self._recorder.arrays(), self.config)
+            self._fit = analyse_square(self._recorder.arrays(), self.config)
             self._status = "completed"
             self.finish(Status.SUCCESS)
         except ValueError as exc:
             self._status = "failed"
-            self._result = {"error": str(exc)}
+            self._error = str(exc)
             log.warning("square pattern fit failed: %s", exc)
             self.finish(Status.FAILURE, str(exc))
 
@@ -175,21 +214,21 @@ class SquarePattern(Behaviour):
         was_running = self._status == "running"
         if self._status in ("pending", "running"):
             self._status = "aborted"
-            self._result = {"error": f"aborted: {self.reason}"}
+            self._error = f"aborted: {self.reason}"
         return [StatusText(f"squares aborted: {self.reason}", severity=4)] if was_running else []
 
     def data(self) -> dict[str, np.ndarray]:
         """The navigation samples recorded on the legs (arrays t, north, east, … as analysed)."""
         return self._recorder.arrays()
 
-    def result(self) -> dict:
-        return {"behavior": "squares", "status": self._status, "config": asdict(self.config),
-                "samples": len(self._recorder.rows), **self._result}
+    def result(self) -> SquaresResult:
+        fit, used = self._fit if self._fit is not None else (None, None)
+        return SquaresResult(self._status, self.config, len(self._recorder.rows), fit, used, self._error)
 
 
-def analyse_square(data: dict[str, np.ndarray], config: SquareConfig = SquareConfig()) -> dict:
-    """Cut the transients of recorded square-pattern data and fit eq. 7–8; the fit's ``as_dict``
-    plus ``samples_used``. ``data`` holds arrays t, roll, pitch, yaw, vel_north/east/down."""
+def analyse_square(data: dict[str, np.ndarray], config: SquareConfig = SquareConfig()) -> tuple[StraightLegFit, int]:
+    """Cut the transients of recorded square-pattern data and fit eq. 7–8: the fit and the samples
+    it used. ``data`` holds arrays t, roll, pitch, yaw, vel_north/east/down."""
     vel_body = ned_to_body(data["roll"], data["pitch"], data["yaw"],
                            np.column_stack([data["vel_north"], data["vel_east"], data["vel_down"]]))
     if data["t"].size < 10:
@@ -198,7 +237,7 @@ def analyse_square(data: dict[str, np.ndarray], config: SquareConfig = SquareCon
     if mask.sum() < 10:
         raise ValueError("no steady straight leg found after cutting the transients")
     fit = fit_straight_legs(data["roll"][mask], data["pitch"][mask], data["yaw"][mask], vel_body[mask])
-    return {**fit.as_dict(), "samples_used": int(mask.sum())}
+    return fit, int(mask.sum())
 
 
 # --------------------------------------------------------------------------- steady turns
@@ -222,6 +261,79 @@ class TurnConfig:
             raise ValueError(f"TurnConfig.rudder_angles must be non-zero angles within ±1 rad, not {self.rudder_angles!r}")
 
 
+@dataclass(frozen=True)
+class TurnOutcome:
+    """One steady turn at ``rudder_rad``: the fit of its steady part (eq. 9–10) and the samples it
+    used, the mean water-relative surge and sway over it (m/s) and the sideslip (deg) when the
+    velocities were recorded; or why it could not be fitted."""
+
+    rudder_rad: float
+    fit: TurnFit | None = None
+    samples_used: int | None = None
+    surge_water: float | None = None
+    sway_water: float | None = None
+    sideslip_deg: float | None = None
+    error: str | None = None
+
+    def __post_init__(self) -> None:
+        if (self.fit is None) == (self.error is None) or (self.fit is None) != (self.samples_used is None):
+            raise ValueError("TurnOutcome: a fit with the samples it used, or the error why there is none")
+
+    @property
+    def rudder_deg(self) -> float:
+        return math.degrees(self.rudder_rad)
+
+    def to_dict(self) -> dict:
+        out: dict[str, Any] = {"rudder_rad": self.rudder_rad, "rudder_deg": self.rudder_deg}
+        if self.fit is not None:
+            out.update(self.fit.as_dict(), samples_used=self.samples_used)
+            if self.surge_water is not None:
+                out.update(surge_water=self.surge_water, sway_water=self.sway_water, sideslip_deg=self.sideslip_deg)
+        if self.error is not None:
+            out["error"] = self.error
+        return json_form(out)
+
+
+#: where the turns are: not started, turning, every turn fitted, some, none, stopped from outside
+TURN_STATUSES = ("pending", "running", "completed", "partial", "failed", "aborted")
+
+
+@dataclass(frozen=True)
+class TurnsResult:
+    """The steady turns (eq. 9–10): where they are (:data:`TURN_STATUSES`), their configuration, and
+    each turn flown (:class:`TurnOutcome`); the JSON adds the fitted turns' mean current
+    (``current_north``, ``current_east``, m/s) when there is one."""
+
+    status: str
+    config: TurnConfig
+    turns: tuple[TurnOutcome, ...] = ()
+
+    def __post_init__(self) -> None:
+        require_choice(self, "status", TURN_STATUSES)
+        fitted = sum(1 for turn in self.turns if turn.fit is not None)
+        expected = {"completed": len(self.turns) > 0 and fitted == len(self.turns),
+                    "partial": 0 < fitted < len(self.turns), "failed": fitted == 0}
+        if not expected.get(self.status, True):
+            raise ValueError(f"TurnsResult: {fitted} of {len(self.turns)} turns fitted is not {self.status!r}")
+
+    @property
+    def current(self) -> tuple[float, float] | None:
+        """The fitted turns' mean current (north, east), m/s; None without a fitted turn."""
+        currents = [turn.fit.current for turn in self.turns if turn.fit is not None]
+        if not currents:
+            return None
+        mean = np.mean(np.array([(float(c[0]), float(c[1])) for c in currents]), axis=0)
+        return float(mean[0]), float(mean[1])
+
+    def to_dict(self) -> dict:
+        out: dict[str, Any] = {"behavior": "turns", "status": self.status, "config": asdict(self.config),
+                               "turns": [turn.to_dict() for turn in self.turns]}
+        current = self.current
+        if current is not None:
+            out["current_north"], out["current_east"] = current
+        return json_form(out)
+
+
 class SteadyTurns(Behaviour):
     """Rudder held at fixed angles (RC override, depth still held); fits eq. 9–10 per angle."""
 
@@ -236,7 +348,7 @@ class SteadyTurns(Behaviour):
         self._phase = ""
         self._phase_start = 0.0
         self._recorders: list[_Recorder] = [_Recorder([]) for _ in self.config.rudder_angles]
-        self._turns: list[dict] = []
+        self._turns: list[TurnOutcome] = []
 
     def update(self, telemetry: Telemetry) -> Sequence[Command]:
         cfg = self.config
@@ -273,14 +385,12 @@ class SteadyTurns(Behaviour):
     def _finish(self) -> None:
         ok = 0
         for angle, recorder in zip(self.config.rudder_angles, self._recorders):
-            entry: dict = {"rudder_rad": angle, "rudder_deg": math.degrees(angle)}
             try:
-                entry.update(analyse_turn(recorder.arrays(), self.config))
+                self._turns.append(analyse_turn(recorder.arrays(), self.config, angle))
                 ok += 1
             except ValueError as exc:
-                entry["error"] = str(exc)
+                self._turns.append(TurnOutcome(angle, error=str(exc)))
                 log.warning("turn fit (rudder %.3f rad) failed: %s", angle, exc)
-            self._turns.append(entry)
         self._status = "completed" if ok == len(self._recorders) else ("partial" if ok else "failed")
         if ok:
             self.finish(Status.SUCCESS)
@@ -301,19 +411,14 @@ class SteadyTurns(Behaviour):
         """The navigation samples recorded in each turn, in the order of ``rudder_angles``."""
         return [recorder.arrays() for recorder in self._recorders]
 
-    def result(self) -> dict:
-        out: dict[str, Any] = {"behavior": "turns", "status": self._status, "config": asdict(self.config),
-                               "turns": self._turns}
-        speeds = [(t["current_north"], t["current_east"]) for t in self._turns if "current_north" in t]
-        if speeds:
-            mean = np.mean(np.array(speeds), axis=0)
-            out["current_north"], out["current_east"] = float(mean[0]), float(mean[1])
-        return out
+    def result(self) -> TurnsResult:
+        return TurnsResult(self._status, self.config, tuple(self._turns))
 
 
-def analyse_turn(data: dict[str, np.ndarray], config: TurnConfig = TurnConfig()) -> dict:
-    """Cut the transient of one recorded turn and fit eq. 9–10; adds the mean water-relative
-    surge/sway over the steady part (eq. 5 with the fitted current) when velocities are present."""
+def analyse_turn(data: dict[str, np.ndarray], config: TurnConfig, rudder_rad: float) -> TurnOutcome:
+    """Cut the transient of one recorded turn at ``rudder_rad`` and fit eq. 9–10; with the mean
+    water-relative surge/sway over the steady part (eq. 5 with the fitted current) when velocities
+    are present."""
     t = data["t"]
     if t.size < 20:
         raise ValueError("too few samples recorded in the turn")
@@ -321,12 +426,11 @@ def analyse_turn(data: dict[str, np.ndarray], config: TurnConfig = TurnConfig())
     if mask.sum() < 20 or t[mask][-1] - t[mask][0] < config.min_steady_s:
         raise ValueError("the turn did not reach a steady rate long enough")
     fit = fit_steady_turn(t[mask], data["north"][mask], data["east"][mask], data["yaw"][mask])
-    out = {**fit.as_dict(), "samples_used": int(mask.sum())}
-    if "vel_north" in data:
-        vel_body = ned_to_body(data["roll"][mask], data["pitch"][mask], data["yaw"][mask],
-                               np.column_stack([data["vel_north"], data["vel_east"], data["vel_down"]])[mask])
-        v_wb = water_relative_velocity(data["roll"][mask], data["pitch"][mask], data["yaw"][mask], vel_body, fit.current)
-        mean = v_wb.mean(axis=0)
-        out.update({"surge_water": float(mean[0]), "sway_water": float(mean[1]),
-                    "sideslip_deg": math.degrees(math.atan2(mean[1], mean[0]))})
-    return out
+    if "vel_north" not in data:
+        return TurnOutcome(rudder_rad, fit, int(mask.sum()))
+    vel_body = ned_to_body(data["roll"][mask], data["pitch"][mask], data["yaw"][mask],
+                           np.column_stack([data["vel_north"], data["vel_east"], data["vel_down"]])[mask])
+    v_wb = water_relative_velocity(data["roll"][mask], data["pitch"][mask], data["yaw"][mask], vel_body, fit.current)
+    mean = v_wb.mean(axis=0)
+    return TurnOutcome(rudder_rad, fit, int(mask.sum()), float(mean[0]), float(mean[1]),
+                       math.degrees(math.atan2(mean[1], mean[0])))

@@ -30,8 +30,9 @@ import numpy as np
 
 from behaviors.base import Behaviour, Footprint, Status
 from behaviors.heading_steps import reengage_hold
+from behaviors.json_form import json_form
 from behaviors.steadiness import SteadinessDetector, SteadinessRule
-from companion.checks import require_positive, require_range
+from companion.checks import require_count, require_measured, require_positive, require_range
 from companion.interface import Command, SetHeading, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.angles import wrap_pi
 from companion.numerics.step_response import SETTLE_BAND, smooth_heading, step_metrics
@@ -57,12 +58,51 @@ class VerificationConfig:
             raise ValueError(f"VerificationConfig.repeats must be an integer in 0..3, not {self.repeats!r}")
 
 
-class VerificationStep(Behaviour):
-    """Trial ``gains`` at ``thrust``, one decisive heading step (module docstring).
+@dataclass(frozen=True)
+class VerificationResult:
+    """One verification step as flown (module docstring): whether it ``decided`` (False: disturbed or
+    saturated twice, or aborted) and why not, how many flights it took and why each undecided one was,
+    the flown step's overshoot, step error and reversals (NaN, NaN, 0 before a step was scored), its
+    metrics (:func:`step_metrics` with ``step_deg``, ``speed``, ``ended``, ``duration_s``; empty
+    before), the recorded series, the vehicle seconds per stage, and whether it was aborted."""
 
-    ``result()`` has the flown step's metrics (``overshoot_pct``, ``iae_s``, ``settling_time_s``,
-    ``oscillations``), ``decided`` (False: disturbed or saturated twice), ``why_undecided``, the
-    step's size and sign, the speed, and the series for the report."""
+    label: str
+    thrust: float
+    gains: dict[str, float]
+    decided: bool
+    why_undecided: str | None
+    flights: int
+    undecided: tuple[str, ...]
+    max_overshoot_pct: float
+    iae_s: float
+    oscillations: int
+    steps: tuple[dict, ...]
+    config: VerificationConfig
+    series: dict[str, list[float]]
+    stage_times: dict[str, float]
+    aborted: bool
+
+    def __post_init__(self) -> None:
+        require_count(self, "flights", "oscillations")
+        require_measured(self, "max_overshoot_pct", "iae_s")
+        if any(not seconds >= 0.0 for seconds in self.stage_times.values()):
+            raise ValueError(f"VerificationResult.stage_times must be durations ≥ 0, not {self.stage_times!r}")
+        if self.decided and (self.why_undecided is not None or self.aborted):
+            raise ValueError("VerificationResult: a step that decided is neither undecided "
+                             f"({self.why_undecided!r}) nor aborted")
+
+    def to_dict(self) -> dict:
+        return json_form({"label": self.label, "thrust": self.thrust, "gains": self.gains, "decided": self.decided,
+                          "why_undecided": self.why_undecided, "flights": self.flights,
+                          "undecided": self.undecided, "max_overshoot_pct": self.max_overshoot_pct,
+                          "iae_s": self.iae_s, "oscillations": self.oscillations, "steps": self.steps,
+                          "config": asdict(self.config), "series": self.series, "stage_times": self.stage_times,
+                          "aborted": self.aborted})
+
+
+class VerificationStep(Behaviour):
+    """Trial ``gains`` at ``thrust``, one decisive heading step (module docstring); ``result()`` is
+    its :class:`VerificationResult`."""
 
     def __init__(self, thrust: float, gains: dict[str, float], config: VerificationConfig = VerificationConfig(),
                  *, sign: float = 1.0, rudder_max: float = math.inf, label: str = "scheduled") -> None:
@@ -244,11 +284,11 @@ class VerificationStep(Behaviour):
     def decided(self) -> bool:
         return self.status is Status.SUCCESS
 
-    def result(self) -> dict:
-        return {"label": self.label, "thrust": self.thrust, "gains": self.gains, "decided": self.decided,
-                "why_undecided": self.why_undecided, "flights": self.flights, "undecided": list(self.undecided),
-                "max_overshoot_pct": self.metrics.get("overshoot_pct", math.nan),
-                "iae_s": self.metrics.get("iae_s", math.nan),
-                "oscillations": self.metrics.get("oscillations", 0), "steps": [self.metrics] if self.metrics else [],
-                "config": asdict(self.config), "series": self.series, "stage_times": self.stage_times,
-                "aborted": self.status is Status.ABORTED}
+    def result(self) -> VerificationResult:
+        return VerificationResult(
+            label=self.label, thrust=self.thrust, gains=dict(self.gains), decided=self.decided,
+            why_undecided=self.why_undecided, flights=self.flights, undecided=tuple(self.undecided),
+            max_overshoot_pct=self.metrics.get("overshoot_pct", math.nan), iae_s=self.metrics.get("iae_s", math.nan),
+            oscillations=self.metrics.get("oscillations", 0), steps=(dict(self.metrics),) if self.metrics else (),
+            config=self.config, series={k: list(v) for k, v in self.series.items()},
+            stage_times=dict(self.stage_times), aborted=self.status is Status.ABORTED)

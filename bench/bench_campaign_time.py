@@ -94,9 +94,9 @@ def after_campaign(seed: int) -> dict:
             rows.append({"thrust": point.thrust, "label": label, "decided": True,
                          "overshoot": step.metrics["overshoot_pct"], "predicted_overshoot": predicted["overshoot_pct"],
                          "iae": step.metrics["iae_s"], "predicted_iae": predicted["iae_s"]})
-    in_campaign = [{"overshoot": s["max_overshoot_pct"], "predicted_overshoot": s["predicted"]["overshoot_pct"],
-                    "iae": s["iae_s"], "predicted_iae": s["predicted"]["iae_s"]}
-                   for s in verifier.flown if s.get("predicted") and s.get("decided")]
+    in_campaign = [{"overshoot": s.max_overshoot_pct, "predicted_overshoot": s.predicted["overshoot_pct"],
+                    "iae": s.iae_s, "predicted_iae": s.predicted["iae_s"]}
+                   for s in verifier.flown if s.predicted and s.decided]
     return {"status": outcome.status, "rows": rows, "flown_in_campaign": in_campaign}
 
 

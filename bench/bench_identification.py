@@ -132,7 +132,7 @@ def main() -> None:
                          "met_from_s": attempt.get("criterion_met_from_s"),
                          "attempt": attempt["attempt"]})
         for s in result["steps"]:
-            steps.append({"seed": seed, "thrust": s["thrust"], "label": s["label"], "overshoot": s["max_overshoot_pct"]})
+            steps.append({"seed": seed, "thrust": s.thrust, "label": s.label, "overshoot": s.max_overshoot_pct})
         print(f"seed {seed}: {result['status']}, {len(result['accepted'])} models", file=sys.stderr, flush=True)
     wall = time.monotonic() - started
 

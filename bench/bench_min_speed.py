@@ -44,6 +44,7 @@ from dataclasses import replace
 from unittest import mock
 
 from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking
+from behaviors.min_speed_result import MinSpeedResult
 from companion.procedures import min_speed as procedure
 from companion.interface import SetThrust
 from companion.numerics.fuzzy_seeker import KEEP, SeekerConfig, decide
@@ -53,7 +54,9 @@ from harness.inprocess import ClosedLoop, InProcessLink
 SEEDS = (1, 2, 3)
 
 
-def seek(seed: int, seconds: float = 200.0, elev_max: float = 0.26, noise_scale: float = 1.0, **seeker) -> dict:
+def seek(seed: int, seconds: float = 200.0, elev_max: float = 0.26, noise_scale: float = 1.0,
+         **seeker) -> tuple[MinSpeedResult, tuple[float, float]]:
+    """The seeker's result, and the range of its thrust set-point over the last 60 s."""
     seeker.setdefault("hold_after_change_s", 0.0)  # the thesis law unless asked
     loop = ClosedLoop(seed=seed, depth=2.0, params={"ELEV_MAX": elev_max})
     # bench-only: scale the simulated sensor noise (the seed's Simulink run was noise-free, §5.4)
@@ -65,18 +68,17 @@ def seek(seed: int, seconds: float = 200.0, elev_max: float = 0.26, noise_scale:
     behaviour = MinSpeedSeeking(config)
     loop.run(behaviour, seconds)
     result = behaviour.result()
-    tail = [tr for t, tr in zip(result["series"]["time"], result["series"]["thrust_setpoint"]) if t >= seconds - 60.0]
-    result["tail_range"] = (min(tail), max(tail))
-    return result
+    tail = [tr for t, tr in zip(result.series["time"], result.series["thrust_setpoint"]) if t >= seconds - 60.0]
+    return result, (min(tail), max(tail))
 
 
-def line(label: str, results: list[dict], analytic) -> str:
+def line(label: str, results: list[tuple[MinSpeedResult, tuple[float, float]]], analytic) -> str:
     cells = []
-    for r in results:
-        settle = "—" if r["settle_time_s"] is None else f"{r['settle_time_s']:.0f}s"
-        settled_err = "—" if r["max_depth_error_settled_m"] is None else f"{r['max_depth_error_settled_m']:.2f}"
-        cells.append(f"TR {r['thrust_ratio_final']:.2f} [{r['tail_range'][0]:.2f}–{r['tail_range'][1]:.2f}] "
-                     f"V {r['speed_final']:.3f} settle {settle} dz {r['max_depth_error_m']:.2f}/{settled_err} rev {r['reversals_last_30s']}")
+    for r, (low, high) in results:
+        settle = "—" if r.settle_time_s is None else f"{r.settle_time_s:.0f}s"
+        settled_err = "—" if r.max_depth_error_settled_m is None else f"{r.max_depth_error_settled_m:.2f}"
+        cells.append(f"TR {r.thrust_ratio_final:.2f} [{low:.2f}–{high:.2f}] "
+                     f"V {r.speed_final:.3f} settle {settle} dz {r.max_depth_error_m:.2f}/{settled_err} rev {r.reversals_last_30s}")
     return f"{label:<18} (TR* {analytic.thrust_ratio_star:.3f}, Vmin {analytic.v_min:.3f}): " + " | ".join(cells)
 
 
@@ -158,10 +160,10 @@ def hold_table() -> None:
                 results = [b.result() for b in plain]
                 label = ("thesis law" if hold == 0.0 else f"hold {hold:.0f} s"
                          if thesis_crossover else f"hold {hold:.0f} s, M.1")
-                finals = " ".join(f"{r['thrust_ratio_final']:.2f}" for r in results)
-                settles = " ".join(_seconds(r["settle_time_s"]) for r in results)
-                depths = " ".join(f"{r['max_depth_error_m']:.2f}" for r in results)
-                reversals = " ".join(str(r["reversals_last_30s"]) for r in results)
+                finals = " ".join(f"{r.thrust_ratio_final:.2f}" for r in results)
+                settles = " ".join(_seconds(r.settle_time_s) for r in results)
+                depths = " ".join(f"{r.max_depth_error_m:.2f}" for r in results)
+                reversals = " ".join(str(r.reversals_last_30s) for r in results)
                 reconverged = " ".join(_seconds(reconvergence(b, KICK_RUN_S)) for b in kicked)
                 after_kick = " ".join(f"{b.thrust_ratio:.2f}" for b in kicked)
                 print(f"Ts {period} {harness:<9} {label:<10}: TR {finals} | settle {settles} | dz {depths} | "
@@ -218,24 +220,24 @@ def predicted_table() -> None:
         kicked = [predicted_run(s, config, KICK_RUN_S, True) for s in HOLD_SEEDS]
         reconverged = [reconvergence(b, KICK_RUN_S) for b in kicked]
         for seed, r, reconv, k in zip(HOLD_SEEDS, results, reconverged, kicked):
-            over = 100 * (r["thrust_ratio_final"] / tr_star - 1)
-            offset = f" | depth offset ≤ {r['depth_offset_max_m']:.2f} m" if r["depth_offset_max_m"] else ""
-            print(f"{label:<24} seed {seed}: settle {_seconds(r['settle_time_s']):>4} | TR {r['thrust_ratio_final']:.4f} "
-                  f"({over:+.1f} %) | dz {r['max_depth_error_m']:.3f} | rev {r['reversals_last_30s']} | "
+            over = 100 * (r.thrust_ratio_final / tr_star - 1)
+            offset = f" | depth offset ≤ {r.depth_offset_max_m:.2f} m" if r.depth_offset_max_m else ""
+            print(f"{label:<24} seed {seed}: settle {_seconds(r.settle_time_s):>4} | TR {r.thrust_ratio_final:.4f} "
+                  f"({over:+.1f} %) | dz {r.max_depth_error_m:.3f} | rev {r.reversals_last_30s} | "
                   f"reconv {_seconds(reconv)}, TR {k.thrust_ratio:.2f} at {KICK_RUN_S:.0f} s{offset}")
         summaries.append((label, results, reconverged))
     print(f"{'summary':<24} {'settle s':<14} {'final TR (% TR*)':<26} {'max dz m':<12} {'reversals':<10} "
           f"{'reconv s':<12} | goal: {goal}")
     for label, results, reconverged in summaries:
-        settles = [r["settle_time_s"] for r in results]
-        finals = [r["thrust_ratio_final"] for r in results]
-        depths = [r["max_depth_error_m"] for r in results]
-        met = sum(1 for r in results if r["settle_time_s"] is not None and r["settle_time_s"] <= 60.0
-                  and r["thrust_ratio_final"] <= 1.02 * tr_star and r["max_depth_error_m"] <= 0.3
-                  and r["reversals_last_30s"] <= 1)
+        settles = [r.settle_time_s for r in results]
+        finals = [r.thrust_ratio_final for r in results]
+        depths = [r.max_depth_error_m for r in results]
+        met = sum(1 for r in results if r.settle_time_s is not None and r.settle_time_s <= 60.0
+                  and r.thrust_ratio_final <= 1.02 * tr_star and r.max_depth_error_m <= 0.3
+                  and r.reversals_last_30s <= 1)
         print(f"{label:<24} {_range(settles):<14} "
               f"{min(finals):.3f}-{max(finals):.3f} ({100 * (min(finals) / tr_star - 1):+.1f}..{100 * (max(finals) / tr_star - 1):+.1f} %)"
-              f"{'':<3} {min(depths):.2f}-{max(depths):.2f}{'':<3} {max(r['reversals_last_30s'] for r in results):<10} "
+              f"{'':<3} {min(depths):.2f}-{max(depths):.2f}{'':<3} {max(r.reversals_last_30s for r in results):<10} "
               f"{_range(reconverged):<12} | all goals on {met}/{len(results)} seeds")
 
 
@@ -279,10 +281,10 @@ def cause_table() -> None:
                                  thesis_crossover=True).result() for s in HOLD_SEEDS]
         kicked = [predicted_run(s, config, KICK_RUN_S, True, params=params, seeker=seeker, thesis_crossover=True)
                   for s in HOLD_SEEDS]
-        print(f"{label:<22}: settle {_join([r['settle_time_s'] for r in results], _seconds)} s | final TR "
-              f"{_join([r['thrust_ratio_final'] for r in results], '{:.2f}'.format)} | dz "
-              f"{_join([r['max_depth_error_m'] for r in results], '{:.2f}'.format)} m | rev "
-              f"{_join([r['reversals_last_30s'] for r in results], str)} || kicked: reconv "
+        print(f"{label:<22}: settle {_join([r.settle_time_s for r in results], _seconds)} s | final TR "
+              f"{_join([r.thrust_ratio_final for r in results], '{:.2f}'.format)} | dz "
+              f"{_join([r.max_depth_error_m for r in results], '{:.2f}'.format)} m | rev "
+              f"{_join([r.reversals_last_30s for r in results], str)} || kicked: reconv "
               f"{_join([reconvergence(k, KICK_RUN_S) for k in kicked], _seconds)} s, TR at {KICK_RUN_S:.0f} s "
               f"{_join([k.thrust_ratio for k in kicked], '{:.2f}'.format)}")
 

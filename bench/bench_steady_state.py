@@ -87,7 +87,8 @@ def simulator(seeds: int) -> None:
             if abs(s.yaw_rate) < math.radians(0.1):
                 surge_truth.append(s.surge)
             steps += 1
-        res = square.result()
+        legs = square.result().fit
+        assert legs is not None, square.result().error
         loop2 = HuginLoop(cur, 100 + seed)
         turns = SteadyTurns(TurnConfig(thrust_ratio=0.54, rudder_angles=(0.218,), turn_s=150.0, recover_s=5.0))
         radius_truth = []
@@ -96,18 +97,19 @@ def simulator(seeds: int) -> None:
             s = loop2.vehicle.state
             if 100 < s.time_s < 150:
                 radius_truth.append(math.hypot(s.surge * math.cos(s.pitch) + s.heave * math.sin(s.pitch), s.sway) / abs(s.yaw_rate))
-        tres = turns.result()["turns"][0]
+        turn = turns.result().turns[0]
+        assert turn.fit is not None, turn.error
         rows.append({
             "speed": speed, "dir": direction,
-            "sq_cur": 1000 * math.hypot(res["current_north"] - cur[0], res["current_east"] - cur[1]),
-            "sq_dir": angle_error_deg(res["current_dir_deg"], direction),
-            "surge": 1000 * (res["surge_water"] - np.median(surge_truth)),
-            "cond": res["condition_number"],
-            "tu_cur": 1000 * math.hypot(tres["current_north"] - cur[0], tres["current_east"] - cur[1]),
-            "radius": 100 * (tres["radius_m"] / np.median(radius_truth) - 1),
-            "radius_m": tres["radius_m"],
-            "rate": tres["turn_rate_deg_s"],
-            "resid": tres["residual_std_m"],
+            "sq_cur": 1000 * math.hypot(legs.current[0] - cur[0], legs.current[1] - cur[1]),
+            "sq_dir": angle_error_deg(legs.current_dir_deg, direction),
+            "surge": 1000 * (legs.surge - np.median(surge_truth)),
+            "cond": legs.condition_number,
+            "tu_cur": 1000 * math.hypot(turn.fit.current[0] - cur[0], turn.fit.current[1] - cur[1]),
+            "radius": 100 * (turn.fit.radius / np.median(radius_truth) - 1),
+            "radius_m": turn.fit.radius,
+            "rate": math.degrees(turn.fit.rate),
+            "resid": turn.fit.residual_std,
         })
     elapsed = time.perf_counter() - start
     print(f"== simulator 'hugin' preset in-process ({seeds} seeds; {elapsed:.1f} s)")

@@ -58,6 +58,32 @@ def require_non_negative(obj: Any, *names: str) -> None:
             raise ValueError(f"{_label(obj, name)} must be a finite number ≥ 0, not {value!r}")
 
 
+def require_measured(obj: Any, *names: str) -> None:
+    """Each named field is a number ≥ 0 (infinity included: a step that never settled), or NaN or
+    None where nothing was measured: a result's durations, errors and fractions."""
+    for name in names:
+        value = _value(obj, name)
+        if value is None or (isinstance(value, (int, float)) and not isinstance(value, bool)
+                             and (math.isnan(value) or value >= 0.0)):
+            continue
+        raise ValueError(f"{_label(obj, name)} must be a number ≥ 0, NaN or None (not measured), not {value!r}")
+
+
+def require_instance(obj: Any, name: str, kind: type) -> None:
+    """The named field is a ``kind`` (e.g. a behaviour's lifecycle ``Status``)."""
+    value = _value(obj, name)
+    if not isinstance(value, kind):
+        raise ValueError(f"{_label(obj, name)} must be a {kind.__name__}, not {value!r}")
+
+
+def require_count(obj: Any, *names: str) -> None:
+    """Each named field is an integer ≥ 0 (bools are not counts)."""
+    for name in names:
+        value = _value(obj, name)
+        if not (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
+            raise ValueError(f"{_label(obj, name)} must be an integer ≥ 0, not {value!r}")
+
+
 def require_range(obj: Any, name: str, low: float, high: float, *, optional: bool = False) -> None:
     """The named field is a finite number in [low, high] (None allowed with ``optional``)."""
     value = _value(obj, name)

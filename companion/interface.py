@@ -143,8 +143,9 @@ class Behavior(Protocol):
 
     ``step`` is called once per telemetry snapshot (the attitude rate) and returns the commands to
     send now. ``abort`` returns the commands that put the vehicle back as the behaviour found it;
-    after it, ``done`` is true. ``result`` is a JSON-serialisable summary for the store, or a typed
-    record (a procedure's ``ProcedureResult``, ``companion.procedures.results``).
+    after it, ``done`` is true. ``result`` is what it found: a frozen record whose ``to_dict()`` is
+    its JSON (``behaviors.base.BehaviourResult``; a procedure's ``ProcedureResult``,
+    ``companion.procedures.results``).
     """
 
     @property

@@ -77,19 +77,19 @@ def test_a_3dof_boat_is_identified_tuned_verified_and_keeps_its_gains(boat, tmp_
     # heading steps: the design overshoots at most 10 % and settles in less step error than the defaults
     # at every speed; than QuickTune's rule too on the skid boat (the rudder boat's design is not better
     # than QuickTune's at 2.0 and 2.5 m/s: docs/limitations.md)
-    steps = {(s["thrust"], s["label"]): s for s in campaign.step_results}
+    steps = {(s.thrust, s.label): s for s in campaign.step_results}
     for thrust in campaign.config.thrusts:
         scheduled = steps[(thrust, "scheduled")]
-        assert scheduled["max_overshoot_pct"] <= 10.0 and scheduled["oscillations"] <= 1
-        assert scheduled["iae_s"] < steps[(thrust, "original")]["iae_s"]
+        assert scheduled.max_overshoot_pct <= 10.0 and scheduled.oscillations <= 1
+        assert scheduled.iae_s < steps[(thrust, "original")].iae_s
         if skid:
-            assert scheduled["iae_s"] < steps[(thrust, "quicktune")]["iae_s"]
+            assert scheduled.iae_s < steps[(thrust, "quicktune")].iae_s
     # the speed loop: tuned from the settles, verified by its own steps, kept
     speed = campaign.speed
     assert speed.verdict is None and speed.kept is not None, speed.reason
     flown = speed.step_results
-    assert flown["design"]["max_overshoot_pct"] <= 10.0
-    assert flown["design"]["settling_time_s"] < flown["original"]["settling_time_s"]
+    assert flown["design"].max_overshoot_pct <= 10.0
+    assert flown["design"].settling_time_s < flown["original"].settling_time_s
     assert speed.surge.r2 > 0.95
     kept = link.get_params(campaign.final_gains)
     assert kept == pytest.approx(campaign.final_gains, rel=1e-5)

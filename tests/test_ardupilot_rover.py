@@ -74,11 +74,11 @@ def test_campaign_identifies_designs_verifies_and_keeps_native_gains(rover, trut
         assert attempt.r2 >= 0.9
         assert attempt.model.a22 == pytest.approx(truth["a22"], rel=0.05)
         assert attempt.model.b2 == pytest.approx(truth["b2"], rel=0.05)
-    steps = {(s["thrust"], s["label"]): s for s in campaign.step_results}
+    steps = {(s.thrust, s.label): s for s in campaign.step_results}
     for thrust in (0.6, 0.8, 1.0):
         scheduled, original = steps[(thrust, "scheduled")], steps[(thrust, "original")]
-        assert scheduled["max_overshoot_pct"] <= 10.0 and scheduled["oscillations"] <= 1
-        assert scheduled["iae_s"] < original["iae_s"]  # better than ArduRover's boat defaults
+        assert scheduled.max_overshoot_pct <= 10.0 and scheduled.oscillations <= 1
+        assert scheduled.iae_s < original.iae_s  # better than ArduRover's boat defaults
     # the verified gains stay on the vehicle, every one inside ArduPilot's documented range
     kept = link.get_params(campaign.final_gains)
     assert kept == pytest.approx(campaign.final_gains, rel=1e-6)

@@ -79,8 +79,8 @@ def test_campaign_writes_scheduled_gains_and_keeps_them(completed):
     assert link.param("heading_p") != pytest.approx(restore.parameters["heading_p"], rel=1e-3)
     assert not link.overrides, "no override may outlive the campaign"
     steps = campaign.step_results
-    assert {s["label"] for s in steps} == {"scheduled"} and len(steps) == 2
-    assert all(len(s["steps"]) == 2 for s in steps)
+    assert {s.label for s in steps} == {"scheduled"} and len(steps) == 2
+    assert all(len(s.steps) == 2 for s in steps)
 
 
 def test_campaign_events_reach_the_store(completed, tmp_path):
@@ -185,8 +185,8 @@ def test_rejected_validation_is_repeated_then_given_up():
     outcome = run_behavior(link, manoeuvre)
     result = manoeuvre.result()
     assert outcome.status == "failed" and "no model passed validation" in outcome.reason
-    assert result["outcome"] == "rejected" and len(result["attempts"]) == 2
-    assert not any(a["accepted"] for a in result["attempts"])
+    assert result.outcome == "rejected" and len(result.attempts) == 2
+    assert not any(a.accepted for a in result.attempts)
     assert not link.overrides
 
 
@@ -203,7 +203,7 @@ def test_manoeuvre_overrides_only_during_the_doublets():
     assert not link.overrides
     # two doublets of 4 s (training, validation), each overriding for 4 s at 20 Hz
     assert 150 <= len(overridden_at) <= 170
-    assert manoeuvre.result()["outcome"] == "accepted"
+    assert manoeuvre.result().outcome == "accepted"
 
 
 def test_pitch_axis_identifies_a_stable_model():
@@ -212,11 +212,11 @@ def test_pitch_axis_identifies_a_stable_model():
                                                         training_amplitude=0.1, validation_amplitude=0.06),
                                         thrust=0.7)
     run_behavior(link, manoeuvre)
-    best = manoeuvre.result()["best"]
-    assert best["r2"] > 0.6
-    model = best["model"]
-    assert model["c22"] > 0 and model["c23"] > 0  # damped, statically stable pitch
-    assert model["d2"] < 0  # elevator sign of the sim: positive elevator pitches down
+    best = manoeuvre.result().best
+    assert best is not None and best.r2 > 0.6
+    model = best.model
+    assert model.c22 > 0 and model.c23 > 0  # damped, statically stable pitch
+    assert model.d2 < 0  # elevator sign of the sim: positive elevator pitches down
 
 
 def test_new_trim_is_not_counted_twice_by_a_charged_integrator():
@@ -231,7 +231,7 @@ def test_new_trim_is_not_counted_twice_by_a_charged_integrator():
     gains = {"heading_p": 0.547, "heading_i": 0.0, "rudder_trim": 0.01}  # P only: 4.3 % by design
     steps = HeadingStepTest(0.8, gains, label="P")
     run_behavior(link, SequenceBehavior([Observe(30.0), steps]))
-    up, down = (step["overshoot_pct"] for step in steps.result()["steps"])
+    up, down = (step["overshoot_pct"] for step in steps.result().steps)
     assert abs(up - down) < 1.5, (up, down)
     assert up < 5.5 and down < 5.5
     assert "guided" in link.mode_changes and link.mode == "hold"

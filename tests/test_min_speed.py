@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking
+from behaviors.min_speed_result import MinSpeedResult
 from companion.interface import SetThrust, Telemetry
 from companion.numerics.fuzzy_seeker import (
     DECREASE,
@@ -207,7 +208,7 @@ def test_starts_at_nominal_and_abort_restores_it():
         behaviour.step(Telemetry(time_s=10.0 + 0.05 * i, pitch=-0.02, depth=2.0, elevator=0.0))
     assert behaviour.thrust_ratio < 0.70
     assert SetThrust(0.70) in behaviour.abort("operator")
-    assert behaviour.done and behaviour.result()["aborted"]
+    assert behaviour.done and behaviour.result().aborted
 
 
 @pytest.mark.parametrize("hold_s, spacing", [(4.0, 4.0), (0.0, 1.0)])
@@ -222,7 +223,7 @@ def test_behaviour_moves_once_per_hold(hold_s, spacing):
 
 
 def _seek(seed: int, period_s: float, seconds: float, current_north: float = 0.0, hold_s: float = 0.0,
-          kick_at_s: float | None = None) -> dict:
+          kick_at_s: float | None = None) -> MinSpeedResult:
     """Closed loop; ``hold_s = 0`` is the thesis law (its θe crossover 0.01 too), otherwise the product's
     rules (the hold and the crossover for the pitch loop, eq. M.1); ``kick_at_s`` kicks the set-point to
     0.60 then."""
@@ -246,28 +247,28 @@ def _seek(seed: int, period_s: float, seconds: float, current_north: float = 0.0
 def test_seeker_settles_near_analytic_minimum_thrust(seed):
     """Ts = 2.5 s (the period at which this simulator's loop is time-scale separated, see bench)."""
     result = _seek(seed, period_s=2.5, seconds=170.0)
-    assert result["settle_time_s"] is not None and result["settle_time_s"] <= 130.0
-    assert abs(result["thrust_ratio_final"] - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR + 0.008
-    assert result["reversals_last_30s"] <= 1  # a limit cycle reverses at least twice in 30 s
-    assert result["max_depth_error_settled_m"] <= 0.3
-    assert result["speed_final"] == pytest.approx(0.69, abs=0.04)
+    assert result.settle_time_s is not None and result.settle_time_s <= 130.0
+    assert abs(result.thrust_ratio_final - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR + 0.008
+    assert result.reversals_last_30s <= 1  # a limit cycle reverses at least twice in 30 s
+    assert result.max_depth_error_settled_m <= 0.3
+    assert result.speed_final == pytest.approx(0.69, abs=0.04)
 
 
 def test_current_does_not_change_water_speed_optimum():
     result = _seek(1, period_s=2.5, seconds=170.0, current_north=0.3)
-    assert result["settle_time_s"] is not None
-    assert abs(result["thrust_ratio_final"] - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR + 0.008
+    assert result.settle_time_s is not None
+    assert abs(result.thrust_ratio_final - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR + 0.008
 
 
 def test_ts_1s_oscillation_stays_bounded_around_the_optimum():
     """At the seed's Ts = 1 s this simulator oscillates for ~100-160 s before settling (bench): the
     oscillation must stay bounded, not lose depth control, and end at the optimum."""
     result = _seek(1, period_s=1.0, seconds=200.0)
-    assert abs(result["thrust_ratio_final"] - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR + 0.008
-    tail = [tr for t, tr in zip(result["series"]["time"], result["series"]["thrust_setpoint"]) if t >= 60.0]
+    assert abs(result.thrust_ratio_final - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR + 0.008
+    tail = [tr for t, tr in zip(result.series["time"], result.series["thrust_setpoint"]) if t >= 60.0]
     assert min(tail) >= ANALYTIC_TR - 0.06
     assert max(tail) <= ANALYTIC_TR + 0.10
-    assert result["max_depth_error_m"] <= 0.7
+    assert result.max_depth_error_m <= 0.7
 
 
 # ------------------------------------------------------------------ hold after change (default; not in the thesis)
@@ -275,25 +276,25 @@ def test_hold_at_ts_1s_reaches_the_optimum_without_limit_cycle():
     """Seed 1, Ts = 1 s, noise on: the thesis law ends at 0.44 after 162 s with 0.59 m of depth error
     (bench --hold); with the 4 s hold: within 2 % of TR*, depth within 0.3 m, no limit cycle."""
     result = _seek(1, period_s=1.0, seconds=200.0, hold_s=4.0)
-    assert abs(result["thrust_ratio_final"] - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR
-    assert result["max_depth_error_m"] <= 0.3
-    assert result["reversals_last_30s"] <= 1
-    assert result["settle_time_s"] is not None and result["settle_time_s"] <= 180.0
+    assert abs(result.thrust_ratio_final - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR
+    assert result.max_depth_error_m <= 0.3
+    assert result.reversals_last_30s <= 1
+    assert result.settle_time_s is not None and result.settle_time_s <= 180.0
 
 
 def test_hold_follows_a_disturbance_back_to_the_optimum():
     """Set-point kicked to 0.60 at 150 s (seed 3): quiet again (15 s without a change) within 100 s
     and one ΔT from TR*, at TR* (2 %) by 300 s; the thesis law at Ts = 1 s does not settle again (bench --hold)."""
     result = _seek(3, period_s=1.0, seconds=300.0, hold_s=4.0, kick_at_s=150.0)
-    times, setpoints = result["series"]["time"], result["series"]["thrust_setpoint"]
+    times, setpoints = result.series["time"], result.series["thrust_setpoint"]
     kicked = next(i for i, t in enumerate(times) if t >= 150.0)
     assert setpoints[kicked] == pytest.approx(0.60)
     changes = [times[i] for i in range(kicked + 1, len(times)) if setpoints[i] != setpoints[i - 1]]
     quiet = next(a for a, b in zip([150.0] + changes, changes + [300.0]) if b - a >= 15.0)  # settled again
     assert quiet - 150.0 <= 100.0
     assert abs(setpoints[times.index(quiet)] - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR + 0.01  # within one ΔT
-    assert abs(result["thrust_ratio_final"] - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR
-    assert result["reversals_last_30s"] <= 1
+    assert abs(result.thrust_ratio_final - ANALYTIC_TR) <= 0.02 * ANALYTIC_TR
+    assert result.reversals_last_30s <= 1
 
 
 def test_product_procedure_with_the_default_hold():
@@ -378,7 +379,7 @@ def test_a_stalled_governed_move_continues_as_the_ramp():
             stalled = (0.05 * i, behaviour.thrust_ratio)
     assert stalled is not None and 10.0 <= stalled[0] <= 12.0  # the move stopped after its first second
     assert behaviour.thrust_ratio == pytest.approx(stalled[1] - 0.005 * (29.95 - stalled[0]), abs=0.006)
-    assert behaviour.result()["governed_stalled"] is True
+    assert behaviour.result().governed_stalled is True
 
 
 def test_governed_start_settles_within_two_percent_of_the_analytic_minimum():

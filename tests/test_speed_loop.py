@@ -10,6 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from behaviors.speed_steps import PredictedSpeedSteps, SpeedStepConfig, SpeedStepsResult
 from behaviors.speed_tuning import (SPEED_CONTEXT, SPEED_GAINS, SpeedCheck, SpeedLoopConfig, SpeedTuning, SurgeRecord,
                                     SurgeRecorder)
 from companion.interface import SetParameters, SetThrust, Telemetry
@@ -97,15 +98,21 @@ def test_the_speed_steps_stay_within_what_the_autopilot_can_be_asked_for():
     assert max(design.step) <= 2.0 and design.step[1] < design.step[0]
 
 
+def _flown(overshoots: tuple[float, ...], settling_time_s: float) -> SpeedStepsResult:
+    """Speed steps as flown with these overshoots (%) and this summed settling time (s)."""
+    measured = [o for o in overshoots if math.isfinite(o)]
+    return SpeedStepsResult("design", {}, (1.0, 2.0), tuple({"overshoot_pct": o} for o in overshoots),
+                            max(measured) if measured else math.nan, settling_time_s, SpeedStepConfig(), {}, False)
+
+
 def test_the_check_wants_less_overshoot_and_a_shorter_settle():
     check = SpeedCheck()
-    good = {"steps": [{"overshoot_pct": 4.0}, {"overshoot_pct": 2.0}], "settling_time_s": 5.0}
-    slow = {"steps": [{"overshoot_pct": 25.0}, {"overshoot_pct": 26.0}], "settling_time_s": 14.0}
+    good = _flown((4.0, 2.0), 5.0)
+    slow = _flown((25.0, 26.0), 14.0)
     assert check.verdict(slow, good) is None
     assert "overshoot" in check.verdict(good, slow)
-    assert "not faster" in check.verdict({**good, "settling_time_s": 4.0}, good)
-    assert "without a measured overshoot" in check.verdict(None, {"steps": [{"overshoot_pct": math.nan}],
-                                                                   "settling_time_s": 1.0})
+    assert "not faster" in check.verdict(replace(good, settling_time_s=4.0), good)
+    assert "without a measured overshoot" in check.verdict(None, _flown((math.nan,), 1.0))
 
 
 def test_the_recorder_keeps_straight_settles_and_each_levels_steady_end():
@@ -178,11 +185,11 @@ def test_the_full_comparison_flies_both_gain_sets_and_keeps_the_design_that_sett
     _fly(tuning, vehicle)
     assert tuning.verdict is None and tuning.kept == tuning.design.gains.params()
     flown = tuning.step_results
-    assert flown["original"]["max_overshoot_pct"] > 15.0  # the defaults wind up
-    assert flown["design"]["max_overshoot_pct"] <= 10.0
-    assert flown["design"]["settling_time_s"] < flown["original"]["settling_time_s"]
+    assert flown["original"].max_overshoot_pct > 15.0  # the defaults wind up
+    assert flown["design"].max_overshoot_pct <= 10.0
+    assert flown["design"].settling_time_s < flown["original"].settling_time_s
     assert vehicle.gains == tuning.design.gains  # the design was on the vehicle for its own steps
-    assert set(tuning.result()) >= {"surge", "design", "steps", "verdict", "kept", "record"}
+    assert set(tuning.result().to_dict()) >= {"surge", "design", "steps", "verdict", "kept", "record"}
 
 
 def test_the_short_check_flies_the_design_only_and_compares_it_with_the_original_gains_predicted():
@@ -192,10 +199,10 @@ def test_the_short_check_flies_the_design_only_and_compares_it_with_the_original
     _fly(tuning, vehicle)
     assert set(tuning.step_results) == {"design"}  # the model predicted the design's flight
     assert tuning.verdict is None and tuning.kept == tuning.design.gains.params()
-    compared = tuning.result()["original_steps"]
-    assert compared["predicted"] is True
-    assert compared["settling_time_s"] > tuning.step_results["design"]["settling_time_s"]
-    assert compared["max_overshoot_pct"] > 15.0  # the defaults' wind-up, predicted
+    compared = tuning.result().original_steps
+    assert isinstance(compared, PredictedSpeedSteps)
+    assert compared.settling_time_s > tuning.step_results["design"].settling_time_s
+    assert compared.max_overshoot_pct > 15.0  # the defaults' wind-up, predicted
 
 
 def test_a_design_flight_its_model_did_not_predict_has_the_original_gains_flown_too():
@@ -206,7 +213,7 @@ def test_a_design_flight_its_model_did_not_predict_has_the_original_gains_flown_
     _fly(tuning, vehicle)
     assert set(tuning.step_results) == {"design", "original"}
     assert tuning.original_flown_because is not None and "predicted" in tuning.original_flown_because
-    assert tuning.result()["original_steps"] is tuning.step_results["original"]  # compared as flown
+    assert tuning.result().original_steps is tuning.step_results["original"]  # compared as flown
 
 
 def test_a_design_that_is_not_better_is_not_kept():

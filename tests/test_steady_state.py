@@ -214,11 +214,12 @@ def test_square_behavior_recovers_current_and_restores():
     commands = run_behavior(behavior, vehicle, 500.0)
     assert behavior.done
     res = behavior.result()
-    assert res["status"] == "completed"
-    json.dumps(res)  # the store keeps it as JSON
-    assert np.hypot(res["current_north"] - cur[0], res["current_east"] - cur[1]) < 0.003
-    assert res["surge_water"] == pytest.approx(1.6, abs=0.003)
-    assert res["condition_number"] < 1.2
+    assert res.status == "completed"
+    json.dumps(res.to_dict())  # the store keeps it as JSON
+    fit = res.fit
+    assert np.hypot(fit.current[0] - cur[0], fit.current[1] - cur[1]) < 0.003
+    assert fit.surge == pytest.approx(1.6, abs=0.003)
+    assert fit.condition_number < 1.2
     headings = [c.heading for c in commands if isinstance(c, SetHeading)]
     assert len(headings) == 4  # four legs; the procedure's restore point puts the found heading back
     assert SetThrust(0.8) in commands
@@ -232,13 +233,13 @@ def test_turn_behavior_fits_each_rudder_angle_and_releases():
     behavior = SteadyTurns(TurnConfig(rudder_angles=(0.2, -0.2), turn_s=120.0, recover_s=20.0))
     commands = run_behavior(behavior, vehicle, 400.0)
     res = behavior.result()
-    assert res["status"] == "completed", res
-    json.dumps(res)
-    for turn, angle in zip(res["turns"], (0.2, -0.2)):
+    assert res.status == "completed", res
+    json.dumps(res.to_dict())
+    for turn, angle in zip(res.turns, (0.2, -0.2)):
         omega = 0.4 * angle
-        assert turn["radius_m"] == pytest.approx(1.6 / abs(omega), rel=0.01)
-        assert math.radians(turn["turn_rate_deg_s"]) == pytest.approx(omega, rel=0.01)
-        assert np.hypot(turn["current_north"] - cur[0], turn["current_east"] - cur[1]) < 0.003
+        assert turn.fit.radius == pytest.approx(1.6 / abs(omega), rel=0.01)
+        assert turn.fit.rate == pytest.approx(omega, rel=0.01)
+        assert np.hypot(turn.fit.current[0] - cur[0], turn.fit.current[1] - cur[1]) < 0.003
     assert commands.count(ReleaseActuator("rudder")) == 2
     assert vehicle.rudder_override is None
 
@@ -253,7 +254,7 @@ def test_turn_behavior_abort_releases_rudder_and_declares_what_it_touched():
     vehicle.apply(commands)
     assert behavior.done and vehicle.rudder_override is None
     assert {"rudder", "heading", "mode"} <= behavior.footprint.setpoints  # restored by the procedure
-    assert behavior.result()["status"] == "aborted"
+    assert behavior.result().status == "aborted"
     assert behavior.step(vehicle.step(0.1)) == []
 
 
@@ -264,11 +265,12 @@ def test_hugin_square_recovers_current():
     behavior = SquarePattern(SquareConfig(thrust_ratio=0.7, leg_s=150.0))
     loop.run(behavior, 700.0)
     res = behavior.result()
-    assert res["status"] == "completed", res
-    assert np.hypot(res["current_north"] - cur[0], res["current_east"] - cur[1]) < 0.003
-    assert angle_error_deg(res["current_dir_deg"], 150.0) < 15.0
-    assert res["sway_water"] == pytest.approx(-0.012, abs=0.003)  # the preset's straight-leg sway
-    assert res["condition_number"] < 1.3
+    assert res.status == "completed", res
+    fit = res.fit
+    assert np.hypot(fit.current[0] - cur[0], fit.current[1] - cur[1]) < 0.003
+    assert angle_error_deg(fit.current_dir_deg, 150.0) < 15.0
+    assert fit.sway == pytest.approx(-0.012, abs=0.003)  # the preset's straight-leg sway
+    assert fit.condition_number < 1.3
 
 
 def test_hugin_turns_recover_current_and_radius():
@@ -277,8 +279,8 @@ def test_hugin_turns_recover_current_and_radius():
     behavior = SteadyTurns(TurnConfig(thrust_ratio=0.54, rudder_angles=(0.218, -0.218), turn_s=150.0, recover_s=10.0))
     loop.run(behavior, 400.0)
     res = behavior.result()
-    assert res["status"] == "completed", res
-    for turn in res["turns"]:
-        assert np.hypot(turn["current_north"] - cur[0], turn["current_east"] - cur[1]) < 0.003
-        assert 12.0 < turn["radius_m"] < 20.0  # the preset is tuned for ≈ 15.5 m at 0.218 rad
-        assert turn["residual_std_m"] < 0.15
+    assert res.status == "completed", res
+    for turn in res.turns:
+        assert np.hypot(turn.fit.current[0] - cur[0], turn.fit.current[1] - cur[1]) < 0.003
+        assert 12.0 < turn.fit.radius < 20.0  # the preset is tuned for ≈ 15.5 m at 0.218 rad
+        assert turn.fit.residual_std < 0.15

@@ -3,7 +3,7 @@ prediction of it, and the rule that keeps or refuses the gains (companion.proced
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
@@ -12,7 +12,7 @@ from behaviors.base import Status
 from behaviors.verification import VerificationConfig, VerificationStep
 from companion.interface import SetHeading, Telemetry
 from companion.numerics.angles import wrap_pi
-from companion.procedures.verified_design import HeadingLimits, KeepRule, predicted_step
+from companion.procedures.verified_design import FlownStep, HeadingLimits, KeepRule, predicted_step
 
 RUDDER_MAX = math.radians(30.0)
 
@@ -104,48 +104,51 @@ def test_a_slow_recovery_of_the_speed_lost_in_the_turn_is_waited_for_not_taken_f
     assert step.metrics["ended"] == "settled" and step.metrics["duration_s"] < VerificationConfig().max_s
 
 
+def _flown(thrust: float, label: str, overshoot_pct: float, iae_s: float, predicted: dict | None = None) -> FlownStep:
+    """A verification step flown once, decided, with these figures and this prediction."""
+    return FlownStep(label=label, thrust=thrust, gains={}, decided=True, why_undecided=None, flights=1, undecided=(),
+                     max_overshoot_pct=overshoot_pct, iae_s=iae_s, oscillations=0, steps=(),
+                     config=VerificationConfig(), series={}, stage_times={}, aborted=False, predicted=predicted)
+
+
 def test_the_keep_rule_refuses_what_overshoots_what_was_not_predicted_and_what_is_worse_than_the_original():
     rule = KeepRule()
-    good = {"thrust": 0.6, "label": "own", "decided": True, "max_overshoot_pct": 5.0, "iae_s": 2.6, "oscillations": 0,
-            "predicted": {"overshoot_pct": 4.4, "iae_s": 2.7}}
+    good = _flown(0.6, "own", 5.0, 2.6, {"overshoot_pct": 4.4, "iae_s": 2.7})
     predicted = [{"thrust": 0.6, "label": "scheduled", "overshoot_pct": 4.4, "iae_s": 2.9, "oscillations": 0},
                  {"thrust": 0.6, "label": "original", "overshoot_pct": 19.0, "iae_s": 4.5, "oscillations": 0}]
     assert rule.verdict([good], predicted) is None
     assert "no verification step" in rule.verdict([], predicted)
-    overshooting = {**good, "max_overshoot_pct": 12.0}
+    overshooting = replace(good, max_overshoot_pct=12.0)
     assert "overshoot 12.0 %" in rule.verdict([overshooting], predicted)
-    undecided = {**good, "decided": False, "why_undecided": "the step was saturated"}
+    undecided = replace(good, decided=False, why_undecided="the step was saturated")
     assert "saturated" in rule.verdict([undecided], predicted)
-    surprising = {**good, "iae_s": 4.0}  # the model did not predict it: its predictions cannot stand in
+    surprising = replace(good, iae_s=4.0)  # the model did not predict it: its predictions cannot stand in
     assert "original gains were not flown" in rule.verdict([surprising], predicted)
-    flown_original = {"thrust": 0.6, "label": "original", "decided": True, "max_overshoot_pct": 18.0, "iae_s": 3.5,
-                      "oscillations": 0}
+    flown_original = _flown(0.6, "original", 18.0, 3.5)
     assert "not better than the original" in rule.verdict([surprising, flown_original], predicted)
-    assert rule.verdict([surprising, {**flown_original, "iae_s": 5.0}], predicted) is None
+    assert rule.verdict([surprising, replace(flown_original, iae_s=5.0)], predicted) is None
     worse_predicted = [predicted[0], {**predicted[1], "iae_s": 2.0}]
     assert "(predicted): not better" in rule.verdict([good], worse_predicted)
     # a schedule flown at a speed whose model mispredicted it (ArduPilot's own motorboat: 7.8 % flown,
     # 62.8 % predicted): the flight, better than the original gains flown there, decides that speed
-    flown_schedule = {**good, "label": "scheduled", "max_overshoot_pct": 7.8, "iae_s": 1.2,
-                      "predicted": {"overshoot_pct": 62.8, "iae_s": 3.0}}
+    flown_schedule = replace(good, label="scheduled", max_overshoot_pct=7.8, iae_s=1.2,
+                             predicted={"overshoot_pct": 62.8, "iae_s": 3.0})
     mispredicted = [{**predicted[0], "overshoot_pct": 62.8}, predicted[1]]
-    assert rule.verdict([flown_schedule, {**flown_original, "iae_s": 2.0}], mispredicted) is None
+    assert rule.verdict([flown_schedule, replace(flown_original, iae_s=2.0)], mispredicted) is None
     assert "(predicted): overshoot 62.8" in rule.verdict([good], mispredicted)  # only predicted: it counts
 
 
 def test_the_vehicles_own_gains_stand_when_the_design_only_fails_to_beat_them_and_they_pass_themselves():
     rule = KeepRule()
-    design = {"thrust": 0.65, "label": "scheduled", "decided": True, "max_overshoot_pct": 0.5, "iae_s": 0.46,
-              "oscillations": 0, "predicted": {"overshoot_pct": 0.2, "iae_s": 0.34}}  # ArduSub's vectored model
-    own = {"thrust": 0.65, "label": "original", "decided": True, "max_overshoot_pct": 1.0, "iae_s": 0.46,
-           "oscillations": 0}
+    design = _flown(0.65, "scheduled", 0.5, 0.46, {"overshoot_pct": 0.2, "iae_s": 0.34})  # ArduSub's vectored model
+    own = _flown(0.65, "original", 1.0, 0.46)
     predicted = [{"thrust": 0.45, "label": "original", "overshoot_pct": 1.5, "iae_s": 0.44, "oscillations": 0},
                  {"thrust": 0.45, "label": "scheduled", "overshoot_pct": 0.2, "iae_s": 0.33, "oscillations": 0}]
     assert "not better than the original" in rule.verdict([design, own], predicted)
     assert rule.originals_stand([design, own], predicted)
-    assert not rule.originals_stand([design, {**own, "max_overshoot_pct": 15.0}], predicted)  # they fail themselves
-    assert not rule.originals_stand([{**design, "max_overshoot_pct": 12.0}, own], predicted)  # another reason
-    assert not rule.originals_stand([design, {**own, "iae_s": 0.9}], predicted)  # the design passes: nothing to keep
+    assert not rule.originals_stand([design, replace(own, max_overshoot_pct=15.0)], predicted)  # they fail themselves
+    assert not rule.originals_stand([replace(design, max_overshoot_pct=12.0), own], predicted)  # another reason
+    assert not rule.originals_stand([design, replace(own, iae_s=0.9)], predicted)  # the design passes: nothing to keep
 
 
 def test_a_prediction_sees_the_rudder_limit_and_the_schedule_covered_by_a_nearby_design():
@@ -188,10 +191,10 @@ def test_the_quick_campaign_flies_the_ends_predicts_the_middle_and_writes_what_i
     assert outcome.status == "completed" and campaign.config.checked == "verify"
     flown = campaign.verifier.flown
     # an optimised design is chosen over every speed's model, so its schedule is flown at both ends
-    assert [(s["thrust"], s["label"]) for s in flown] == [(1.0, "scheduled"), (0.7, "scheduled")]
+    assert [(s.thrust, s.label) for s in flown] == [(1.0, "scheduled"), (0.7, "scheduled")]
     assert campaign.heading_choice is not None and not campaign.heading_choice.keeps_original
-    assert all(s["decided"] and s["flights"] == 1 for s in flown)
-    assert all(KeepRule().agree(s, s["predicted"]) is None for s in flown)
+    assert all(s.decided and s.flights == 1 for s in flown)
+    assert all(KeepRule().agree(s, s.predicted) is None for s in flown)
     assert {s["thrust"] for s in campaign.verifier.predicted} == {0.7, 0.85, 1.0}
     phases = campaign.phases_in_order()
     assert "verification" in phases and "heading_steps" not in phases
@@ -203,7 +206,7 @@ def test_the_quick_campaign_flies_the_ends_predicts_the_middle_and_writes_what_i
 def test_the_rule_design_flies_the_lowest_speeds_own_design_right_after_its_model():
     link, campaign, outcome, _ = _quick_campaign(3, design="rule")
     assert outcome.status == "completed" and campaign.heading_choice is None
-    assert [(s["thrust"], s["label"]) for s in campaign.verifier.flown][0] == (0.7, "own")
+    assert [(s.thrust, s.label) for s in campaign.verifier.flown][0] == (0.7, "own")
 
 
 def test_a_verification_that_cannot_pass_leaves_the_original_gains():

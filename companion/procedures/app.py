@@ -178,13 +178,13 @@ def drain_campaign_events(store: Store, campaign_id: int, campaign: Identificati
         if isinstance(event, AttemptRecorded):
             store.add_run(campaign_id, event.attempt)
         elif isinstance(event, StepsChecked):
-            store.add_behavior_result(campaign_id, "heading_steps", "completed", event.result)
+            store.add_behavior_result(campaign_id, "heading_steps", "completed", event.result.to_dict())
         elif isinstance(event, GainsWritten):
             store.add_gains(campaign_id, event.speed, event.before, event.after)
         elif isinstance(event, DesignMade):
             store.add_design(campaign_id, event.design)
         elif isinstance(event, SpeedTuned):
-            store.add_behavior_result(campaign_id, "speed_loop", event.status, event.result)
+            store.add_behavior_result(campaign_id, "speed_loop", event.status, event.result.to_dict())
         else:
             raise TypeError(f"unknown campaign event {event!r}")
         campaign.events.pop(0)

@@ -34,10 +34,10 @@ from typing import Sequence, Union
 from behaviors.background import BackgroundStep
 from behaviors.base import Behaviour, Footprint, Status, footprint_of
 from behaviors.gain_scheduling import GainDesign, ScheduleKind
-from behaviors.heading_steps import HeadingStepTest, reengage_hold
-from behaviors.identification import IdentificationAttempt, IdentificationManoeuvre
+from behaviors.heading_steps import HeadingStepsResult, HeadingStepTest, reengage_hold
+from behaviors.identification import IdentificationAttempt, IdentificationManoeuvre, IdentificationResult
 from behaviors.sequence import Deferred, Instant, ParallelBehavior, SequenceBehavior
-from behaviors.speed_tuning import SPEED_CONTEXT, SPEED_GAINS, SpeedTuning, SurgeRecorder
+from behaviors.speed_tuning import SPEED_CONTEXT, SPEED_GAINS, SpeedTuning, SpeedTuningResult, SurgeRecorder
 from behaviors.verification import VerificationStep
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.identification import YawModel
@@ -52,7 +52,7 @@ from companion.procedures.campaign_phases import PhaseClock, add_times, phase_of
 from companion.procedures.campaign_verification import CampaignVerification
 from companion.procedures.heading_design import HeadingDesign, choose_heading_design, optimisable, with_design
 from companion.procedures.results import ProcedureResult
-from companion.procedures.verified_design import CONTROLLERS, LIMIT_PARAMETERS, HeadingLimits, skid_plant
+from companion.procedures.verified_design import CONTROLLERS, LIMIT_PARAMETERS, FlownStep, HeadingLimits, skid_plant
 
 log = logging.getLogger(__name__)
 
@@ -64,11 +64,16 @@ class AttemptRecorded:
     attempt: IdentificationAttempt
 
 
+#: a heading-step check as the campaign keeps it: the thesis comparison's steps, or a verification step
+#: with its prediction
+HeadingCheck = Union[HeadingStepsResult, FlownStep]
+
+
 @dataclass(frozen=True)
 class StepsChecked:
-    """A heading-step check ended: its figures."""
+    """A heading-step check ended: its result."""
 
-    result: dict
+    result: HeadingCheck
 
 
 @dataclass(frozen=True)
@@ -92,7 +97,7 @@ class SpeedTuned:
     """The speed loop was identified, designed and checked (or could not be): its figures."""
 
     status: str
-    result: dict
+    result: SpeedTuningResult
 
 
 #: what the campaign hands the application to store, in order
@@ -130,10 +135,10 @@ class IdentificationCampaign(Behaviour):
         self.events: list[CampaignEvent] = []  # drained by the application (companion.procedures.app)
         self.accepted: list[IdentificationAttempt] = []
         self.attempts: list[IdentificationAttempt] = []  # every attempt, accepted or not
-        self.manoeuvres: list[dict] = []
+        self.manoeuvres: list[IdentificationResult] = []
         self.designs: dict[str, GainDesign] = {}
         self.design_errors: dict[str, str] = {}
-        self.step_results: list[dict] = []
+        self.step_results: list[HeadingCheck] = []
         self._phases = PhaseClock()  # vehicle seconds per phase (companion.procedures.campaign_phases)
         self.phase_times: dict[str, float] = {}  # per identification stage, summed over manoeuvres
         self.final_gains: dict[str, float] | None = None
@@ -590,23 +595,23 @@ class IdentificationCampaign(Behaviour):
             return
         if isinstance(behavior, IdentificationManoeuvre):
             self.phase_times = add_times(self.phase_times, behavior.stage_times)
-            self.manoeuvres.append({k: v for k, v in behavior.result().items() if k != "attempts"})
+            self.manoeuvres.append(behavior.result())
             for attempt in behavior.attempts:
                 self.attempts.append(attempt)
                 self.events.append(AttemptRecorded(attempt))
                 if attempt.accepted:
                     self.accepted.append(attempt)
         elif isinstance(behavior, HeadingStepTest):
-            result = behavior.result()
-            self.step_results.append(result)
-            self.events.append(StepsChecked(result))
+            self._checked(behavior.result())
         elif isinstance(behavior, SpeedTuning):
             self.speed = behavior
             self.events.append(SpeedTuned(behavior.status.value, behavior.result()))
         elif isinstance(behavior, VerificationStep):
-            result = self._verifier().record(behavior, self.accepted)
-            self.step_results.append(result)
-            self.events.append(StepsChecked(result))
+            self._checked(self._verifier().record(behavior, self.accepted))
+
+    def _checked(self, check: HeadingCheck) -> None:
+        self.step_results.append(check)
+        self.events.append(StepsChecked(check))
 
     def progress(self) -> float:
         """Fraction of the campaign's manoeuvres and checks completed (0..1), for COMMAND_ACK."""
@@ -689,17 +694,18 @@ class IdentificationCampaign(Behaviour):
     def result(self) -> ProcedureResult:
         figures = {
             "config": self.config.to_dict(),
-            "manoeuvres": self.manoeuvres,
+            # the attempts are stored as runs (AttemptRecorded), and the accepted ones listed below
+            "manoeuvres": [{k: v for k, v in m.to_dict().items() if k != "attempts"} for m in self.manoeuvres],
             "accepted": [a.summary() for a in self.accepted],
             "design": self.design_summary(),
             "design_errors": self.design_errors,
             "verification": self.verification or ("passed" if self.final_gains else None),
-            "steps": [{k: v for k, v in r.items() if k != "series"} for r in self.step_results],
+            "steps": [{k: v for k, v in r.to_dict().items() if k != "series"} for r in self.step_results],
             "checks": self.checks,
             "verified": self.verifier.summary() if self.verifier is not None else None,
             "vehicle_time_by_phase": self.phases_in_order(),
             "final_gains": self.final_gains,
-            "speed_loop": self.speed.result() if self.speed is not None else None,
+            "speed_loop": self.speed.result().to_dict() if self.speed is not None else None,
             "heading_design": self.heading_choice.choice.to_dict() if self.heading_choice is not None else None,
             "loops": self.loop_outcomes(),
             "thrust_levels": {"flown": [t for t in self._plan if t is not None], "respacing": self.respacing},

@@ -9,11 +9,11 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Sequence
 
 from behaviors.gain_scheduling import ScheduleKind
-from behaviors.heading_steps import StepTestConfig
+from behaviors.heading_steps import HeadingStepsResult, StepTestConfig
 from behaviors.identification import ManoeuvreConfig, thesis_estimator
 from behaviors.schedules import CASCADE_RULED, schedule_kind
 from behaviors.steadiness import SteadinessRule
-from behaviors.verification import VerificationConfig
+from behaviors.verification import VerificationConfig, VerificationResult
 from companion.checks import check_thrust_levels, require_non_negative, require_positive
 from companion.link.profile import AutopilotProfile
 from companion.numerics.cascade_gains import CascadeRules
@@ -256,22 +256,22 @@ class GainCheck:
         if not (isinstance(self.max_oscillations, int) and self.max_oscillations >= 0):
             raise ValueError(f"GainCheck.max_oscillations must be an integer ≥ 0, not {self.max_oscillations!r}")
 
-    def verdict(self, steps: Sequence[dict]) -> str | None:
+    def verdict(self, steps: Sequence[HeadingStepsResult | VerificationResult]) -> str | None:
         """None when the check passes, else the reason."""
-        scheduled = [s for s in steps if s["label"] == "scheduled"]
+        scheduled = [s for s in steps if s.label == "scheduled"]
         if not scheduled:
             return "no heading-step check of the scheduled gains"
         for result in scheduled:
-            overshoot = result["max_overshoot_pct"]
+            overshoot = result.max_overshoot_pct
             if not (isinstance(overshoot, float) and math.isfinite(overshoot)):
-                return f"thrust {result['thrust']:.2f}: no overshoot measured"
+                return f"thrust {result.thrust:.2f}: no overshoot measured"
             if overshoot > self.max_overshoot_pct:
-                return f"thrust {result['thrust']:.2f}: overshoot {overshoot:.1f} % > {self.max_overshoot_pct:.0f} %"
-            if result.get("oscillations", 0) > self.max_oscillations:
-                return f"thrust {result['thrust']:.2f}: the heading oscillates ({result['oscillations']} reversals)"
-        original = [s for s in steps if s["label"] == "original"]
+                return f"thrust {result.thrust:.2f}: overshoot {overshoot:.1f} % > {self.max_overshoot_pct:.0f} %"
+            if result.oscillations > self.max_oscillations:
+                return f"thrust {result.thrust:.2f}: the heading oscillates ({result.oscillations} reversals)"
+        original = [s for s in steps if s.label == "original"]
         if self.better_than_original and original:
-            new, old = sum(s["iae_s"] for s in scheduled), sum(s["iae_s"] for s in original)
+            new, old = sum(s.iae_s for s in scheduled), sum(s.iae_s for s in original)
             if not new < old:
                 return f"the scheduled gains are not better than the original ones (step IAE {new:.1f} s vs {old:.1f} s)"
         return None

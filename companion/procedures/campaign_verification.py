@@ -20,7 +20,7 @@ from typing import Sequence
 from behaviors.gain_scheduling import GainDesign, ScheduleKind
 from behaviors.verification import VerificationConfig, VerificationStep
 from companion.numerics.step_response import SETTLE_BAND
-from companion.procedures.verified_design import CONTROLLERS, HeadingLimits, KeepRule, predicted_step
+from companion.procedures.verified_design import CONTROLLERS, FlownStep, HeadingLimits, KeepRule, predicted_step
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +32,7 @@ class CampaignVerification:
                  limits: HeadingLimits) -> None:
         self.kind, self.config, self.rule, self.limits = kind, config, rule, limits
         self.controller = CONTROLLERS.get(kind.name, "pi")
-        self.flown: list[dict] = []
+        self.flown: list[FlownStep] = []
         self.predicted: list[dict] = []
         self.coverage: dict[float, str] = {}  # lowest thrust -> whether its own-design flight stands for the schedule
         self._sign = 1.0
@@ -92,7 +92,7 @@ class CampaignVerification:
         if ends is None:
             return None
         thrust = ends[1] if end == "highest" else ends[0]
-        if any(s["thrust"] == thrust and s["label"] == "scheduled" for s in self.flown):
+        if any(s.thrust == thrust and s.label == "scheduled" for s in self.flown):
             return None
         if self.coverage.get(thrust) == "covered":
             return None
@@ -106,23 +106,23 @@ class CampaignVerification:
         if ends is None or not original:
             return None
         thrust = ends[1] if end == "highest" else ends[0]
-        designed = [s for s in self.flown if s["thrust"] == thrust and s["label"] in ("scheduled", "own")]
-        if not designed or any(s["thrust"] == thrust and s["label"] == "original" for s in self.flown):
+        designed = [s for s in self.flown if s.thrust == thrust and s.label in ("scheduled", "own")]
+        if not designed or any(s.thrust == thrust and s.label == "original" for s in self.flown):
             return None
         step = designed[-1]
-        if step.get("predicted") is None or self.rule.agree(step, step["predicted"]) is None:
+        if step.predicted is None or self.rule.agree(step, step.predicted) is None:
             return None
-        log.info("thrust %.2f: %s; the original gains are flown there", thrust, self.rule.agree(step, step["predicted"]))
+        log.info("thrust %.2f: %s; the original gains are flown there", thrust, self.rule.agree(step, step.predicted))
         return self._step(thrust, dict(original), "original")
 
     # ------------------------------------------------------------------ records
-    def record(self, step: VerificationStep, attempts: Sequence) -> dict:
+    def record(self, step: VerificationStep, attempts: Sequence) -> FlownStep:
         """A flown step's result with the model's prediction for its gains."""
-        result = step.result()
         attempt = self.attempt_at(attempts, step.thrust)
         flown_s = step.metrics.get("duration_s")
-        result["predicted"] = self.step_prediction(attempt.model, step.gains, flown_s, attempt.speed) \
+        predicted = self.step_prediction(attempt.model, step.gains, flown_s, attempt.speed) \
             if attempt is not None else None
+        result = FlownStep.of(step.result(), predicted)
         self.flown.append(result)
         return result
 
@@ -141,9 +141,9 @@ class CampaignVerification:
             if original:
                 self.predicted.append({"thrust": point.thrust, "speed": point.speed, "label": "original",
                                        **self.step_prediction(model, original, speed=point.speed)})
-            own = next((s for s in self.flown if s["thrust"] == point.thrust and s["label"] == "own"), None)
-            if own is not None and own.get("predicted") is not None:
-                self.coverage[point.thrust] = "covered" if self.rule.covers(own["predicted"], scheduled) else \
+            own = next((s for s in self.flown if s.thrust == point.thrust and s.label == "own"), None)
+            if own is not None and own.predicted is not None:
+                self.coverage[point.thrust] = "covered" if self.rule.covers(own.predicted, scheduled) else \
                     "not covered"
 
     def decide(self) -> str | None:
@@ -156,18 +156,22 @@ class CampaignVerification:
 
     def summary(self) -> dict:
         """Flown and predicted steps (figures only, no series), the coverage and the rule, for JSON."""
-        def figures(step: dict) -> dict:
-            keep = ("thrust", "label", "decided", "why_undecided", "undecided", "flights", "max_overshoot_pct", "iae_s",
-                    "oscillations", "overshoot_pct", "settling_time_s", "rise_time_s", "speed", "saturated")
-            out = {k: step[k] for k in keep if k in step}
-            if step.get("steps"):
-                out["settling_time_s"] = step["steps"][0].get("settling_time_s", math.nan)
-                out["duration_s"] = step["steps"][0].get("duration_s", math.nan)
-            if step.get("predicted") is not None:
-                out["predicted"] = {k: step["predicted"][k] for k in ("overshoot_pct", "iae_s", "settling_time_s",
-                                                                         "oscillations", "saturated")}
+        def predicted_figures(step: dict) -> dict:
+            return {k: step[k] for k in ("thrust", "label", "iae_s", "oscillations", "overshoot_pct", "settling_time_s",
+                                         "rise_time_s", "speed", "saturated") if k in step}
+
+        def flown_figures(step: FlownStep) -> dict:
+            out = {"thrust": step.thrust, "label": step.label, "decided": step.decided,
+                   "why_undecided": step.why_undecided, "undecided": list(step.undecided), "flights": step.flights,
+                   "max_overshoot_pct": step.max_overshoot_pct, "iae_s": step.iae_s, "oscillations": step.oscillations}
+            if step.steps:
+                out["settling_time_s"] = step.steps[0].get("settling_time_s", math.nan)
+                out["duration_s"] = step.steps[0].get("duration_s", math.nan)
+            if step.predicted is not None:
+                out["predicted"] = {k: step.predicted[k] for k in ("overshoot_pct", "iae_s", "settling_time_s",
+                                                                   "oscillations", "saturated")}
             return out
 
-        return {"flown": [figures(s) for s in self.flown], "predicted": [figures(s) for s in self.predicted],
+        return {"flown": [flown_figures(s) for s in self.flown], "predicted": [predicted_figures(s) for s in self.predicted],
                 "coverage": {f"{t:.2f}": v for t, v in self.coverage.items()}, "settle_band": SETTLE_BAND,
                 "controller": self.controller, "limits": dataclasses.asdict(self.limits)}  # what was predicted with

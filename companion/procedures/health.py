@@ -88,9 +88,9 @@ class HealthSession:
         if self.monitor is None or self.campaign_id is None:
             return
         result = self.monitor.result()
-        alarm = result["alarm"]
-        self.store.add_behavior_result(self.campaign_id, "health", "alarm" if alarm else "completed", result)
-        reason = (f"{alarm['parameter']} {alarm['change_pct']:+.0f}% at t = {alarm['time_s']:.0f} s"
+        alarm = result.alarm
+        self.store.add_behavior_result(self.campaign_id, "health", "alarm" if alarm else "completed", result.to_dict())
+        reason = (f"{alarm.parameter} {alarm.change_pct:+.0f}% at t = {alarm.time_s:.0f} s"
                   if alarm else None)
         self.store.finish_campaign(self.campaign_id, "completed", reason)
         self.monitor, self.campaign_id = None, None

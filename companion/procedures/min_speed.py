@@ -108,9 +108,9 @@ class MinSpeedProcedure(SequenceBehavior):
                          name="min_speed", stop_on_failure=True)
 
     def result(self) -> ProcedureResult:
-        figures = dict(self.seeker.result()) if self.seeker.status.finished else {}
-        figures.pop("status", None)
-        figures.pop("abort_reason", None)
+        # the seeker's figures; its abort reason is the procedure's own (ProcedureResult.reason)
+        figures = {k: v for k, v in self.seeker.result().to_dict().items() if k != "abort_reason"} \
+            if self.seeker.status.finished else {}
         figures["depth_gains_source"] = self.depth_gains_source
         if self.analytic:
             figures.update(thrust_ratio_star=self.analytic.get("thrust_ratio_star"), v_min=self.analytic.get("v_min"),

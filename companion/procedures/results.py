@@ -24,6 +24,7 @@ from enum import StrEnum
 from typing import Any
 
 from behaviors.base import Status
+from behaviors.json_form import json_form
 
 
 class Outcome(StrEnum):
@@ -114,3 +115,8 @@ class ProcedureResult:
         out["pilot_has_it"] = self.pilot_has_it
         out["restore_problems"] = list(self.restore_problems)
         return out
+
+    def to_dict(self) -> dict:
+        """:meth:`to_json` in strict JSON (NaN and infinities null): a procedure is a behaviour, and
+        this is its result's JSON like any behaviour's."""
+        return json_form(self.to_json())

@@ -10,11 +10,12 @@ at 1.4 m/s) and the settling time of the impulse (seed: 4 s closed loop, > 10 s 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from behaviors.base import Status
+from behaviors.json_form import finite_floats
 from behaviors.observe import Observe
 from behaviors.roll_kick import RollKick
 from behaviors.roll_stabilisation import RollStabilisation, RollStabilisationConfig
@@ -76,11 +77,11 @@ class RollProcedure(SequenceBehavior):
         if self.closed_loop.done and self.closed_loop.status is Status.SUCCESS:
             closed = self.closed_loop.result()
             speeds = [v for v in self.open_loop.series["speed_water"] if math.isfinite(v)]
-            figures.update(std_open_deg=self.open_loop.std_deg("roll"), std_closed_deg=closed["roll_std_deg"],
+            figures.update(std_open_deg=self.open_loop.std_deg("roll"), std_closed_deg=closed.roll_std_deg,
                            speed=float(np.mean(speeds)) if speeds else None,
                            open_series={k: self.open_loop.series[k] for k in ("time", "roll", "mass_angle")},
-                           closed_series={k: closed["series"][k] for k in ("time", "roll", "mass_angle")},
-                           gains=closed["gains"])
+                           closed_series={k: finite_floats(closed.series[k]) for k in ("time", "roll", "mass_angle")},
+                           gains=asdict(closed.gains))
         if self.kicks:
             figures["kick_deg"] = cfg.kick_deg
             figures["kick_settle_open_s"] = self.kicks[0].settle_time_s()

@@ -70,13 +70,11 @@ class SteadyStateProcedure(SequenceBehavior):
     def result(self) -> ProcedureResult:
         figures: dict = {"behavior": "steady_state"}
         if self.squares.status is not Status.INVALID:
-            part = self.squares.result()
-            part["path"] = _decimate(self.squares.data(), self.config.path_rate_hz)
-            figures["squares"] = part
+            figures["squares"] = {**self.squares.result().to_dict(),
+                                  "path": _decimate(self.squares.data(), self.config.path_rate_hz)}
         if self.turns.status is not Status.INVALID:
-            part = self.turns.result()
-            part["paths"] = [_decimate(data, self.config.path_rate_hz) for data in self.turns.data()]
-            figures["turns"] = part
+            figures["turns"] = {**self.turns.result().to_dict(),
+                                "paths": [_decimate(data, self.config.path_rate_hz) for data in self.turns.data()]}
         return ProcedureResult.of("steady_state", self.status, self.reason, figures)
 
 

@@ -33,10 +33,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Iterable, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence, Union
 
 import numpy as np
 
+from behaviors.json_form import json_form
+from behaviors.verification import VerificationResult
 from companion.checks import require_non_negative, require_positive
 from companion.link.autopilots import registered_profiles
 from companion.numerics.skid_step import SkidMixer, SkidPlant, SpeedHold
@@ -194,6 +196,32 @@ def skid_plant(mixer: SkidMixer, levels: Sequence[tuple[float, float]], surge: S
 
 
 @dataclass(frozen=True)
+class FlownStep(VerificationResult):
+    """A verification step as the campaign recorded it: the step's result and the model's predicted
+    step for the same gains (:func:`predicted_step`; None without an accepted model at its thrust)."""
+
+    predicted: dict | None = None
+
+    @classmethod
+    def of(cls, result: VerificationResult, predicted: dict | None) -> "FlownStep":
+        return cls(**vars(result), predicted=predicted)
+
+    def to_dict(self) -> dict:
+        return {**super().to_dict(), "predicted": json_form(self.predicted)}
+
+
+#: a step the keep rule judges: flown (its result), or predicted (:func:`predicted_step`'s metrics)
+Step = Union[VerificationResult, Mapping[str, Any]]
+
+
+def step_figures(step: Step) -> tuple[float, float, int]:
+    """A step's overshoot (%), step error (``iae_s``) and heading reversals, flown or predicted."""
+    if isinstance(step, VerificationResult):
+        return step.max_overshoot_pct, step.iae_s, step.oscillations
+    return step.get("overshoot_pct", math.nan), step.get("iae_s", math.nan), step.get("oscillations", 0)
+
+
+@dataclass(frozen=True)
 class KeepRule:
     """When verified gains stay on the vehicle (eq. A.3; module docstring)."""
 
@@ -210,22 +238,22 @@ class KeepRule:
             raise ValueError(f"KeepRule.max_oscillations must be an integer ≥ 0, not {self.max_oscillations!r}")
 
     # ------------------------------------------------------------------ pieces
-    def step_fails(self, step: dict) -> str | None:
+    def step_fails(self, step: Step) -> str | None:
         """Why one step (flown or predicted) does not pass, None when it does."""
-        overshoot = step.get("max_overshoot_pct", step.get("overshoot_pct"))
+        overshoot, _, oscillations = step_figures(step)
         if not (isinstance(overshoot, (int, float)) and math.isfinite(overshoot)):
             return "no overshoot measured"
         if overshoot > self.max_overshoot_pct:
             return f"overshoot {overshoot:.1f} % > {self.max_overshoot_pct:g} %"
-        if step.get("oscillations", 0) > self.max_oscillations:
-            return f"the heading oscillates ({step['oscillations']} reversals)"
+        if oscillations > self.max_oscillations:
+            return f"the heading oscillates ({oscillations} reversals)"
         return None
 
-    def agree(self, flown: dict, predicted: dict) -> str | None:
+    def agree(self, flown: Step, predicted: Mapping[str, Any]) -> str | None:
         """None when ``predicted`` matches ``flown`` within the tolerances, else how it does not."""
-        flown_overshoot = flown.get("max_overshoot_pct", flown.get("overshoot_pct", math.nan))
+        flown_overshoot, flown_iae, _ = step_figures(flown)
         overshoot_gap = abs(flown_overshoot - predicted["overshoot_pct"])
-        flown_iae, predicted_iae = flown.get("iae_s", math.nan), predicted["iae_s"]
+        predicted_iae = predicted["iae_s"]
         iae_gap = abs(flown_iae / predicted_iae - 1.0) if predicted_iae > 0 else math.inf
         if not overshoot_gap <= self.overshoot_tolerance_pct:
             return (f"overshoot {flown_overshoot:.1f} % where {predicted['overshoot_pct']:.1f} % was predicted "
@@ -236,41 +264,42 @@ class KeepRule:
         return None
 
     # ------------------------------------------------------------------ the verdict
-    def verdict(self, flown: Sequence[dict], predicted: Iterable[dict]) -> str | None:
+    def verdict(self, flown: Sequence[FlownStep], predicted: Iterable[dict]) -> str | None:
         """None when the designed gains may stay, else why not (one sentence).
 
         ``flown``: the flown steps (``label`` "scheduled" or "own", or "original" where a prediction
-        failed), each with ``thrust``, ``decided``, its metrics and ``predicted`` (the model's step
-        with the same gains); ``predicted``: per identified thrust, the schedule's and the original
-        gains' predicted steps (``label`` "scheduled" / "original")."""
-        designed = [s for s in flown if s["label"] in ("scheduled", "own")]
+        failed), each with its ``predicted`` step (the model's, with the same gains); ``predicted``:
+        per identified thrust, the schedule's and the original gains' predicted steps (``thrust``,
+        ``label`` "scheduled" / "original" and :func:`predicted_step`'s metrics)."""
+        designed = [s for s in flown if s.label in ("scheduled", "own")]
         if not designed:
             return "no verification step was flown"
         untrusted: set[float] = set()
         for step in designed:
-            where = f"thrust {step['thrust']:.2f}"
-            if not step.get("decided", True):
-                return f"{where}: {step.get('why_undecided') or 'the step could not decide'}"
+            where = f"thrust {step.thrust:.2f}"
+            if not step.decided:
+                return f"{where}: {step.why_undecided or 'the step could not decide'}"
             failure = self.step_fails(step)
             if failure:
                 return f"{where}: {failure}"
-            if step.get("predicted") is not None and self.agree(step, step["predicted"]) is not None:
-                untrusted.add(step["thrust"])
-        flown_original = {s["thrust"]: s for s in flown if s["label"] == "original"}
+            if step.predicted is not None and self.agree(step, step.predicted) is not None:
+                untrusted.add(step.thrust)
+        flown_original = {s.thrust: s for s in flown if s.label == "original"}
         for thrust in sorted(untrusted):
-            step = next(s for s in designed if s["thrust"] == thrust)
+            step = next(s for s in designed if s.thrust == thrust)
             original = flown_original.get(thrust)
             if original is None:
+                how = self.agree(step, step.predicted) if step.predicted is not None else None
                 return (f"thrust {thrust:.2f}: the model did not predict the flown step "
-                        f"({self.agree(step, step['predicted'])}) and the original gains were not flown there")
-            if self.better_than_original and not step["iae_s"] < original["iae_s"]:
+                        f"({how}) and the original gains were not flown there")
+            if self.better_than_original and not step.iae_s < original.iae_s:
                 return (f"thrust {thrust:.2f}: not better than the original gains as flown "
-                        f"(step error {step['iae_s']:.2f} s vs {original['iae_s']:.2f} s)")
+                        f"(step error {step.iae_s:.2f} s vs {original.iae_s:.2f} s)")
         by_thrust: dict[float, dict[str, dict]] = {}
-        for step in predicted:
-            by_thrust.setdefault(step["thrust"], {})[step["label"]] = step
+        for prediction in predicted:
+            by_thrust.setdefault(prediction["thrust"], {})[prediction["label"]] = prediction
         # where the schedule itself was flown, its flight (checked above) decides, not its prediction
-        flown_schedule = {s["thrust"] for s in designed if s["label"] == "scheduled"}
+        flown_schedule = {s.thrust for s in designed if s.label == "scheduled"}
         for thrust, steps in sorted(by_thrust.items()):
             scheduled = steps.get("scheduled")
             if scheduled is None or thrust in flown_schedule:
@@ -278,14 +307,14 @@ class KeepRule:
             failure = self.step_fails(scheduled)
             if failure:
                 return f"thrust {thrust:.2f} (predicted): {failure}"
-            original = steps.get("original")
-            if (self.better_than_original and original is not None and thrust not in untrusted
-                    and not scheduled["iae_s"] < original["iae_s"]):
+            predicted_original = steps.get("original")
+            if (self.better_than_original and predicted_original is not None and thrust not in untrusted
+                    and not scheduled["iae_s"] < predicted_original["iae_s"]):
                 return (f"thrust {thrust:.2f} (predicted): not better than the original gains "
-                        f"(step error {scheduled['iae_s']:.2f} s vs {original['iae_s']:.2f} s)")
+                        f"(step error {scheduled['iae_s']:.2f} s vs {predicted_original['iae_s']:.2f} s)")
         return None
 
-    def originals_stand(self, flown: Sequence[dict], predicted: Iterable[dict]) -> bool:
+    def originals_stand(self, flown: Sequence[FlownStep], predicted: Iterable[dict]) -> bool:
         """The verdict refuses the design only because it is not better than the original gains, and
         the original gains pass the step checks themselves (flown where they were flown, else
         predicted): the vehicle's own gains are as good as anything designed, and they stay."""
@@ -294,13 +323,13 @@ class KeepRule:
             return False
         if replace(self, better_than_original=False).verdict(flown, predicted) is not None:
             return False
-        flown_original = [s for s in flown if s["label"] == "original"]
-        if any(not s.get("decided", True) or self.step_fails(s) for s in flown_original):
+        flown_original = [s for s in flown if s.label == "original"]
+        if any(not s.decided or self.step_fails(s) for s in flown_original):
             return False
-        flown_at = {s["thrust"] for s in flown_original}
+        flown_at = {s.thrust for s in flown_original}
         return not any(self.step_fails(s) for s in predicted if s["label"] == "original" and s["thrust"] not in flown_at)
 
-    def covers(self, own: dict, scheduled: dict) -> bool:
+    def covers(self, own: Mapping[str, Any], scheduled: Mapping[str, Any]) -> bool:
         """The schedule's predicted step at a speed flown with that speed's own design agrees with
         the own design's prediction (so the flight stands for the schedule there)."""
         return self.agree(own, scheduled) is None

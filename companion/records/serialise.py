@@ -7,7 +7,9 @@ trend, gain designs, surge models and speed-loop designs) is a dataclass. :func:
 unpacks these records by hand.
 
 A record type is known by being listed in :data:`RECORD_TYPES` (:func:`register` adds one); the
-tag is the class name.
+tag is the class name. The JSON form itself (tags, nulls, numpy) is :mod:`behaviors.json_form`, which
+a behaviour's result is written with too; this module adds the register, so only records it can
+read back are stored.
 """
 from __future__ import annotations
 
@@ -15,6 +17,8 @@ import dataclasses
 import math
 import typing
 from typing import Any
+
+from behaviors.json_form import json_form, tagged
 
 RECORD_TYPES: dict[str, type] = {}
 
@@ -27,19 +31,16 @@ def register(cls: type) -> type:
     return cls
 
 
+def _registered(cls: type) -> None:
+    """TypeError for a record class :func:`from_json` could not give back."""
+    if RECORD_TYPES.get(cls.__name__) is not cls:
+        raise TypeError(f"{cls.__name__} is not a registered record type")
+
+
 def json_ready(value: Any) -> Any:
-    """``value`` as strict-JSON-ready Python: records tagged, NaN/inf as None, numpy as lists/floats."""
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return to_json(value)
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_ready(v) for v in value]
-    if hasattr(value, "tolist"):  # numpy arrays and scalars
-        return json_ready(value.tolist())
-    return value
+    """``value`` as strict-JSON-ready Python: records tagged, NaN/inf as None, numpy as lists/floats
+    (:func:`behaviors.json_form.json_form`, every record registered)."""
+    return json_form(value, _registered)
 
 
 def null_reasons(value: Any, reason: str, prefix: str = "") -> dict[str, str]:
@@ -61,13 +62,7 @@ def null_reasons(value: Any, reason: str, prefix: str = "") -> dict[str, str]:
 
 def to_json(record: Any) -> dict:
     """A registered dataclass as a JSON-ready dict with its ``"type"`` tag."""
-    cls = type(record)
-    if RECORD_TYPES.get(cls.__name__) is not cls:
-        raise TypeError(f"{cls.__name__} is not a registered record type")
-    out: dict[str, Any] = {"type": cls.__name__}
-    for f in dataclasses.fields(record):
-        out[f.name] = json_ready(getattr(record, f.name))
-    return out
+    return tagged(record, _registered)
 
 
 def _restore(value: Any, hint: Any) -> Any:

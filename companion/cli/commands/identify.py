@@ -154,10 +154,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"  thrust levels: {line}")
         for line in loop_lines(result.get("loops"), result.get("heading_design")):
             print(f"  {line}")
-        speed = result.get("speed_loop")
-        if speed:
-            print(f"  speed loop: {speed['reason'] or speed['verdict']}" + (f"; {speed['surge'].describe()}"
-                                                                          if speed.get("surge") else ""))
+        speed = campaign.speed.result() if campaign.speed is not None else None
+        if speed is not None:
+            print(f"  speed loop: {speed.reason or speed.verdict}" + (f"; {speed.surge.describe()}"
+                                                                    if speed.surge is not None else ""))
         for line in filter(None, [phase_line(result.get("vehicle_time_s"), result.get("vehicle_time_by_phase") or {}),
                                   *verification_lines(result.get("verified"))]):
             print(f"  {line}")
