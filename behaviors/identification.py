@@ -43,6 +43,7 @@ from companion.interface import (
     StatusText,
     Telemetry,
 )
+from companion.numerics.bounded_pole import ONLINE, YawModelChoice, choose_yaw_model, fit_yaw_bounded_pole
 from companion.numerics.identification import ConvergenceRule, PitchIdentifier, PitchModel, YawIdentifier, YawModel
 from companion.numerics.sampling import SamplingRule, sampling_quality
 from companion.numerics.validation import validate_pitch, validate_yaw
@@ -164,6 +165,9 @@ class IdentificationAttempt:
     # attempt was not used although its fit may have passed (a record the link lost too much of)
     sampling: dict = field(default_factory=dict)
     rejected_for: str | None = None
+    # where the model came from (eq. 3.38p): the online estimate, or the bounded-pole refit and why
+    model_source: str = ONLINE
+    model_note: str = ""
 
     def summary(self) -> dict:
         """The figures without the series and the covariance (JSON summaries, progress lines)."""
@@ -172,7 +176,7 @@ class IdentificationAttempt:
                 "model": model, "r2": self.r2, "accepted": self.accepted, "converged": self.converged,
                 "converged_s": self.converged_s, "criterion_met_from_s": self.criterion_met_from_s,
                 "training_s": self.training_s, "samples": self.samples, "sampling": self.sampling,
-                "rejected_for": self.rejected_for}
+                "rejected_for": self.rejected_for, "model_source": self.model_source, "model_note": self.model_note}
 
 
 #: how a manoeuvre ended (None: not yet): a model accepted, every attempt rejected, stopped from
@@ -205,6 +209,15 @@ class IdentificationResult:
                           "abort_reason": self.abort_reason, "config": asdict(self.config),
                           "attempts": [a.summary() for a in self.attempts],
                           "best": self.best.summary() if self.best is not None else None})
+
+
+@dataclass(frozen=True)
+class _PitchChoice:
+    """A pitch attempt's model: always the online estimate."""
+
+    model: PitchModel
+    source: str = ONLINE
+    note: str = ""
 
 
 @dataclass
@@ -246,6 +259,7 @@ class IdentificationManoeuvre(Behaviour):
         self.attempt = 0
         self.attempts: list[IdentificationAttempt] = []
         self._identifier: YawIdentifier | PitchIdentifier | None = None
+        self._choice: YawModelChoice | _PitchChoice | None = None  # the trained model, once training ends
         self._training = _Record()
         self._validation = _Record()
         self._speeds: list[float] = []
@@ -457,8 +471,10 @@ class IdentificationManoeuvre(Behaviour):
                 # resettle waits for may already have been seen (it still needs a full window)
                 self._steadiness = recovery
             commands += self._reengage()
-            model = self._attempt_identifier().model()
-            commands.append(self._status(f"trained in {t_rel:.1f} s: {self._describe(model)}"))
+            self._choice = self._trained_model()
+            commands.append(self._status(f"trained in {t_rel:.1f} s: {self._describe(self._choice.model)}"))
+            if self._choice.note:
+                commands.append(self._status(self._choice.note[:200]))
         return commands
 
     def _step_validate(self, telemetry: Telemetry, t_rel: float) -> list[Command]:
@@ -475,8 +491,26 @@ class IdentificationManoeuvre(Behaviour):
         commands += self._finish_attempt(telemetry.time_s)
         return commands
 
+    def _trained_model(self) -> YawModelChoice | _PitchChoice:
+        """The attempt's model: the online estimate, or for yaw the bounded-pole refit of the training
+        record where that says the online one cannot be trusted (eq. 3.38p)."""
+        online = self._attempt_identifier().model()
+        if not isinstance(online, YawModel):
+            return _PitchChoice(online)
+        try:
+            fit = fit_yaw_bounded_pole(self._training.time, self._training.signal, self._training.actuator)
+        except ValueError as exc:
+            log.warning("no bounded-pole fit of the training record: %s", exc)
+            fit = None
+        choice = choose_yaw_model(online, fit)
+        if choice.note:
+            log.info("yaw attempt %d: %s", self.attempt, choice.note)
+        return choice
+
     def _finish_attempt(self, now: float) -> list[Command]:
-        model = self._attempt_identifier().model()
+        choice = self._choice if self._choice is not None else self._trained_model()
+        self._choice = None
+        model = choice.model
         r2 = self._score(model)
         quality = {name: sampling_quality(record.time) for name, record in
                    (("training", self._training), ("validation", self._validation))}
@@ -491,7 +525,8 @@ class IdentificationManoeuvre(Behaviour):
             training_s=self._training_time_s, samples=len(self._training.time),
             training=self._series(self._training, history=True),
             validation=self._series(self._validation, model=model),
-            sampling={name: q.as_json() for name, q in quality.items()}, rejected_for=rejected_for))
+            sampling={name: q.as_json() for name, q in quality.items()}, rejected_for=rejected_for,
+            model_source=choice.source, model_note=choice.note))
         self._validation = _Record()
         verdict = "accepted" if accepted else "rejected"
         commands: list[Command] = [self._status(f"validation R2 {r2:.3f}: {verdict}")]

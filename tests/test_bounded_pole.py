@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from companion.numerics.bounded_pole import fit_yaw_bounded_pole
+from companion.numerics.bounded_pole import (LAG_UNRESOLVED, ONLINE, ONLINE_UNSTABLE, BoundedPoleFit, YawModelChoice,
+                                              choose_yaw_model, fit_yaw_bounded_pole)
 from companion.numerics.identification import YawIdentifier, YawModel
 from tests.test_numerics_identification import HEADING_NOISE, doublet, identify, sample_times, yaw_record
 
@@ -57,3 +58,21 @@ def test_too_short_or_disordered_records_are_refused_with_the_reason():
     nan_heavy = np.full(20, math.nan)
     with pytest.raises(ValueError, match="at least 8"):
         fit_yaw_bounded_pole(times, nan_heavy, np.zeros(20))
+
+
+def _fit(a22: float, b2: float, at_bound: bool) -> BoundedPoleFit:
+    return BoundedPoleFit(model=YawModel(a22, b2, 0.0), r2=0.99, fast_bound=25.0, at_bound=at_bound, initial_rate=0.0)
+
+
+def test_the_online_estimate_stays_unless_the_fit_says_the_lag_is_unresolved_or_it_is_unstable():
+    online = YawModel(-1.1, 0.9, 0.01)
+    assert choose_yaw_model(online, None).model is online
+    assert choose_yaw_model(online, _fit(-1.0, 0.8, False)).source == ONLINE
+    unresolved = choose_yaw_model(YawModel(-6.0, 50.0, 0.0), _fit(-24.9, 220.0, True))
+    assert unresolved.source == LAG_UNRESOLVED and unresolved.model.a22 == -24.9 and "40 ms" in unresolved.note
+    inverted = choose_yaw_model(YawModel(13.9, -93.6, 0.0), _fit(-3.0, 20.0, False))
+    assert inverted.source == ONLINE_UNSTABLE and inverted.model.a22 == -3.0
+    # a fit that is itself no stable model never replaces anything
+    assert choose_yaw_model(YawModel(13.9, -93.6, 0.0), _fit(-3.0, -20.0, True)).source == ONLINE
+    with pytest.raises(ValueError, match="source"):
+        YawModelChoice(online, "guessed")

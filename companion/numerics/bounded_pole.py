@@ -102,3 +102,44 @@ def fit_yaw_bounded_pole(times: Sequence[float], heading: Sequence[float], rudde
     return BoundedPoleFit(model=YawModel(a22=a22, b2=float(b2), delta0=float(delta0)),
                           r2=float(r_squared(fitted, target)), fast_bound=fast_bound,
                           at_bound=a22 <= -BOUND_SHARE * fast_bound, initial_rate=float(rate0))
+
+
+ONLINE = "online"  # the online estimate (eq. 3.32–3.34) is the model
+LAG_UNRESOLVED = "lag unresolved"  # the bounded fit's, its pole on the sampling's bound
+ONLINE_UNSTABLE = "online estimate unstable"  # the bounded fit's, the online one not a stable model
+
+
+@dataclass(frozen=True)
+class YawModelChoice:
+    """Which model an identification attempt keeps (eq. 3.38p): ``source`` is one of the three words
+    above, ``note`` says why in a sentence (empty for the online estimate)."""
+
+    model: YawModel
+    source: str
+    note: str = ""
+
+    def __post_init__(self) -> None:
+        if self.source not in (ONLINE, LAG_UNRESOLVED, ONLINE_UNSTABLE):
+            raise ValueError(f"a yaw model's source is {ONLINE!r}, {LAG_UNRESOLVED!r} or {ONLINE_UNSTABLE!r}, "
+                             f"not {self.source!r}")
+
+
+def _stable(model: YawModel) -> bool:
+    return model.a22 < 0.0 and model.b2 > 0.0 and math.isfinite(model.delta0)
+
+
+def choose_yaw_model(online: YawModel, fit: BoundedPoleFit | None) -> YawModelChoice:
+    """The online estimate, unless the bounded fit of the same record puts the pole on the sampling's
+    bound, or the online estimate is not a stable model and the fit is (eq. 3.38p)."""
+    if fit is None or not _stable(fit.model):
+        return YawModelChoice(online, ONLINE)
+    if fit.at_bound:
+        return YawModelChoice(fit.model, LAG_UNRESOLVED,
+                              f"the yaw rate follows the rudder within one sample ({1000.0 / fit.fast_bound:.0f} ms): "
+                              f"a22 put at {fit.model.a22:.1f}/s, the static gain {fit.static_gain:.3g} rad/s per rad "
+                              f"from the record (online a22 {online.a22:.3g})")
+    if not _stable(online):
+        return YawModelChoice(fit.model, ONLINE_UNSTABLE,
+                              f"the online estimate (a22 {online.a22:.3g}, b2 {online.b2:.3g}) is not a stable model; "
+                              f"the output-error fit's is used")
+    return YawModelChoice(online, ONLINE)
