@@ -14,8 +14,9 @@ when it has decided**: once the heading has been within the settle band (5 % of 
 repeated once — the water speed at its end differs from its start by more than ``max_speed_change``
 (a disturbance, a thrust change not settled; the turn's own dip is not one: once the heading has
 decided, the record goes on until the speed is back, up to ``max_s``), or the rudder sat at its limit
-for more than ``max_saturated_s`` (the design assumes an unsaturated rudder) — and a second such step
-ends it undecided. The figures of
+for more than ``max_saturated_s`` longer than the step's prediction on its model says it does (the
+predicted steps include the rudder's limit, eq. A.3; saturation they do not predict means the model
+does not stand for the step) — and a second such step ends it undecided. The figures of
 merit are :func:`companion.numerics.step_response.step_metrics`.
 
 Chaining: the course the step ends on is the next check's course; nothing returns to the start.
@@ -105,12 +106,19 @@ class VerificationStep(Behaviour):
     its :class:`VerificationResult`."""
 
     def __init__(self, thrust: float, gains: dict[str, float], config: VerificationConfig = VerificationConfig(),
-                 *, sign: float = 1.0, rudder_max: float = math.inf, label: str = "scheduled") -> None:
+                 *, sign: float = 1.0, rudder_max: float = math.inf, label: str = "scheduled",
+                 predicted_saturated_s: float = 0.0) -> None:
         super().__init__(f"verify {label} at {thrust:.2f}")
+        if not (math.isfinite(predicted_saturated_s) and predicted_saturated_s >= 0.0):
+            raise ValueError(f"predicted_saturated_s is a time ≥ 0, not {predicted_saturated_s!r}")
         self.footprint = Footprint.of(parameters=tuple(gains), setpoints=("mode", "thrust", "heading"))
         self.thrust, self.gains, self.config, self.label = thrust, dict(gains), config, label
         self.sign = 1.0 if sign >= 0 else -1.0
         self.rudder_max = rudder_max
+        # the time its prediction sits at the rudder's limit: a step the model predicts saturated (a
+        # slow boat's large step, its turn rate at the rudder's limit) is compared with that
+        # prediction; only saturation beyond it by ``max_saturated_s`` makes the step undecided
+        self.predicted_saturated_s = predicted_saturated_s
         self._phase = "settle"
         self._phase_start = math.nan
         self._course = math.nan
@@ -196,7 +204,7 @@ class VerificationStep(Behaviour):
 
     def _decided(self, telemetry: Telemetry, now: float, heading: float) -> str | None:
         """``"settled"``, ``"timeout"``, ``"disturbed"``, ``"saturated"`` or None (keep flying)."""
-        if self._saturated_s > self.config.max_saturated_s:
+        if self._saturated_s > self.config.max_saturated_s + self.predicted_saturated_s:
             return "saturated"
         size = self._target - self._course
         progress = (heading - self._course) / size
@@ -234,7 +242,8 @@ class VerificationStep(Behaviour):
     def _undecided_detail(self, verdict: str) -> str:
         """One flight's verdict with its figures: the speed change or the time at the rudder's limit."""
         if verdict == "saturated":
-            return f"saturated: rudder at its limit for {self._saturated_s:.1f} s"
+            return (f"saturated: rudder at its limit for {self._saturated_s:.1f} s "
+                    f"(predicted {self.predicted_saturated_s:.1f} s)")
         if verdict == "disturbed" and len(self._speeds) >= 2:
             start, end = self._speeds[0][1], self._speeds[-1][1]
             return f"disturbed: water speed {start:.2f} -> {end:.2f} m/s over the step"

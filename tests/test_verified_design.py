@@ -44,7 +44,9 @@ def _fly(step: VerificationStep, model: YawModel, speed=lambda t: 1.2, seconds: 
                 target = command.heading
         if step.flights > flights:
             began.append(t)
-        integral = min(max(integral + ki * error * dt, -0.15), 0.15)
+        unsaturated = kp * error + integral  # eq. A.1: no integration into the rudder's limit
+        if unsaturated == rudder or (ki * error) * unsaturated <= 0.0:
+            integral = min(max(integral + ki * error * dt, -0.15), 0.15)
         rate += (model.a22 * rate + model.b2 * (rudder - model.delta0)) * dt
         heading += rate * dt
         t = round(t + dt, 6)
@@ -286,3 +288,23 @@ def test_what_one_loop_verified_stays_when_another_fails_and_nothing_stays_after
                             abort_requested=lambda: "operator" if next(ticks) > 10 else None)
     assert outcome.status == "aborted"
     assert link.get_params(before) == pytest.approx(before)
+
+
+def test_a_step_its_model_predicts_saturated_decides_where_unpredicted_saturation_cannot():
+    """A slow boat's large step turns at the rudder's limit for seconds (PX4's rover at 1.3 m/s, ±40°):
+    predicted so on its model, the step is compared with that prediction; the same saturation that
+    the prediction does not show makes it undecided (the model does not stand for the step)."""
+    slow, gains = YawModel(a22=-0.9, b2=0.3), {"heading_p": 2.0, "heading_i": 0.05}
+    config = VerificationConfig(step=math.radians(40.0))
+    predicted = predicted_step("pi", slow, gains, HeadingLimits(rudder_max=RUDDER_MAX), config.step, config.max_s)
+    assert predicted["saturated_s"] > config.max_saturated_s  # the premise: a long saturated turn
+    unpredicted = VerificationStep(0.6, gains, config, rudder_max=RUDDER_MAX)
+    _fly(unpredicted, slow)
+    assert unpredicted.status is Status.FAILURE and "saturated" in unpredicted.why_undecided
+    allowed = VerificationStep(0.6, gains, config, rudder_max=RUDDER_MAX, predicted_saturated_s=predicted["saturated_s"])
+    _fly(allowed, slow)
+    assert allowed.status is Status.SUCCESS and allowed.flights == 1
+    assert KeepRule().agree(allowed.result(), predicted_step("pi", slow, gains, HeadingLimits(rudder_max=RUDDER_MAX),
+                                                             config.step, allowed.metrics["duration_s"])) is None
+    with pytest.raises(ValueError, match="predicted_saturated_s"):
+        VerificationStep(0.6, gains, config, predicted_saturated_s=math.nan)

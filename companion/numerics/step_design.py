@@ -188,7 +188,7 @@ def score(cases: Sequence[StepCase], gains: Sequence[Gains], objective: DesignOb
             try:
                 times, heading, _ = simulate_step(case.plant, case.controller, dict(case_gains), size,
                                                   objective.duration_s, dt=objective.dt, skid=case.skid,
-                                                  speed_trace=None, **case.limits)
+                                                  speed_trace=None, rudder_trace=None, **case.limits)
             except ValueError:  # a configuration the autopilot refuses to fly (PX4: no wheel base): never settles
                 times, heading = np.array([0.0, objective.duration_s]), np.zeros(2)
             metrics = step_metrics(times, heading, 0.0, size, smooth=False)

@@ -116,7 +116,7 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
                   speed: float = math.nan, steering_rate: float = math.inf, rate_threshold: float = 0.0,
                   torque_max: float = 1.0, input_tc: float = 0.0, yaw_slew_max: float = math.inf,
                   skid: SkidDrive | None = None, speed_trace: list[float] | None = None,
-                  dt: float = 0.01) -> tuple[np.ndarray, np.ndarray, float]:
+                  rudder_trace: list[float] | None = None, dt: float = 0.01) -> tuple[np.ndarray, np.ndarray, float]:
     """Heading over time after a step of ``step`` rad from 0 (module docstring); also the largest
     rudder deflection reached. ``controller``: ``"pi"`` (gains ``heading_p``, ``heading_i``,
     ``rudder_trim``) or ``"cascade"`` (``heading_angle_p``, ``heading_rate_p``, ``heading_rate_i``,
@@ -136,7 +136,8 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
     and the yaw moment and the speed follow the throttle it leaves (eq. A.2k,
     ``companion.numerics.skid_step``); the largest deflection returned is then the one the
     controller asked for, before the mixer, and the predicted speed at each time is appended to
-    ``speed_trace`` when one is given."""
+    ``speed_trace`` when one is given. The rudder at each time (after the mixer on a skid boat) is
+    appended to ``rudder_trace`` when one is given."""
     if skid is not None and controller not in ("pi", "cascade"):
         raise ValueError(f"a skid-steered step (eq. A.2k) is predicted under pi or cascade, not {controller!r}")
     if controller in PX4_CONTROLLERS:
@@ -144,6 +145,8 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
                               rate_accel_max=rate_accel_max, steering_rate=steering_rate,
                               rate_threshold=rate_threshold, torque_max=torque_max)
         trace = fly(plant, loop, step, duration_s, dt)
+        if rudder_trace is not None:
+            rudder_trace.extend(float(v) for v in trace.rudder)
         return trace.times, trace.heading, trace.rudder_peak
     steps = int(round(duration_s / dt))
     times = np.arange(steps + 1) * dt
@@ -169,6 +172,8 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
     previous_delta = delta
     if drive is not None and speed_trace is not None:
         speed_trace.append(drive.speed)
+    if rudder_trace is not None:
+        rudder_trace.append(delta)
     for k in range(1, steps + 1):
         error = step - psi
         if controller == "pi":  # our simulator's PI knows its own saturation only, not the mixer's
@@ -211,6 +216,8 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
                 speed_trace.append(drive.speed)
         psi += r * dt
         heading[k] = psi
+        if rudder_trace is not None:
+            rudder_trace.append(delta)
     return times, heading, peak
 
 
@@ -259,11 +266,14 @@ def simulate_rate_tracking(plant: RudderPlant, gains: dict[str, float], times: A
 def predict_step(plant: RudderPlant, controller: str, gains: dict[str, float], step: float,
                  duration_s: float = 30.0, **limits) -> dict:
     """The figures of merit (:func:`step_metrics`) of a step flown on the model, and whether the
-    rudder saturated (``rudder_peak`` against its limit; PX4's UUV: its torque limit's, eq. A.5); a
+    rudder saturated (``rudder_peak`` against its limit; PX4's UUV: its torque limit's, eq. A.5) and
+    for how long it sat at its limit (``saturated_s``, what a flown step is allowed too); a
     skid-steered boat's (``skid``, eq. A.2k) also the speed it loses (``speed_dip_pct``, % of its
     speed at the step's start, at the lowest)."""
     speeds: list[float] = []
-    times, heading, peak = simulate_step(plant, controller, gains, step, duration_s, speed_trace=speeds, **limits)
+    rudder: list[float] = []
+    times, heading, peak = simulate_step(plant, controller, gains, step, duration_s, speed_trace=speeds,
+                                         rudder_trace=rudder, **limits)
     metrics = step_metrics(times, heading, 0.0, step, smooth=False)
     if speeds:
         metrics["speed_dip_pct"] = 100.0 * (1.0 - min(speeds) / speeds[0])
@@ -272,4 +282,7 @@ def predict_step(plant: RudderPlant, controller: str, gains: dict[str, float], s
         limit = min(limit, limits.get("torque_max", 1.0) * limits.get("full_scale", limit))
     metrics["rudder_peak"] = peak
     metrics["saturated"] = peak >= 0.999 * limit
+    # the time at the rudder's limit, by the verification's own test (|δ| ≥ 98 % of the limit)
+    at_limit = np.abs(np.asarray(rudder)) >= 0.98 * plant.rudder_max
+    metrics["saturated_s"] = float(np.count_nonzero(at_limit[1:]) * (times[1] - times[0])) if times.size > 1 else 0.0
     return metrics

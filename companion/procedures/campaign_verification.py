@@ -36,6 +36,7 @@ class CampaignVerification:
         self.predicted: list[dict] = []
         self.coverage: dict[float, str] = {}  # lowest thrust -> whether its own-design flight stands for the schedule
         self._sign = 1.0
+        self._attempts: Sequence = ()  # the accepted identifications last seen (the steps' predictions)
 
     # ------------------------------------------------------------------ the models
     @staticmethod
@@ -58,15 +59,24 @@ class CampaignVerification:
         duration = duration_s if duration_s and math.isfinite(duration_s) and duration_s > 1.0 else self.config.max_s
         return predicted_step(self.controller, model, gains, self.limits, self.config.step, duration, speed)
 
+    def _predicted_saturation_s(self, thrust: float, gains: dict[str, float]) -> float:
+        """How long the step of ``gains`` at ``thrust`` sits at the rudder's limit on its model (0 without one)."""
+        attempt = self.attempt_at(self._attempts, thrust)
+        if attempt is None:
+            return 0.0
+        seconds = self.step_prediction(attempt.model, gains, speed=attempt.speed).get("saturated_s", 0.0)
+        return float(seconds) if math.isfinite(seconds) else 0.0
+
     def _step(self, thrust: float, gains: dict[str, float], label: str) -> VerificationStep:
         step = VerificationStep(thrust, gains, self.config, sign=self._sign, rudder_max=self.limits.rudder_max,
-                                label=label)
+                                label=label, predicted_saturated_s=self._predicted_saturation_s(thrust, gains))
         self._sign = -self._sign  # alternate, so the campaign stays near its course
         return step
 
     # ------------------------------------------------------------------ the slots
     def own_step(self, attempts: Sequence, thrust: float) -> VerificationStep | None:
         """The lowest speed's own design, flown right after its model was accepted (None without one)."""
+        self._attempts = tuple(attempts)
         models = [a for a in self._yaw(attempts) if a.thrust == thrust]
         if not models:
             return None
@@ -129,6 +139,7 @@ class CampaignVerification:
     def predict(self, design: GainDesign, attempts: Sequence, original: dict[str, float]) -> None:
         """The schedule's and the original gains' steps at every identified speed, on its model; and
         whether the lowest speed's own-design flight stands for the schedule there."""
+        self._attempts = tuple(attempts)
         self.predicted = []
         for point in design.points:
             if point.thrust is None:  # not flown at a thrust of this campaign (``ends`` skips it too)
