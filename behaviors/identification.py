@@ -16,8 +16,10 @@ Stages, all timed on vehicle time:
    saved 13 s on ArduRover but raised the a22 error from 1.3 % to 3.8 % median: the next speed's
    settle ended with the turn back not quite at rest);
 4. **validate** — a fresh doublet of 0.15 rad, no estimation; the identified model is simulated on
-   the recorded actuator input and scored by R² (eq. 3.35–3.37). Accepted at R² ≥ threshold,
-   otherwise the manoeuvre is repeated from stage 2 (at most ``max_attempts`` times).
+   the recorded actuator input and scored by R² (eq. 3.35–3.37). Accepted at R² ≥ threshold if the
+   yaw estimate is a model (a22 < 0, b2 > 0: eq. 3.5–3.9; a fit that passes while unstable or inverted
+   is rejected with that reason), otherwise the manoeuvre is repeated from stage 2 (at most
+   ``max_attempts`` times).
 
 The same machinery identifies the pitch axis (thesis App. B) with an elevator doublet. The
 behaviour is a pure step function of telemetry (SPEC §5): it never touches the link; ``abort``
@@ -44,7 +46,8 @@ from companion.interface import (
     Telemetry,
 )
 from companion.numerics.bounded_pole import ONLINE, YawModelChoice, choose_yaw_model, fit_yaw_bounded_pole
-from companion.numerics.identification import ConvergenceRule, PitchIdentifier, PitchModel, YawIdentifier, YawModel
+from companion.numerics.identification import (ConvergenceRule, PitchIdentifier, PitchModel, YawEstimate,
+                                               YawIdentifier, YawModel)
 from companion.numerics.sampling import SamplingRule, sampling_quality
 from companion.numerics.validation import validate_pitch, validate_yaw
 from behaviors.steadiness import SteadinessDetector, SteadinessRule
@@ -142,16 +145,28 @@ def doublet(t_rel: float, start_s: float, period_s: float, amplitude: float) -> 
     return amplitude if t_rel < start_s + period_s / 2 else -amplitude
 
 
+def no_model_reason(model: YawEstimate | PitchModel) -> str | None:
+    """Why an attempt holding ``model`` cannot be accepted whatever its R²: a yaw estimate that is no
+    model (a22 ≥ 0, b2 ≤ 0 or not finite, eq. 3.5–3.9); None otherwise."""
+    if isinstance(model, YawEstimate) and (problem := model.why_not_model) is not None:
+        return f"the estimate is not a yaw model: {problem}"
+    return None
+
+
 @dataclass
 class IdentificationAttempt:
     """One training + validation of one axis at one thrust (SPEC C4): stored as a run, and as a
-    model when accepted. ``training`` and ``validation`` hold the recorded series (for the report)."""
+    model when accepted. ``training`` and ``validation`` hold the recorded series (for the report).
+
+    A yaw attempt's ``model`` is a :class:`YawModel` whenever its estimate is one (made one here, so
+    it is stored under the tag it always had), else the :class:`YawEstimate` it came out as; an
+    attempt is ``accepted`` only with a model (ValueError otherwise, :func:`no_model_reason`)."""
 
     attempt: int
     axis: str
     thrust: float | None
     speed: float  # m/s, mean water speed during training (NaN when not reported)
-    model: YawModel | PitchModel
+    model: YawModel | YawEstimate | PitchModel
     r2: float
     accepted: bool
     converged: bool
@@ -168,6 +183,18 @@ class IdentificationAttempt:
     # where the model came from (eq. 3.38p): the online estimate, or the bounded-pole refit and why
     model_source: str = ONLINE
     model_note: str = ""
+
+    def __post_init__(self) -> None:
+        if isinstance(self.model, YawEstimate) and self.model.is_model:
+            self.model = self.model.model()
+        if self.accepted and (reason := no_model_reason(self.model)) is not None:
+            raise ValueError(f"{self.axis} attempt {self.attempt} cannot be accepted: {reason}")
+
+    @property
+    def spoiled_by_link(self) -> bool:
+        """Not used because the link lost too much of its records (``rejected_for`` says how), as
+        opposed to a fit that passed with no model (``rejected_for`` is then :func:`no_model_reason`)."""
+        return self.rejected_for is not None and self.rejected_for != no_model_reason(self.model)
 
     def summary(self) -> dict:
         """The figures without the series and the covariance (JSON summaries, progress lines)."""
@@ -495,7 +522,7 @@ class IdentificationManoeuvre(Behaviour):
         """The attempt's model: the online estimate, or for yaw the bounded-pole refit of the training
         record where that says the online one cannot be trusted (eq. 3.38p)."""
         online = self._attempt_identifier().model()
-        if not isinstance(online, YawModel):
+        if not isinstance(online, YawEstimate):
             return _PitchChoice(online)
         try:
             fit = fit_yaw_bounded_pole(self._training.time, self._training.signal, self._training.actuator)
@@ -514,9 +541,13 @@ class IdentificationManoeuvre(Behaviour):
         r2 = self._score(model)
         quality = {name: sampling_quality(record.time) for name, record in
                    (("training", self._training), ("validation", self._validation))}
-        rejected_for = next((f"{name} record: {verdict}" for name, q in quality.items()
-                             if (verdict := q.verdict(self.config.sampling)) is not None), None)
-        accepted = math.isfinite(r2) and r2 >= self.config.r2_threshold and rejected_for is None
+        spoiled = next((f"{name} record: {verdict}" for name, q in quality.items()
+                        if (verdict := q.verdict(self.config.sampling)) is not None), None)
+        passed = math.isfinite(r2) and r2 >= self.config.r2_threshold
+        # a fit that reproduces the fresh record but is no model (unstable, inverted) is not accepted
+        not_model = no_model_reason(model) if passed and spoiled is None else None
+        rejected_for = spoiled or not_model
+        accepted = passed and rejected_for is None
         speed = sum(self._speeds) / len(self._speeds) if self._speeds else math.nan
         self.attempts.append(IdentificationAttempt(
             attempt=self.attempt, axis=self.config.axis, thrust=self.thrust, speed=speed, model=model, r2=r2,
@@ -530,9 +561,12 @@ class IdentificationManoeuvre(Behaviour):
         self._validation = _Record()
         verdict = "accepted" if accepted else "rejected"
         commands: list[Command] = [self._status(f"validation R2 {r2:.3f}: {verdict}")]
-        if rejected_for is not None:
-            log.warning("%s attempt %d not used: %s", self.config.axis, self.attempt, rejected_for)
+        if spoiled is not None:
+            log.warning("%s attempt %d not used: %s", self.config.axis, self.attempt, spoiled)
             commands.append(self._status("record rejected: the link lost samples", 4))
+        if not_model is not None:
+            log.warning("%s attempt %d not used: %s", self.config.axis, self.attempt, not_model)
+            commands.append(self._status(f"rejected, not a model: {self._describe(model)}", 4))  # ASCII
         if accepted:
             self.outcome = "accepted"
             self._enter(DONE, now)
@@ -552,14 +586,16 @@ class IdentificationManoeuvre(Behaviour):
     def _rejection_reason(self) -> str:
         """Why no attempt gave a model, naming the real cause: when the link spoiled every record,
         the link (what to fix), not the model."""
-        spoiled = [a.rejected_for for a in self.attempts if a.rejected_for is not None]
+        spoiled = [a.rejected_for for a in self.attempts if a.spoiled_by_link]
         if spoiled and len(spoiled) == len(self.attempts):
             return (f"the link spoiled all {len(spoiled)} attempts ({spoiled[-1]}): no model could be trusted; "
                     "fix the link (a radio's range or air rate, a serial port's baud rate) and fly again")
         reason = f"no model passed validation after {self.attempt} attempts"
-        if spoiled:
-            reason += f" ({len(spoiled)} of them spoiled by the link)"
-        return reason
+        causes = [f"{len(spoiled)} of them spoiled by the link"] if spoiled else []
+        not_models = sum(1 for a in self.attempts if a.rejected_for is not None and not a.spoiled_by_link)
+        if not_models:
+            causes.append(f"{not_models} of them passing with an estimate that is not a model")
+        return reason + (f" ({'; '.join(causes)})" if causes else "")
 
     def _score(self, model) -> float:
         record = self._validation
@@ -616,7 +652,7 @@ def _nan_low(value: float) -> float:
 
 
 def _model_dict(model) -> dict:
-    """Numbers of a YawModel/PitchModel as a plain dict (covariance as nested lists)."""
+    """Numbers of a YawEstimate/YawModel/PitchModel as a plain dict (covariance as nested lists)."""
     out: dict[str, float | list[list[float]] | None] = {}
     for name, value in vars(model).items():
         if name == "covariance":

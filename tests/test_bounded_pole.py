@@ -10,7 +10,7 @@ import pytest
 
 from companion.numerics.bounded_pole import (LAG_UNRESOLVED, ONLINE, ONLINE_UNSTABLE, BoundedPoleFit, YawModelChoice,
                                               choose_yaw_model, fit_yaw_bounded_pole)
-from companion.numerics.identification import YawIdentifier, YawModel
+from companion.numerics.identification import YawEstimate, YawIdentifier, YawModel
 from tests.test_numerics_identification import HEADING_NOISE, doublet, identify, sample_times, yaw_record
 
 
@@ -61,18 +61,19 @@ def test_too_short_or_disordered_records_are_refused_with_the_reason():
 
 
 def _fit(a22: float, b2: float, at_bound: bool) -> BoundedPoleFit:
-    return BoundedPoleFit(model=YawModel(a22, b2, 0.0), r2=0.99, fast_bound=25.0, at_bound=at_bound, initial_rate=0.0)
+    return BoundedPoleFit(model=YawEstimate(a22, b2, 0.0), r2=0.99, fast_bound=25.0, at_bound=at_bound, initial_rate=0.0)
 
 
 def test_the_online_estimate_stays_unless_the_fit_says_the_lag_is_unresolved_or_it_is_unstable():
-    online = YawModel(-1.1, 0.9, 0.01)
+    online = YawEstimate(-1.1, 0.9, 0.01)
     assert choose_yaw_model(online, None).model is online
     assert choose_yaw_model(online, _fit(-1.0, 0.8, False)).source == ONLINE
-    unresolved = choose_yaw_model(YawModel(-6.0, 50.0, 0.0), _fit(-24.9, 220.0, True))
+    unresolved = choose_yaw_model(YawEstimate(-6.0, 50.0, 0.0), _fit(-24.9, 220.0, True))
     assert unresolved.source == LAG_UNRESOLVED and unresolved.model.a22 == -24.9 and "40 ms" in unresolved.note
-    inverted = choose_yaw_model(YawModel(13.9, -93.6, 0.0), _fit(-3.0, 20.0, False))
+    inverted = choose_yaw_model(YawEstimate(13.9, -93.6, 0.0), _fit(-3.0, 20.0, False))
     assert inverted.source == ONLINE_UNSTABLE and inverted.model.a22 == -3.0
+    assert isinstance(unresolved.model, YawModel) and isinstance(inverted.model, YawModel)  # the fit kept as a model
     # a fit that is itself no stable model never replaces anything
-    assert choose_yaw_model(YawModel(13.9, -93.6, 0.0), _fit(-3.0, -20.0, True)).source == ONLINE
+    assert choose_yaw_model(YawEstimate(13.9, -93.6, 0.0), _fit(-3.0, -20.0, True)).source == ONLINE
     with pytest.raises(ValueError, match="source"):
         YawModelChoice(online, "guessed")

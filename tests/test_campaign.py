@@ -262,11 +262,11 @@ def test_a_campaign_whose_every_estimate_is_unstable_says_so_and_what_to_change(
     """ArduPilot's own motorboat yaws within two telemetry samples at 3-5 m/s: its estimates came out
     with a22 > 0 and b2 < 0, and the campaign said only "no model passed validation"."""
     from behaviors.identification import IdentificationAttempt
-    from companion.numerics.identification import YawModel
+    from companion.numerics.identification import YawEstimate
     from companion.procedures.campaign import unstable_estimates
 
     def attempt(a22: float, b2: float) -> IdentificationAttempt:
-        return IdentificationAttempt(attempt=1, axis="yaw", thrust=0.6, speed=3.0, model=YawModel(a22, b2, 0.0),
+        return IdentificationAttempt(attempt=1, axis="yaw", thrust=0.6, speed=3.0, model=YawEstimate(a22, b2, 0.0),
                                      r2=-1e9, accepted=False, converged=True, converged_s=8.0,
                                      criterion_met_from_s=None, training_s=12.0, samples=300)
 

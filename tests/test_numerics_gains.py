@@ -10,7 +10,7 @@ import pytest
 
 from companion.cli.main import main as cli_main
 from companion.numerics.gains import DESIGN_DAMPING, GainBounds, design_heading_gains
-from companion.numerics.identification import YawModel
+from companion.numerics.identification import YawEstimate, YawModel
 from companion.numerics.schedule import fit_yaw_schedule
 from companion.numerics.turning import turning_performance
 
@@ -64,9 +64,11 @@ def test_bounds_clamp_and_invalid_models_raise():
     assert set(tiny_authority.clamped) >= {"kp", "trim"}
     tight = design_heading_gains(YawModel(-1.28, 0.65, -0.3), GainBounds(kp_max=1.0, trim_limit=0.05))
     assert tight.kp == 1.0 and tight.trim == -0.05
-    for bad in (YawModel(0.5, 1.0, 0.0), YawModel(-1.0, -1.0, 0.0), YawModel(math.nan, 1.0, 0.0)):
+    for bad in (YawEstimate(0.5, 1.0, 0.0), YawEstimate(-1.0, -1.0, 0.0), YawEstimate(math.nan, 1.0, 0.0)):
         with pytest.raises(ValueError):
-            design_heading_gains(bad)
+            design_heading_gains(bad)  # an estimate that is no model is refused
+        with pytest.raises(ValueError):
+            YawModel(bad.a22, bad.b2, bad.delta0)  # and no model holds its numbers
 
 
 def test_table_3_3_turning_performance():
@@ -141,7 +143,7 @@ def test_schedule_weights_and_errors():
     with pytest.raises(ValueError):
         fit_yaw_schedule([1.0, 1.0], models)
     with pytest.raises(ValueError):
-        fit_yaw_schedule([1.0, 2.0], [YawModel(0.1, 1.0, 0.0), YawModel(-1.0, 1.0, 0.0)])
+        fit_yaw_schedule([1.0, 2.0], [YawEstimate(0.1, 1.0, 0.0), YawModel(-1.0, 1.0, 0.0)])
 
 
 def test_design_command_json_and_errors(capsys):

@@ -16,7 +16,7 @@ from companion.link.errors import ProfileError
 from companion.link.profiles import detect_profile, marker_params
 from companion.link.snapshot import TelemetryAssembler
 from companion.numerics.cascade_gains import CascadeRules
-from companion.numerics.identification import YawModel
+from companion.numerics.identification import YawEstimate, YawModel
 from companion.numerics.px4_gains import design_ackermann_gains, design_uuv_gains
 from tests.fake_ports import FakePorts
 
@@ -246,4 +246,4 @@ def test_the_campaign_designs_each_px4_profiles_own_gains_in_its_ranges():
     assert uuv.kinds()[0].name == "px4_uuv" and uuv.cascade.full_scale == 0.35 and uuv.axes == ("yaw",)
     assert set(uuv.kinds()[0].parameters) <= set(UUV.params)
     with pytest.raises(ValueError):
-        design_ackermann_gains(YawModel(a22=0.1, b2=0.5, delta0=0.0), 1.0)
+        design_ackermann_gains(YawEstimate(a22=0.1, b2=0.5, delta0=0.0), 1.0)

@@ -24,7 +24,7 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from .identification import YawModel
+from .identification import YawEstimate
 from .validation import interval_factors, r_squared
 
 SLOWEST_A22 = -0.02  # 1/s: a yaw time constant of 50 s, slower than any hull's
@@ -33,10 +33,11 @@ BOUND_SHARE = 0.98  # a pole within 2 % of the fast bound sits on it
 
 @dataclass(frozen=True)
 class BoundedPoleFit:
-    """The fit of eq. 3.38p: the model, its R² on the fitted record, the fast bound (1/s) and
-    whether the pole sits on it (the lag is shorter than one sample interval)."""
+    """The fit of eq. 3.38p: the estimate (its a22 stable by the bounds, its b2 of any sign), its R² on
+    the fitted record, the fast bound (1/s) and whether the pole sits on it (the lag is shorter than
+    one sample interval)."""
 
-    model: YawModel
+    model: YawEstimate
     r2: float
     fast_bound: float
     at_bound: bool
@@ -99,7 +100,7 @@ def fit_yaw_bounded_pole(times: Sequence[float], heading: Sequence[float], rudde
     a22 = float(search.x)
     _, (b2, c0, rate0), fitted = solve(a22)
     delta0 = c0 / b2 if b2 != 0.0 and math.isfinite(b2) else 0.0
-    return BoundedPoleFit(model=YawModel(a22=a22, b2=float(b2), delta0=float(delta0)),
+    return BoundedPoleFit(model=YawEstimate(a22=a22, b2=float(b2), delta0=float(delta0)),
                           r2=float(r_squared(fitted, target)), fast_bound=fast_bound,
                           at_bound=a22 <= -BOUND_SHARE * fast_bound, initial_rate=float(rate0))
 
@@ -111,10 +112,12 @@ ONLINE_UNSTABLE = "online estimate unstable"  # the bounded fit's, the online on
 
 @dataclass(frozen=True)
 class YawModelChoice:
-    """Which model an identification attempt keeps (eq. 3.38p): ``source`` is one of the three words
-    above, ``note`` says why in a sentence (empty for the online estimate)."""
+    """Which estimate an identification attempt keeps (eq. 3.38p): ``source`` is one of the three words
+    above, ``note`` says why in a sentence (empty for the online estimate). The bounded fit's is kept
+    only as a :class:`~companion.numerics.identification.YawModel`; the online one may be no model
+    (an attempt holding it is then rejected)."""
 
-    model: YawModel
+    model: YawEstimate
     source: str
     note: str = ""
 
@@ -124,22 +127,18 @@ class YawModelChoice:
                              f"not {self.source!r}")
 
 
-def _stable(model: YawModel) -> bool:
-    return model.a22 < 0.0 and model.b2 > 0.0 and math.isfinite(model.delta0)
-
-
-def choose_yaw_model(online: YawModel, fit: BoundedPoleFit | None) -> YawModelChoice:
+def choose_yaw_model(online: YawEstimate, fit: BoundedPoleFit | None) -> YawModelChoice:
     """The online estimate, unless the bounded fit of the same record puts the pole on the sampling's
     bound, or the online estimate is not a stable model and the fit is (eq. 3.38p)."""
-    if fit is None or not _stable(fit.model):
+    if fit is None or not fit.model.is_model:
         return YawModelChoice(online, ONLINE)
     if fit.at_bound:
-        return YawModelChoice(fit.model, LAG_UNRESOLVED,
+        return YawModelChoice(fit.model.model(), LAG_UNRESOLVED,
                               f"the yaw rate follows the rudder within one sample ({1000.0 / fit.fast_bound:.0f} ms): "
                               f"a22 put at {fit.model.a22:.1f}/s, the static gain {fit.static_gain:.3g} rad/s per rad "
                               f"from the record (online a22 {online.a22:.3g})")
-    if not _stable(online):
-        return YawModelChoice(fit.model, ONLINE_UNSTABLE,
+    if not online.is_model:
+        return YawModelChoice(fit.model.model(), ONLINE_UNSTABLE,
                               f"the online estimate (a22 {online.a22:.3g}, b2 {online.b2:.3g}) is not a stable model; "
                               f"the output-error fit's is used")
     return YawModelChoice(online, ONLINE)

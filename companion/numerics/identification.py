@@ -65,9 +65,32 @@ class ConvergenceRule:
     noise_window_s: float = 1.0
 
 
-@dataclass
-class YawModel:
-    """ṙ = a22·r + b2·(δr − δ0) (eq. 3.6). ``covariance`` is the 3×3 covariance of [a22, b2, C0]."""
+def not_a_model(a22: float, b2: float, delta0: float) -> str | None:
+    """Why (a22, b2, δ0) is no yaw model (eq. 3.5–3.9: a22 < 0, b2 > 0, all finite), in one
+    sentence naming each number at fault; None when it is one."""
+    problems = [f"{name} = {value:g}: not a finite number"
+                for name, value in (("a22", a22), ("b2", b2), ("delta0", delta0)) if not math.isfinite(value)]
+    if math.isfinite(a22) and not a22 < 0.0:
+        problems.append(f"a22 = {a22:g} ≥ 0: not a stable model")
+    if math.isfinite(b2) and not b2 > 0.0:
+        problems.append(f"b2 = {b2:g} ≤ 0: the rudder turns the vehicle the wrong way")
+    return "; ".join(problems) or None
+
+
+@dataclass(frozen=True)
+class YawEstimate:
+    """What an estimator gives for ṙ = a22·r + b2·(δr − δ0) (eq. 3.6): any numbers, NaN included.
+
+    The online identifier (eq. 3.32–3.34), the Kalman tracker (eq. L.1), the offline fit (eq. 3.38) and
+    the bounded-pole fit (eq. 3.38p) can all come out unstable (a22 ≥ 0) or inverted (b2 ≤ 0) on real
+    data; :meth:`model` is the one way from an estimate to a :class:`YawModel`, what designs, schedules
+    and predictions take. ``covariance`` is the 3×3 covariance of [a22, b2, C0].
+
+    Stored (``companion.records.serialise``) under the tag ``"YawEstimate"``; a :class:`YawModel` keeps
+    its tag ``"YawModel"``, so the JSON of every model stored before is unchanged. A record tagged
+    ``"YawModel"`` whose numbers are no model (stored before models validated: a rejected attempt's
+    inverted estimate) is read back as a ``YawEstimate``.
+    """
 
     a22: float
     b2: float
@@ -78,6 +101,40 @@ class YawModel:
     def c0(self) -> float:
         """C0 = b2·δ0 (eq. 3.7)."""
         return self.b2 * self.delta0
+
+    @property
+    def why_not_model(self) -> str | None:
+        """Why this estimate is no :class:`YawModel` (e.g. "a22 = 0.6 ≥ 0: not a stable model"), None
+        when it is one."""
+        return not_a_model(self.a22, self.b2, self.delta0)
+
+    @property
+    def is_model(self) -> bool:
+        """a22 < 0, b2 > 0 and a22, b2, δ0 finite (eq. 3.5–3.9)."""
+        return self.why_not_model is None
+
+    def model(self) -> YawModel:
+        """This estimate as a :class:`YawModel` (itself when it is one); ValueError naming what is wrong
+        when it is no model."""
+        if isinstance(self, YawModel):
+            return self
+        problem = self.why_not_model
+        if problem is not None:
+            raise ValueError(problem)
+        return YawModel(a22=self.a22, b2=self.b2, delta0=self.delta0, covariance=self.covariance)
+
+
+@dataclass(frozen=True)
+class YawModel(YawEstimate):
+    """ṙ = a22·r + b2·(δr − δ0) (eq. 3.6) as designs, schedules and predictions take it: validated at
+    construction, a22 < 0 (a stable yaw, 1/|a22| its time constant), b2 > 0 (the rudder turns the
+    vehicle the way it is put) and a22, b2, δ0 finite (eq. 3.5–3.9). ValueError otherwise, naming
+    what is wrong. ``covariance`` is the 3×3 covariance of [a22, b2, C0]."""
+
+    def __post_init__(self) -> None:
+        problem = self.why_not_model
+        if problem is not None:
+            raise ValueError(problem)
 
 
 @dataclass
@@ -262,16 +319,17 @@ class YawIdentifier(_SvfRlsIdentifier):
         rudder_f = in_f[0]
         return (heading_rate_f, rudder_f, -1.0), heading_acc_f
 
-    def update(self, time_s: float, heading: float, rudder: float) -> YawModel:
+    def update(self, time_s: float, heading: float, rudder: float) -> YawEstimate:
         self._step(time_s, heading, rudder)
         return self.model()
 
-    def model(self) -> YawModel:
-        """Current estimate; δ0 = C0/b2 (reported as 0 while b2 is still exactly 0)."""
+    def model(self) -> YawEstimate:
+        """Current estimate, a model or not (:meth:`YawEstimate.model` makes it one); δ0 = C0/b2
+        (reported as 0 while b2 is still exactly 0)."""
         a22, b2, c0 = (float(v) for v in self.rls.theta)
         delta0 = c0 / b2 if b2 != 0.0 else 0.0
         covariance = self.rls.parameter_covariance() if self.rls.samples > self.n_parameters else None
-        return YawModel(a22=a22, b2=b2, delta0=delta0, covariance=covariance)
+        return YawEstimate(a22=a22, b2=b2, delta0=delta0, covariance=covariance)
 
     @property
     def history_table(self) -> dict[str, list[float]]:

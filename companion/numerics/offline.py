@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import minimize
 
-from .identification import YawModel
+from .identification import YawEstimate
 from .validation import r_squared
 
 logger = logging.getLogger(__name__)
@@ -29,9 +29,10 @@ logger = logging.getLogger(__name__)
 
 @dataclass
 class OfflineFit:
-    """Result of the output-error fit (Table 3.2 columns): model, Nelder–Mead iterations, J, R²."""
+    """Result of the output-error fit (Table 3.2 columns): the estimate (a model or not:
+    ``model.model()`` makes it one), Nelder–Mead iterations, J, R²."""
 
-    model: YawModel
+    model: YawEstimate
     iterations: int
     function_evaluations: int
     cost: float  # J of eq. 3.38 at the optimum, rad
@@ -123,7 +124,7 @@ def fit_yaw_offline(
         },
     )
     a22, b2, c0 = (float(v) for v in result.x)
-    model = YawModel(a22=a22, b2=b2, delta0=c0 / b2 if b2 != 0.0 else 0.0)
+    model = YawEstimate(a22=a22, b2=b2, delta0=c0 / b2 if b2 != 0.0 else 0.0)
     simulated = simulate_yaw_rk4(a22, b2, c0, time_list, rudder_list, heading0, yaw_rate0)
     fit = OfflineFit(
         model=model,

@@ -47,7 +47,10 @@ follows the same rule, so no window weighs more than its noise says.
 **Bands.** A window joins the band whose centre speed is within ``band_width`` (relative) of its
 speed, else it opens a band. A band's model is *validated* once ``min_windows`` windows were
 absorbed and its model, before absorbing the next informative window, reproduced that window's
-heading with R² ≥ ``min_r2``; a later failed validation withdraws it until one passes again.
+heading with R² ≥ ``min_r2``; a later failed validation withdraws it until one passes again. The
+tracker's θ is a :class:`~companion.numerics.identification.YawEstimate`; a band is validated only
+while it is a model (a22 < 0, b2 > 0, eq. 3.5–3.9), and :meth:`MissionModels.validated` hands the
+designs models (:class:`~companion.numerics.identification.YawModel`).
 """
 from __future__ import annotations
 
@@ -59,7 +62,7 @@ from filterpy.kalman import KalmanFilter
 
 from companion.checks import require_non_negative, require_positive, require_range
 from .drift import WindowEstimate, WindowRecord, hac_least_squares
-from .identification import YawModel
+from .identification import YawEstimate, YawModel
 from .validation import r_squared, simulate_yaw, simulate_yaw_scaled
 
 
@@ -192,13 +195,14 @@ class ParameterTracker:
     def theta(self) -> np.ndarray:
         return self.filter.x[:, 0].copy()
 
-    def model(self) -> YawModel:
-        """ṙ = a22·r + b2·(δ − δ0), δ0 = C0/b2 (eq. 3.6–3.7), with θ's covariance."""
+    def model(self) -> YawEstimate:
+        """ṙ = a22·r + b2·(δ − δ0), δ0 = C0/b2 (eq. 3.6–3.7), with θ's covariance: the estimate, a
+        model or not."""
         a22, b2, c0 = (float(v) for v in self.theta)
-        return YawModel(a22=a22, b2=b2, delta0=c0 / b2 if b2 != 0.0 else 0.0, covariance=self.filter.P.copy())
+        return YawEstimate(a22=a22, b2=b2, delta0=c0 / b2 if b2 != 0.0 else 0.0, covariance=self.filter.P.copy())
 
 
-def validate_on(model: YawModel, window: WindowEstimate) -> float:
+def validate_on(model: YawEstimate, window: WindowEstimate) -> float:
     """R² (eq. 3.35) of ``model``'s heading simulated on the window's recorded rudder."""
     record = _rows_of(window)
     if record.a22_scale is not None and record.b2_scale is not None:  # rows at the band's speed (eq. L.3)
@@ -220,13 +224,14 @@ class SpeedBand:
     validations: list[tuple[float, float]] = field(default_factory=list)
 
     def validated(self, config: TrackingConfig) -> bool:
+        """Enough windows, the last validation passed, and the estimate is a model (eq. 3.5–3.9)."""
         return (self.tracker.windows >= config.min_windows and bool(self.validations)
-                and self.validations[-1][1] >= config.min_r2)
+                and self.validations[-1][1] >= config.min_r2 and self.model().is_model)
 
-    def model(self) -> YawModel:
+    def model(self) -> YawEstimate:
         return self.tracker.model()
 
-    def model_at(self, speed: float, config: TrackingConfig) -> YawModel:
+    def model_at(self, speed: float, config: TrackingConfig) -> YawEstimate:
         """The band's model at ``speed`` by eq. L.3: a22·s^p, b2·sⁿ, C0 kept (so δ0 = C0/b2 moves),
         the covariance of [a22, b2, C0] scaled alike; s = speed / the band's reference speed."""
         model = self.model()
@@ -235,8 +240,8 @@ class SpeedBand:
         scale = np.diag([a_scale, b_scale, 1.0])
         covariance = None if model.covariance is None else scale @ np.asarray(model.covariance) @ scale
         b2 = model.b2 * b_scale
-        return YawModel(a22=model.a22 * a_scale, b2=b2, delta0=model.c0 / b2 if b2 != 0.0 else 0.0,
-                        covariance=covariance)
+        return YawEstimate(a22=model.a22 * a_scale, b2=b2, delta0=model.c0 / b2 if b2 != 0.0 else 0.0,
+                           covariance=covariance)
 
     def speeds_spanned(self) -> list[float]:
         """The slowest and fastest of its windows' mean speeds (one speed when they are within 2 %)."""
@@ -298,6 +303,10 @@ class MissionModels:
 
     def validated(self) -> list[tuple[float, YawModel]]:
         """(speed, model) of every validated band at the slowest and fastest speed its windows were
-        flown at (eq. L.3: the band's model is validated across them), slowest first."""
-        return sorted(((speed, band.model_at(speed, self.config)) for band in self.bands
-                       if band.validated(self.config) for speed in band.speeds_spanned()), key=lambda p: p[0])
+        flown at (eq. L.3: the band's model is validated across them), slowest first; a band's
+        estimate becomes a :class:`YawModel` here, where designs take it (one that is no model at a
+        speed is left out)."""
+        estimates = ((speed, band.model_at(speed, self.config)) for band in self.bands
+                     if band.validated(self.config) for speed in band.speeds_spanned())
+        return sorted(((speed, estimate.model()) for speed, estimate in estimates if estimate.is_model),
+                      key=lambda p: p[0])

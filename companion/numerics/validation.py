@@ -14,7 +14,7 @@ from typing import Sequence
 import numpy as np
 from scipy.signal import cont2discrete
 
-from .identification import PitchModel, YawModel
+from .identification import PitchModel, YawEstimate
 
 ArrayLike = Sequence[float] | np.ndarray
 
@@ -52,7 +52,7 @@ def _simulate_linear(
 
 
 def simulate_yaw(
-    model: YawModel, times: ArrayLike, rudder: ArrayLike, heading0: float, yaw_rate0: float = 0.0
+    model: YawEstimate, times: ArrayLike, rudder: ArrayLike, heading0: float, yaw_rate0: float = 0.0
 ) -> np.ndarray:
     """Heading (unwrapped, rad) of ψ̇ = r, ṙ = a22·r + b2·(δr − δ0) (eq. 3.5–3.6) on the recorded rudder."""
     a = np.array([[0.0, 1.0], [0.0, model.a22]])
@@ -61,7 +61,7 @@ def simulate_yaw(
     return _simulate_linear(a, b, times, effective, np.array([heading0, yaw_rate0]))[:, 0]
 
 
-def simulate_yaw_scaled(model: YawModel, times: ArrayLike, rudder: ArrayLike, heading0: float, yaw_rate0: float,
+def simulate_yaw_scaled(model: YawEstimate, times: ArrayLike, rudder: ArrayLike, heading0: float, yaw_rate0: float,
                         a22_scale: ArrayLike, b2_scale: ArrayLike) -> np.ndarray:
     """Heading of ψ̇ = r, ṙ = a22·sₐ(t)·r + b2·s_b(t)·δr − C0 (eq. L.3, C0 = b2·δ0): the model of one
     reference speed flown at the recorded speeds, the factors held like the rudder from each sample
@@ -148,9 +148,10 @@ def _from_first_finite(times: ArrayLike, output: np.ndarray, actuator: ArrayLike
 
 
 def validate_yaw(
-    model: YawModel, times: ArrayLike, heading: ArrayLike, rudder: ArrayLike, yaw_rate0: float = 0.0
+    model: YawEstimate, times: ArrayLike, heading: ArrayLike, rudder: ArrayLike, yaw_rate0: float = 0.0
 ) -> float:
-    """R² (eq. 3.35) of the yaw model on a validation record, simulated from its first finite heading.
+    """R² (eq. 3.35) of the yaw estimate (a model or not) on a validation record, simulated from its
+    first finite heading.
 
     ``heading`` may be wrapped (it is unwrapped here); NaN headings are ignored in R², a NaN rudder
     sample keeps the previous rudder held.

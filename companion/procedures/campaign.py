@@ -40,7 +40,7 @@ from behaviors.sequence import Deferred, Instant, ParallelBehavior, SequenceBeha
 from behaviors.speed_tuning import SPEED_CONTEXT, SPEED_GAINS, SpeedTuning, SpeedTuningResult, SurgeRecorder
 from behaviors.verification import VerificationStep
 from companion.interface import Command, SetDepth, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
-from companion.numerics.identification import YawModel
+from companion.numerics.identification import YawEstimate, YawModel
 from companion.numerics.quicktune import quicktune_gains, record_feed_forward
 from companion.numerics.skid_step import SkidPlant
 from companion.numerics.surge import SurgeModel, fit_surge_model
@@ -111,7 +111,7 @@ def unstable_estimates(attempts: Sequence[IdentificationAttempt]) -> str:
     at a third of the speed (`--thrusts 0.3,0.4,0.5`) 3 of 3 completed, though 19 of 24 estimates
     there were unstable too: the cause is not established, the slower yaw is what helped. Empty
     otherwise."""
-    yaw = [(a, a.model) for a in attempts if a.axis == "yaw" and isinstance(a.model, YawModel)]
+    yaw = [(a, a.model) for a in attempts if a.axis == "yaw" and isinstance(a.model, YawEstimate)]
     if not yaw or any(model.a22 < 0.0 and model.b2 > 0.0 for _, model in yaw):
         return ""
     periods = [a.training_s / a.samples for a, _ in yaw if a.samples > 1 and a.training_s > 0.0]
@@ -196,7 +196,7 @@ class IdentificationCampaign(Behaviour):
     @property
     def records_rejected_for_link(self) -> int:
         """Attempts not used because the link lost too much of their records."""
-        return sum(1 for attempt in self.attempts if attempt.rejected_for)
+        return sum(1 for attempt in self.attempts if attempt.spoiled_by_link)
 
     @property
     def kept_parameters(self) -> frozenset[str]:
@@ -662,7 +662,7 @@ class IdentificationCampaign(Behaviour):
         if not self.accepted:
             spoiled = self.records_rejected_for_link
             if spoiled and spoiled == len(self.attempts):  # the real cause is the link, not the vehicle
-                last = next(a.rejected_for for a in reversed(self.attempts) if a.rejected_for)
+                last = next(a.rejected_for for a in reversed(self.attempts) if a.spoiled_by_link)
                 self.finish(Status.FAILURE, f"no model: the link spoiled all {spoiled} records ({last}); fix the "
                                             "link (a radio's range or air rate, a serial port's baud rate) and fly "
                                             "again")

@@ -5,7 +5,8 @@ the link, its records in the store.
 * **Reference**: the yaw models of the latest completed campaign that has accepted yaw models (a
   live ``identification`` campaign or an offline ``log`` one), as the speed laws
   :func:`companion.numerics.schedule.schedule_from_models` fits to them (a22(u), b2(u)); without
-  one there is nothing to compare with and no monitor runs.
+  one there is nothing to compare with and no monitor runs. A campaign stored before models
+  validated whose accepted estimate is no model (a22 ≥ 0 or b2 ≤ 0, eq. 3.5–3.9) is no reference.
 * **Records**: one campaign of kind ``health`` per session of ``companion run``; each alarm is a
   ``health_alarm`` result holding its evidence (the windows that led to it) the moment it is
   raised, and at the end of the session a ``health`` result holds every window (the drift plot of
@@ -14,11 +15,12 @@ the link, its records in the store.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import asdict
 
 from behaviors.health_monitor import HealthMonitor
 from companion.numerics.drift import DriftConfig
-from companion.numerics.identification import YawModel
+from companion.numerics.identification import YawEstimate
 from companion.numerics.schedule import YawSchedule, schedule_from_models
 from companion.records.store import Store
 
@@ -36,12 +38,19 @@ def reference_from_store(store: Store) -> tuple[int, YawSchedule] | None:
         stored = [m for m in store.models(campaign["id"], "yaw") if m.speed is not None]
         if not stored:
             continue
-        models = [YawModel(m.params["a22"], m.params["b2"], m.params.get("delta0", 0.0)) for m in stored]
         try:
+            models = [_estimate(m.params).model() for m in stored]
             return campaign["id"], schedule_from_models([m.speed for m in stored if m.speed is not None], models)
         except ValueError as exc:
             log.info("campaign %d cannot serve as the health reference: %s", campaign["id"], exc)
     return None
+
+
+def _estimate(params: dict) -> YawEstimate:
+    """A stored model's numbers (null: NaN) as an estimate."""
+    a22, b2, delta0 = (math.nan if value is None else float(value)
+                       for value in (params.get("a22"), params.get("b2"), params.get("delta0", 0.0)))
+    return YawEstimate(a22, b2, delta0)
 
 
 class HealthSession:

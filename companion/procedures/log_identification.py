@@ -7,7 +7,7 @@ profile, ``CampaignConfig.resolved_for``) is run over every usable segment of th
 saturation, no gap). Each segment's model is then validated, as the campaign validates on a fresh
 doublet, on a **different** used segment at a similar speed (within ``validation_speed_tolerance``):
 the model is simulated on that segment's recorded rudder (eq. 3.35–3.37) and accepted at R² ≥ the
-campaign's threshold. The accepted models are stored exactly as a live campaign stores its runs
+campaign's threshold if the estimate is a model (a22 < 0, b2 > 0, eq. 3.5–3.9). The accepted models are stored exactly as a live campaign stores its runs
 (:meth:`Store.add_run`, one ``IdentificationAttempt`` each) under a campaign of kind ``"log"``,
 and every requested gain schedule is designed from them (:meth:`Store.add_design`).
 
@@ -25,8 +25,8 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from behaviors.gain_scheduling import GainDesign
-from behaviors.identification import IdentificationAttempt, ManoeuvreConfig
-from companion.numerics.identification import ConvergenceRule, YawIdentifier, YawModel
+from behaviors.identification import IdentificationAttempt, ManoeuvreConfig, no_model_reason
+from companion.numerics.identification import ConvergenceRule, YawEstimate, YawIdentifier
 from companion.numerics.segments import Segment, SegmentRules, find_segments
 from companion.numerics.svf import DEFAULT_BANDWIDTH
 from companion.numerics.validation import simulate_yaw, validate_yaw
@@ -190,17 +190,18 @@ def identify_log(record: SteeringRecord, config: LogIdentificationConfig = LogId
         else:
             item.segment.reason += "; no other used segment within " \
                 f"{100 * config.validation_speed_tolerance:.0f} % of its speed to validate on"
-        accepted = math.isfinite(r2) and r2 >= manoeuvre.r2_threshold
+        passed = math.isfinite(r2) and r2 >= manoeuvre.r2_threshold
+        not_model = no_model_reason(model) if passed else None  # as the campaign: no model, not accepted
         a, b = item.segment.start, item.segment.stop
         item.attempt = IdentificationAttempt(
             attempt=number, axis="yaw", thrust=item.segment.thrust, speed=item.segment.speed, model=model,
-            r2=r2, accepted=accepted, converged=bool(identifier.converged),
+            r2=r2, accepted=passed and not_model is None, converged=bool(identifier.converged),
             converged_s=identifier.converged_at_s, criterion_met_from_s=identifier.criterion_met_from_s,
             training_s=item.segment.duration_s, samples=identifier.samples,
             training={"time": record.t[a:b].tolist(), "signal": record.heading[a:b].tolist(),
                       "actuator": record.rudder[a:b].tolist(),
                       "history": {k: [float(x) for x in v] for k, v in identifier.history_table.items()}},
-            validation=validation)
+            validation=validation, rejected_for=not_model)
     for kind in campaign.kinds():
         if kind.axis != "yaw":
             continue
@@ -213,7 +214,7 @@ def identify_log(record: SteeringRecord, config: LogIdentificationConfig = LogId
     return result
 
 
-def _validate(record: SteeringRecord, segment: Segment, model: YawModel) -> tuple[float, dict]:
+def _validate(record: SteeringRecord, segment: Segment, model: YawEstimate) -> tuple[float, dict]:
     a, b = segment.start, segment.stop
     t, heading, rudder = record.t[a:b], record.heading[a:b], record.rudder[a:b]
     rate0 = _initial_rate(t, heading)

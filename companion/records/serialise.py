@@ -7,27 +7,40 @@ trend, gain designs, surge models and speed-loop designs) is a dataclass. :func:
 unpacks these records by hand.
 
 A record type is known by being listed in :data:`RECORD_TYPES` (:func:`register` adds one); the
-tag is the class name. The JSON form itself (tags, nulls, numpy) is :mod:`behaviors.json_form`, which
-a behaviour's result is written with too; this module adds the register, so only records it can
-read back are stored.
+tag is the class name. A type whose invariant is newer than some of its stored records names the
+looser type those records are read back as (:data:`READ_BROKEN_AS`): a ``"YawModel"`` stored before
+models validated at construction (a rejected attempt's unstable or inverted estimate) is read back
+as a ``YawEstimate`` (``companion.numerics.identification``), which is stored under its own tag.
+The JSON form itself (tags, nulls, numpy) is :mod:`behaviors.json_form`, which a behaviour's
+result is written with too; this module adds the register, so only records it can read back are
+stored.
 """
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import typing
 from typing import Any
 
 from behaviors.json_form import json_form, tagged
 
+log = logging.getLogger(__name__)
+
 RECORD_TYPES: dict[str, type] = {}
+#: tag → the looser type a stored record is read back as when its numbers break the tagged type's
+#: invariant (the record was stored before the invariant existed); the looser type has the same fields
+READ_BROKEN_AS: dict[str, type] = {}
 
 
-def register(cls: type) -> type:
-    """Make a dataclass storable (usable as a decorator)."""
+def register(cls: type, read_broken_as: type | None = None) -> type:
+    """Make a dataclass storable (usable as a decorator); ``read_broken_as``: the type a stored record
+    of ``cls`` whose numbers ``cls`` refuses (ValueError) is read back as."""
     if not dataclasses.is_dataclass(cls):
         raise TypeError(f"{cls.__name__} is not a dataclass")
     RECORD_TYPES[cls.__name__] = cls
+    if read_broken_as is not None:
+        READ_BROKEN_AS[cls.__name__] = read_broken_as
     return cls
 
 
@@ -91,7 +104,15 @@ def from_json(data: dict) -> Any:
     for f in dataclasses.fields(cls):
         if f.name in data and f.init:
             kwargs[f.name] = _restore(data[f.name], hints.get(f.name))
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:
+        looser = READ_BROKEN_AS.get(cls.__name__)
+        if looser is None:
+            raise
+        # stored before the invariant: read back as the looser record it is
+        log.info("a stored %s is read back as a %s: %s", tag, looser.__name__, exc)
+        return looser(**kwargs)
 
 
 def _register_product_records() -> None:
@@ -100,15 +121,16 @@ def _register_product_records() -> None:
     from behaviors.identification import IdentificationAttempt
     from companion.numerics.cascade_gains import CascadeRules
     from companion.numerics.gains import GainBounds
-    from companion.numerics.identification import PitchModel, YawModel
+    from companion.numerics.identification import PitchModel, YawEstimate, YawModel
     from companion.numerics.pitch_gains import PitchGainBounds, PitchSchedule
     from companion.numerics.schedule import YawSchedule
     from companion.numerics.speed_gains import SpeedDesign, SpeedLoopGains
     from companion.numerics.surge import SurgeModel
 
-    for cls in (YawModel, PitchModel, YawSchedule, PitchSchedule, DesignPoint, GainDesign, IdentificationAttempt,
+    for cls in (YawEstimate, PitchModel, YawSchedule, PitchSchedule, DesignPoint, GainDesign, IdentificationAttempt,
                 SurgeModel, SpeedLoopGains, SpeedDesign, GainBounds, CascadeRules, PitchGainBounds):
         register(cls)
+    register(YawModel, read_broken_as=YawEstimate)
 
 
 _register_product_records()

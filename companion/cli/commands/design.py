@@ -25,7 +25,7 @@ import sys
 from companion.cli.commands._common import print_json
 
 from companion.numerics.gains import GainBounds, design_heading_gains
-from companion.numerics.identification import YawModel
+from companion.numerics.identification import YawEstimate, YawModel
 from companion.numerics.turning import DEFAULT_DELTA_MAX, turning_performance
 from companion.cli.commands.design_autopilot import autopilot_profiles, run_for_autopilot
 
@@ -64,16 +64,20 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
+def _model(args) -> YawModel:
+    """The model the flags give (a22 < 0, b2 > 0, all finite: eq. 3.5–3.9); ValueError naming what is
+    wrong otherwise."""
+    try:
+        return YawEstimate(a22=args.a22, b2=args.b2, delta0=args.delta0).model()
+    except ValueError as exc:
+        raise ValueError(f"--a22, --b2 and --delta0 give no yaw model: {exc}") from None
+
+
 def _validate(args) -> str | None:
-    for name in ("a22", "b2", "delta0", "delta_max"):
-        if not math.isfinite(getattr(args, name)):
-            return f"--{name.replace('_', '-')} must be a finite number"
+    if not math.isfinite(args.delta_max):
+        return "--delta-max must be a finite number"
     if args.speed is not None and not (math.isfinite(args.speed) and args.speed >= 0.0):
         return "--speed must be a finite number >= 0"
-    if args.a22 >= 0.0:
-        return f"--a22 must be negative (a stable yaw damping), got {args.a22}"
-    if args.b2 <= 0.0:
-        return f"--b2 must be positive (rudder authority), got {args.b2}"
     if not 0.0 < args.delta_max <= MAX_RUDDER:
         return f"--delta-max must be a rudder limit in (0, π/2] rad, got {args.delta_max}"
     if args.delta_max <= args.delta0:
@@ -89,14 +93,22 @@ def _non_finite(result: dict) -> str | None:
     return None
 
 
+def _refuse(error: str) -> int:
+    """An input error as argparse gives one: one line on stderr, exit status 2."""
+    print(f"companion design: error: {error}", file=sys.stderr)
+    return 2
+
+
 def run(args) -> int:
+    try:
+        model = _model(args)
+    except ValueError as exc:
+        return _refuse(str(exc))
     error = _validate(args)
     if error:
-        print(f"companion design: error: {error}", file=sys.stderr)
-        return 2
+        return _refuse(error)
     if getattr(args, "autopilot", None) is not None:
-        return run_for_autopilot(args)
-    model = YawModel(a22=args.a22, b2=args.b2, delta0=args.delta0)
+        return run_for_autopilot(args, model)
     gains = design_heading_gains(model, GainBounds(), speed=args.speed)
     turning = turning_performance(model, args.speed if args.speed is not None else 0.0, args.delta_max)
     result = {

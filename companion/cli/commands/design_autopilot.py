@@ -59,7 +59,8 @@ def parse_original(text: str | None, params: dict[str, str]) -> dict[str, float]
     return out
 
 
-def run_for_autopilot(args) -> int:
+def run_for_autopilot(args, model: YawModel) -> int:
+    """The design for ``args.autopilot`` on ``model`` (validated from the flags by ``companion design``)."""
     profile = autopilot_profiles()[args.autopilot]
     kind_name = profile.heading_schedule
     if kind_name not in CONTROLLERS:
@@ -92,7 +93,6 @@ def run_for_autopilot(args) -> int:
     objective = DesignObjective()
     if profile.prediction_margin_pct is not None:
         objective = replace(objective, margin_pct=profile.prediction_margin_pct)
-    model = YawModel(a22=args.a22, b2=args.b2, delta0=args.delta0)
     kind_parameters = module_heading_parameters(kind_name)
     original = {k: v for k, v in found.items() if k in kind_parameters}
     try:
