@@ -126,7 +126,7 @@ def test_native_gains_are_kept_only_after_their_steps_beat_px4s_own(identified):
         assert after.gains[name] == pytest.approx(value, rel=1e-6)
     if autopilot == "px4-rover":
         assert 0.0 <= gains["heading_angle_p"] <= 100.0 and 0.0 < gains["heading_ff_length"] <= 100.0
-        assert gains["heading_ff_correction"] == 1.0
+        assert 0.3 <= gains["heading_ff_correction"] <= 1.3  # RO_YAW_RATE_CORR, searched by eq. D.1 (κ)
     else:
         assert 0.0 < gains["heading_angle_p"] <= 40.0 and 0.0 < gains["heading_rate_d"] <= 20.0
     assert after.mode == found.mode == "loiter" and after.manual_control == found.manual_control
