@@ -49,6 +49,8 @@ def _largest_gaps(summary: dict) -> dict[float, float]:
 
 def _identification(args, campaign) -> None:
     errors_a22, errors_b2, r2s, steps, vehicle_s, walls, outcomes = [], [], [], {}, [], [], []
+    versus: list[tuple[float, float, float, float, float]] = []  # thrust, flown/predicted overshoot and IAE
+    originals: dict[float, list[dict]] = {}  # PX4's gains as found, predicted at each identified speed
     print(f"{args.autopilot} SITL + preset {PRESETS[args.autopilot]}, thrusts {campaign.thrusts}, {args.repeats} "
           f"repeats at {args.speedup:g}x")
     print("errors against the simulator's linearised truth at the physics' own speed (its truth log); 'est.' is PX4's")
@@ -63,7 +65,15 @@ def _identification(args, campaign) -> None:
             summary = rehearse(config)
             walls.append(time.monotonic() - started)
             gaps = _largest_gaps(summary)
-        outcomes.append(summary.get("status"))
+        outcomes.append(str(summary.get("status")))
+        verified = summary.get("verified") or {}
+        for step in verified.get("flown", []):
+            if step.get("predicted"):
+                versus.append((step["thrust"], step["max_overshoot_pct"], step["predicted"]["overshoot_pct"],
+                               step["iae_s"], step["predicted"]["iae_s"]))
+        for row in verified.get("predicted", []):
+            if row["label"] == "original":
+                originals.setdefault(row["thrust"], []).append(row)
         vehicle_s.append(summary.get("vehicle_time_s") or 0.0)
         for run in summary.get("runs", []):
             ea = 100.0 * (run["a22"] / run["true_a22"] - 1.0)
@@ -102,6 +112,15 @@ def _identification(args, campaign) -> None:
         settle = [r.get("settling_time_s") for r in rows]
         print(f"{label:>10} {thrust:>6.2f} {med(over):>9.1f} / {top(over):<8.1f} {med(settle):>10.1f} / "
               f"{top(settle):<9.1f} {med([r['iae_s'] for r in rows]):>10.2f}")
+    print("PX4's gains as found, predicted on each run's model (not flown: eq. A.3):")
+    for thrust, rows in sorted(originals.items()):
+        print(f"{'original':>10} {thrust:>6.2f} {med([r['overshoot_pct'] for r in rows]):>9.1f} / "
+              f"{top([r['overshoot_pct'] for r in rows]):<8.1f} {med([r.get('settling_time_s') for r in rows]):>10.1f} / "
+              f"{top([r.get('settling_time_s') for r in rows]):<9.1f} {med([r['iae_s'] for r in rows]):>10.2f}")
+    if versus:
+        print("flown minus predicted, the design's verification steps (eq. A.3's margin):")
+        print(f"  overshoot points: {', '.join(f'{f - p:+.1f}' for _t, f, p, _fi, _pi in versus)}")
+        print(f"  IAE %:            {', '.join(f'{100.0 * (fi / pi - 1.0):+.1f}' for *_x, fi, pi in versus)}")
     print(f"vehicle time per campaign median {med(vehicle_s):.0f} s; wall time {med(walls):.0f} s at {args.speedup:g}x")
 
 
