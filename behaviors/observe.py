@@ -34,6 +34,13 @@ class ObserveResult:
             raise ValueError("ObserveResult.series must hold one value per sample in every field, not "
                              f"{ {name: len(values) for name, values in self.series.items()} }")
 
+    def std_deg(self, name: str) -> float:
+        """The standard deviation in degrees of a field recorded in radians, over its finite values
+        (NaN without any)."""
+        values = np.asarray(self.series[name], dtype=float)
+        values = values[np.isfinite(values)]
+        return float(np.degrees(np.std(values))) if len(values) else math.nan
+
     def to_dict(self) -> dict:
         return {"label": self.label, "duration_s": self.duration_s, "aborted": self.aborted,
                 "series": {name: finite_floats(values) for name, values in self.series.items()}}
@@ -64,11 +71,6 @@ class Observe(Behaviour):
         if telemetry.time_s - self.started_s >= self.duration_s:
             self.finish(Status.SUCCESS)
         return []
-
-    def std_deg(self, name: str) -> float:
-        values = np.asarray(self.series[name], dtype=float)
-        values = values[np.isfinite(values)]
-        return float(np.degrees(np.std(values))) if len(values) else math.nan
 
     def result(self) -> ObserveResult:
         return ObserveResult(self.label, self.duration_s, self.aborted,

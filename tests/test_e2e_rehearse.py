@@ -84,6 +84,29 @@ def test_report_and_store_are_written(rehearsal):
         assert {"roll", "min_speed", "gain_design"} <= kinds
 
 
+#: what the runner adds to a procedure's stored row after its figures (``ProcedureResult.to_json``)
+RUNNER_KEYS = ["status", "pilot_has_it", "restore_problems"]
+
+
+def test_the_stored_procedure_rows_keep_their_keys_in_order(rehearsal):
+    """The roll and minimum-speed rows hold each procedure's figures (its typed record's JSON), then
+    what the runner saw: key for key the rows stored before the figures had a type."""
+    out, summary = rehearsal
+    with Store(summary["store"]) as store:
+        rows = {b["kind"]: b["result"] for b in store.behavior_results()}
+    assert list(rows["roll"]) == ["behavior", "thrust", "simulator", "disturbance_nm", "std_open_deg", "std_closed_deg",
+                                  "speed", "open_series", "closed_series", "gains", "kick_deg", "kick_settle_open_s",
+                                  "kick_settle_closed_s"] + RUNNER_KEYS
+    assert list(rows["roll"]["open_series"]) == list(rows["roll"]["closed_series"]) == ["time", "roll", "mass_angle"]
+    assert list(rows["min_speed"]) == ["behavior", "aborted", "thrust_ratio_final", "speed_final", "settle_time_s",
+                                       "max_depth_error_m", "max_depth_error_settled_m", "depth_setpoint_m",
+                                       "reversals_last_30s", "decisions", "theta_e_crossover", "start_reached_s",
+                                       "governed_stalled", "depth_offset_max_m", "depth_offset_faded_s", "duration_s",
+                                       "series", "depth_gains_source", "thrust_ratio_star", "v_min",
+                                       "theta_star_deg"] + RUNNER_KEYS
+    assert list(summary["thrust_levels"]) == ["flown", "respacing"] and summary["thrust_levels"]["flown"] == [0.7, 1.0]
+
+
 @pytest.mark.slow
 def test_hugin_rehearsal_recovers_the_current_from_squares_and_turns(tmp_path):
     """The steady-state manoeuvres inside the rehearsal on the HUGIN-like preset, scored
@@ -104,3 +127,14 @@ def test_hugin_rehearsal_recovers_the_current_from_squares_and_turns(tmp_path):
         assert 14.0 < turn["radius_m"] < 18.0 and 4.0 < abs(turn["turn_rate_deg_s"]) < 6.0
         assert turn["residual_std_m"] < 0.15
     assert "steady_state.png" in (tmp_path / "report.html").read_text()
+    # the stored row: the figures (squares and turns, each with its decimated paths), then the runner's keys
+    with Store(str(tmp_path / "store.sqlite")) as store:
+        row = next(b["result"] for b in store.behavior_results() if b["kind"] == "steady_state")
+    assert list(row) == ["behavior", "squares", "turns"] + RUNNER_KEYS
+    assert list(row["squares"]) == ["behavior", "status", "config", "samples", "surge_water", "sway_water",
+                                    "heave_water", "sideslip_deg", "current_north", "current_east", "current_speed",
+                                    "current_dir_deg", "sigma", "condition_number", "residual_std", "samples_used",
+                                    "path"]
+    assert list(row["squares"]["path"]) == ["t", "north", "east"]
+    assert list(row["turns"]) == ["behavior", "status", "config", "turns", "current_north", "current_east", "paths"]
+    assert len(row["turns"]["paths"]) == 2 and all(list(p) == ["t", "north", "east"] for p in row["turns"]["paths"])

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 
 import pytest
 
@@ -10,8 +11,18 @@ from companion.procedures.results import STATUSES, Outcome, ProcedureResult, sta
 from companion.procedures.runner import RunOutcome
 
 
+@dataclass(frozen=True)
+class SpreadFigures:
+    """A procedure's figures for these tests: one standard deviation."""
+
+    std_open_deg: float
+
+    def to_dict(self) -> dict:
+        return {"std_open_deg": self.std_open_deg}
+
+
 def test_an_outcome_is_typed_at_construction_and_printed_as_its_word():
-    result = ProcedureResult("roll", "completed", None, {"std_open_deg": 1.5})
+    result = ProcedureResult("roll", "completed", None, SpreadFigures(1.5))
     assert result.status is Outcome.COMPLETED and result.completed
     assert json.dumps(result.to_json()) == '{"std_open_deg": 1.5, "status": "completed", "pilot_has_it": false, ' \
                                            '"restore_problems": []}'

@@ -28,6 +28,16 @@ class WaveConfig:
     seconds: float = 3.0
 
 
+@dataclass(frozen=True)
+class WaveFigures:
+    """What the toy procedure measured: how long it waited (s)."""
+
+    seconds: float
+
+    def to_dict(self) -> dict:
+        return {"seconds": self.seconds}
+
+
 class Wave:
     """A toy procedure: waits its configured seconds of vehicle time, then completes."""
 
@@ -44,7 +54,7 @@ class Wave:
         return []
 
     def result(self) -> ProcedureResult:
-        return ProcedureResult("wave", "completed" if self.done else "aborted", None, {"seconds": self.config.seconds})
+        return ProcedureResult("wave", "completed" if self.done else "aborted", None, WaveFigures(self.config.seconds))
 
 
 def _wave_plot(result: dict, path: Path) -> str:

@@ -144,7 +144,7 @@ def test_a_refused_simulator_hook_keeps_the_measured_data_and_closes_the_record(
         # a refused write aborts the procedure with the reason (never a warning that carries on)
         result = out.result
         assert result.status == "aborted" and "SIM_ROLL_KICK" in result.reason
-        assert result.figures["std_open_deg"] > 0 and result.figures["std_closed_deg"] > 0  # measured before
+        assert result.figures.std_open_deg > 0 and result.figures.std_closed_deg > 0  # measured before
         assert store.campaigns()[0]["status"] == "aborted"
         assert store.behavior_results()[0]["kind"] == "roll"
     assert link.simulated.params["SIM_ROLL_DIST"] == 0.0  # the disturbance hook is switched off again

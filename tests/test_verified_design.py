@@ -234,14 +234,14 @@ def test_a_vehicle_already_on_the_best_gains_keeps_them_and_the_campaign_complet
         return campaign, run_procedure(link, campaign)
 
     first, outcome = campaign_on(InProcessLink(seed=4))
-    assert outcome.status == "completed" and first.loop_outcomes()["heading"]["outcome"] == "written"
+    assert outcome.status == "completed" and first.loop_outcomes()["heading"].outcome == "written"
     # the same vehicle, already flying what the first campaign wrote
     link = InProcessLink(seed=4)
     link.set_params({name: first.final_gains[name] for name in ("heading_p", "heading_i", "rudder_trim")})
     before = link.get_params(("heading_p", "heading_i", "rudder_trim"))
     second, outcome = campaign_on(link)
     assert outcome.status == "completed", outcome.reason
-    assert second.keeps_original_heading and second.loop_outcomes()["heading"]["outcome"] == "original kept"
+    assert second.keeps_original_heading and second.loop_outcomes()["heading"].outcome == "original kept"
     assert second.final_gains is None and (second.verifier is None or not second.verifier.flown)  # nothing flown
     assert link.get_params(before) == pytest.approx(before)
 

@@ -316,7 +316,7 @@ def run_named_procedure(name: str, link: VehiclePort, store: Store, *, vehicle_i
     own = campaign_id is None
     if campaign_id is None:
         campaign_id = store.start_campaign(vehicle_id, name, {"preset": getattr(context, "preset", None)})
-    result = ProcedureResult(name, Outcome.NOT_STARTED, "not started")
+    result: ProcedureResult = ProcedureResult(name, Outcome.NOT_STARTED, "not started")
     outcome = None
     profile = link.profile
     refusal = spec.applies(profile)

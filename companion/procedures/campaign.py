@@ -34,7 +34,7 @@ from typing import Sequence, Union
 from behaviors.background import BackgroundStep
 from behaviors.base import Behaviour, Footprint, Status, footprint_of
 from behaviors.gain_scheduling import GainDesign, ScheduleKind
-from behaviors.heading_steps import HeadingStepsResult, HeadingStepTest, reengage_hold
+from behaviors.heading_steps import HeadingStepTest, reengage_hold
 from behaviors.identification import IdentificationAttempt, IdentificationManoeuvre, IdentificationResult
 from behaviors.sequence import Deferred, Instant, ParallelBehavior, SequenceBehavior
 from behaviors.speed_tuning import SPEED_CONTEXT, SPEED_GAINS, SpeedTuning, SpeedTuningResult, SurgeRecorder
@@ -48,11 +48,13 @@ from companion.numerics.thrust_levels import respaced, same_speed_as
 from companion.procedures.campaign_config import (AXES, CHECKS, DEFAULT_THRUSTS, PROCEDURES,  # noqa: F401 - re-exported
                                                   QUICK_CONVERGENCE_DELAY_S, QUICK_NOISE_BAND, QUICK_PITCH_DOUBLET,
                                                   QUICK_R2_THRESHOLD, CampaignConfig, GainCheck)
+from companion.procedures.campaign_figures import (CampaignFigures, HeadingCheck, LoopOutcome, ThrustLevels,
+                                                   designs_to_json)
 from companion.procedures.campaign_phases import PhaseClock, add_times, phase_of
 from companion.procedures.campaign_verification import CampaignVerification
 from companion.procedures.heading_design import HeadingDesign, choose_heading_design, optimisable, with_design
 from companion.procedures.results import ProcedureResult
-from companion.procedures.verified_design import CONTROLLERS, LIMIT_PARAMETERS, FlownStep, HeadingLimits, skid_plant
+from companion.procedures.verified_design import CONTROLLERS, LIMIT_PARAMETERS, HeadingLimits, skid_plant
 
 log = logging.getLogger(__name__)
 
@@ -62,11 +64,6 @@ class AttemptRecorded:
     """An identification attempt ended (accepted or not): stored as a run."""
 
     attempt: IdentificationAttempt
-
-
-#: a heading-step check as the campaign keeps it: the thesis comparison's steps, or a verification step
-#: with its prediction
-HeadingCheck = Union[HeadingStepsResult, FlownStep]
 
 
 @dataclass(frozen=True)
@@ -552,39 +549,38 @@ class IdentificationCampaign(Behaviour):
         """Why the speed loop, which was to be tuned, ended with neither verified gains nor the
         original gains shown to be the better ones (exit 1; what the heading verified stays); None
         when it did not."""
-        speed = self.loop_outcomes().get("speed", {}) if self.speed is not None else {}
-        return speed.get("why") if speed.get("outcome") == "refused" else None
+        speed = self.loop_outcomes().get("speed") if self.speed is not None else None
+        return speed.why if speed is not None and speed.outcome == "refused" else None
 
-    def loop_outcomes(self) -> dict[str, dict[str, str]]:
-        """Loop by loop (heading, speed): ``outcome`` (written, original kept, refused, not tuned)
-        and why, for the result and the summary."""
-        out: dict[str, dict[str, str]] = {}
+    def loop_outcomes(self) -> dict[str, LoopOutcome]:
+        """Loop by loop (heading, speed): its :class:`LoopOutcome` (written, original kept, refused,
+        not tuned, and why), for the result and the summary."""
+        out: dict[str, LoopOutcome] = {}
         if self.heading_kind is not None and "yaw" in self.config.axes:
             written = self.final_gains is not None and any(k in self.final_gains for k in self.heading_kind.parameters)
             if self.heading_choice is not None and self.heading_choice.keeps_original:
-                out["heading"] = {"outcome": "original kept",
-                                  "why": "no design is predicted better than the vehicle's own gains: "
-                                         + self.heading_choice.choice.reason()}
+                out["heading"] = LoopOutcome("original kept", "no design is predicted better than the vehicle's own "
+                                                              "gains: " + self.heading_choice.choice.reason())
             elif self.heading_original_flown:
-                out["heading"] = {"outcome": "original kept",
-                                  "why": "the design flew no better than the vehicle's own gains, which pass the "
-                                         f"checks themselves: {self.heading_original_flown}"}
+                out["heading"] = LoopOutcome("original kept", "the design flew no better than the vehicle's own "
+                                                              "gains, which pass the checks themselves: "
+                                                              f"{self.heading_original_flown}")
             elif written:
-                out["heading"] = {"outcome": "written", "why": self.verification or "verified"}
+                out["heading"] = LoopOutcome("written", self.verification or "verified")
             elif self.verification or self.heading_kind.name in self.design_errors:
-                out["heading"] = {"outcome": "refused",
-                                  "why": self.verification or self.design_errors.get(self.heading_kind.name, "")}
+                out["heading"] = LoopOutcome("refused", self.verification
+                                             or self.design_errors.get(self.heading_kind.name, ""))
             else:
-                out["heading"] = {"outcome": "not tuned", "why": "no heading design"}
+                out["heading"] = LoopOutcome("not tuned", "no heading design")
         if self.speed is not None:
             kept = bool(self.speed.kept) and self.final_gains is not None
             why = self.speed.verdict or self.speed.reason or ""
             if kept:
-                out["speed"] = {"outcome": "written", "why": "verified by its own speed steps"}
+                out["speed"] = LoopOutcome("written", "verified by its own speed steps")
             elif (self.speed.verdict or "").startswith("not faster than the original"):
-                out["speed"] = {"outcome": "original kept", "why": why}
+                out["speed"] = LoopOutcome("original kept", why)
             else:
-                out["speed"] = {"outcome": "refused", "why": why or "the speed loop was not tuned"}
+                out["speed"] = LoopOutcome("refused", why or "the speed loop was not tuned")
         return out
 
     # ------------------------------------------------------------------ events
@@ -629,9 +625,7 @@ class IdentificationCampaign(Behaviour):
 
     def design_summary(self) -> dict | None:
         """Each designed schedule as stored (the one serialiser), keyed by kind; None when none."""
-        from companion.records.serialise import to_json
-
-        return {name: to_json(design) for name, design in self.designs.items()} or None
+        return designs_to_json(self.designs)
 
     # ------------------------------------------------------------------ lifecycle
     def update(self, telemetry: Telemetry) -> Sequence[Command]:
@@ -691,24 +685,17 @@ class IdentificationCampaign(Behaviour):
         """Vehicle seconds per phase in the order a campaign flies them, then any other."""
         return self._phases.in_order()
 
-    def result(self) -> ProcedureResult:
-        figures = {
-            "config": self.config.to_dict(),
-            # the attempts are stored as runs (AttemptRecorded), and the accepted ones listed below
-            "manoeuvres": [{k: v for k, v in m.to_dict().items() if k != "attempts"} for m in self.manoeuvres],
-            "accepted": [a.summary() for a in self.accepted],
-            "design": self.design_summary(),
-            "design_errors": self.design_errors,
-            "verification": self.verification or ("passed" if self.final_gains else None),
-            "steps": [{k: v for k, v in r.to_dict().items() if k != "series"} for r in self.step_results],
-            "checks": self.checks,
-            "verified": self.verifier.summary() if self.verifier is not None else None,
-            "vehicle_time_by_phase": self.phases_in_order(),
-            "final_gains": self.final_gains,
-            "speed_loop": self.speed.result().to_dict() if self.speed is not None else None,
-            "heading_design": self.heading_choice.choice.to_dict() if self.heading_choice is not None else None,
-            "loops": self.loop_outcomes(),
-            "thrust_levels": {"flown": [t for t in self._plan if t is not None], "respacing": self.respacing},
-        }
+    def result(self) -> ProcedureResult[CampaignFigures]:
+        figures = CampaignFigures(
+            config=self.config, manoeuvres=tuple(self.manoeuvres), accepted=tuple(self.accepted),
+            designs=dict(self.designs), design_errors=dict(self.design_errors),
+            verification=self.verification or ("passed" if self.final_gains else None),
+            steps=tuple(self.step_results), checks=self.checks,
+            verified=self.verifier.verified() if self.verifier is not None else None,
+            vehicle_time_by_phase=self.phases_in_order(),
+            final_gains=dict(self.final_gains) if self.final_gains is not None else None,
+            speed_loop=self.speed.result() if self.speed is not None else None,
+            heading_design=self.heading_choice.choice if self.heading_choice is not None else None,
+            loops=self.loop_outcomes(),
+            thrust_levels=ThrustLevels(tuple(t for t in self._plan if t is not None), tuple(self.respacing)))
         return ProcedureResult.of("identification", self.status, self.reason, figures)
-

@@ -15,14 +15,69 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 from behaviors.gain_scheduling import GainDesign, ScheduleKind
+from behaviors.json_form import json_form
 from behaviors.verification import VerificationConfig, VerificationStep
 from companion.numerics.step_response import SETTLE_BAND
 from companion.procedures.verified_design import CONTROLLERS, FlownStep, HeadingLimits, KeepRule, predicted_step
 
 log = logging.getLogger(__name__)
+
+
+#: whether the lowest speed's own-design flight stands for the schedule there
+COVERAGE = ("covered", "not covered")
+
+
+@dataclass(frozen=True)
+class VerifiedSteps:
+    """What the verification flew and predicted, as it stood: each flown step with its prediction
+    (:class:`FlownStep`), each predicted step (``predicted_step``'s metrics with its ``thrust``,
+    ``speed`` and ``label``, scheduled or original), the coverage by thrust (:data:`COVERAGE`), and
+    the controller and limits the predictions were made with. The JSON (:meth:`summary`): ``flown``
+    (figures only, no series), ``predicted``, ``coverage`` (by thrust, two decimals), ``settle_band``,
+    ``controller``, ``limits``."""
+
+    flown: tuple[FlownStep, ...]
+    predicted: tuple[dict, ...]
+    coverage: dict[float, str]
+    controller: str
+    limits: HeadingLimits
+
+    def __post_init__(self) -> None:
+        if any(value not in COVERAGE for value in self.coverage.values()):
+            raise ValueError(f"VerifiedSteps.coverage is one of {', '.join(COVERAGE)} by thrust, not {self.coverage!r}")
+        if any({"thrust", "label"} - set(step) for step in self.predicted):
+            raise ValueError("VerifiedSteps.predicted steps each name their thrust and label")
+
+    def summary(self) -> dict:
+        """Flown and predicted steps (figures only, no series), the coverage and the rule, as
+        computed (NaN where a figure is not known: the command lines print it so)."""
+        def predicted_figures(step: dict) -> dict:
+            return {k: step[k] for k in ("thrust", "label", "iae_s", "oscillations", "overshoot_pct", "settling_time_s",
+                                         "rise_time_s", "speed", "saturated") if k in step}
+
+        def flown_figures(step: FlownStep) -> dict:
+            out = {"thrust": step.thrust, "label": step.label, "decided": step.decided,
+                   "why_undecided": step.why_undecided, "undecided": list(step.undecided), "flights": step.flights,
+                   "max_overshoot_pct": step.max_overshoot_pct, "iae_s": step.iae_s, "oscillations": step.oscillations}
+            if step.steps:
+                out["settling_time_s"] = step.steps[0].get("settling_time_s", math.nan)
+                out["duration_s"] = step.steps[0].get("duration_s", math.nan)
+            if step.predicted is not None:
+                out["predicted"] = {k: step.predicted[k] for k in ("overshoot_pct", "iae_s", "settling_time_s",
+                                                                   "oscillations", "saturated")}
+            return out
+
+        return {"flown": [flown_figures(s) for s in self.flown], "predicted": [predicted_figures(s) for s in self.predicted],
+                "coverage": {f"{t:.2f}": v for t, v in self.coverage.items()}, "settle_band": SETTLE_BAND,
+                "controller": self.controller, "limits": dataclasses.asdict(self.limits)}  # what was predicted with
+
+    def to_dict(self) -> dict:
+        """:meth:`summary` in strict JSON (NaN and infinities null)."""
+        return json_form(self.summary())
 
 
 class CampaignVerification:
@@ -165,24 +220,12 @@ class CampaignVerification:
         """The design was refused only for not beating the original gains, which pass themselves."""
         return self.rule.originals_stand(self.flown, self.predicted)
 
+    def verified(self) -> VerifiedSteps:
+        """What was flown and predicted so far, as a record."""
+        return VerifiedSteps(tuple(self.flown), tuple(dict(step) for step in self.predicted), dict(self.coverage),
+                             self.controller, self.limits)
+
     def summary(self) -> dict:
-        """Flown and predicted steps (figures only, no series), the coverage and the rule, for JSON."""
-        def predicted_figures(step: dict) -> dict:
-            return {k: step[k] for k in ("thrust", "label", "iae_s", "oscillations", "overshoot_pct", "settling_time_s",
-                                         "rise_time_s", "speed", "saturated") if k in step}
-
-        def flown_figures(step: FlownStep) -> dict:
-            out = {"thrust": step.thrust, "label": step.label, "decided": step.decided,
-                   "why_undecided": step.why_undecided, "undecided": list(step.undecided), "flights": step.flights,
-                   "max_overshoot_pct": step.max_overshoot_pct, "iae_s": step.iae_s, "oscillations": step.oscillations}
-            if step.steps:
-                out["settling_time_s"] = step.steps[0].get("settling_time_s", math.nan)
-                out["duration_s"] = step.steps[0].get("duration_s", math.nan)
-            if step.predicted is not None:
-                out["predicted"] = {k: step.predicted[k] for k in ("overshoot_pct", "iae_s", "settling_time_s",
-                                                                   "oscillations", "saturated")}
-            return out
-
-        return {"flown": [flown_figures(s) for s in self.flown], "predicted": [predicted_figures(s) for s in self.predicted],
-                "coverage": {f"{t:.2f}": v for t, v in self.coverage.items()}, "settle_band": SETTLE_BAND,
-                "controller": self.controller, "limits": dataclasses.asdict(self.limits)}  # what was predicted with
+        """Flown and predicted steps (figures only, no series), the coverage and the rule, for JSON
+        (:meth:`VerifiedSteps.summary`)."""
+        return self.verified().summary()

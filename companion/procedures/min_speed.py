@@ -12,10 +12,12 @@ import math
 import logging
 from dataclasses import dataclass, replace
 
+from behaviors.json_form import json_form
 from behaviors.min_speed import MinSpeedConfig, MinSpeedSeeking
+from behaviors.min_speed_result import MinSpeedResult
 from behaviors.observe import Observe
 from behaviors.sequence import Instant, SequenceBehavior
-from companion.checks import require_positive, require_range
+from companion.checks import require_choice, require_positive, require_range
 from companion.interface import SetDepth, SetMode, SetThrust
 from companion.procedures.results import ProcedureResult, figures_of, finite_or_none
 from companion.procedures.runner import SafetyLimits, run_for_result
@@ -76,16 +78,66 @@ class MinSpeedProcedureConfig:
         return cls(**({"start_margin": 0.008, "start_feedforward": True} | overrides))
 
 
+#: where the seeker's depth-loop gains came from: the autopilot's parameters, or Table 5.1's
+DEPTH_GAINS_SOURCES = ("autopilot", "Table 5.1 (autopilot's not readable)")
+
+
+@dataclass(frozen=True)
+class AnalyticMinimum:
+    """The analytic minimum-speed operating point the seeker is scored against (eq. 5.28–5.54 for
+    the vehicle's data): the thrust ratio T_R*, the minimum speed (m/s) and the trim pitch (deg);
+    each None where it does not exist."""
+
+    thrust_ratio_star: float | None
+    v_min: float | None
+    theta_star_deg: float | None
+
+    def __post_init__(self) -> None:
+        require_range(self, "thrust_ratio_star", 0.0, 1.0, optional=True)
+        require_range(self, "v_min", 0.0, math.inf, optional=True)
+        require_range(self, "theta_star_deg", -90.0, 90.0, optional=True)
+
+    @classmethod
+    def of(cls, analytic: dict) -> "AnalyticMinimum":
+        """From :func:`analytic_minimum_speed`'s JSON."""
+        return cls(analytic.get("thrust_ratio_star"), analytic.get("v_min"), analytic.get("theta_star_deg"))
+
+
+@dataclass(frozen=True)
+class MinSpeedFigures:
+    """What the minimum-speed procedure found: the seeker's result (:class:`MinSpeedResult`; None
+    until it ended), where its depth-loop gains came from (:data:`DEPTH_GAINS_SOURCES`) and the
+    analytic operating point (None: the vehicle's data are not known). The JSON: the seeker's keys
+    but ``abort_reason`` (the procedure's own), ``depth_gains_source``, then with the analytic point
+    ``thrust_ratio_star``, ``v_min``, ``theta_star_deg``."""
+
+    seeker: MinSpeedResult | None
+    depth_gains_source: str
+    analytic: AnalyticMinimum | None = None
+
+    def __post_init__(self) -> None:
+        require_choice(self, "depth_gains_source", DEPTH_GAINS_SOURCES)
+
+    def to_dict(self) -> dict:
+        out = {k: v for k, v in self.seeker.to_dict().items() if k != "abort_reason"} \
+            if self.seeker is not None else {}
+        out["depth_gains_source"] = self.depth_gains_source
+        if self.analytic is not None:
+            out.update(thrust_ratio_star=self.analytic.thrust_ratio_star, v_min=self.analytic.v_min,
+                       theta_star_deg=self.analytic.theta_star_deg)
+        return json_form(out)
+
+
 class MinSpeedProcedure(SequenceBehavior):
     def __init__(self, config: MinSpeedProcedureConfig = MinSpeedProcedureConfig(), *,
                  depth_gains: dict[str, float] | None = None, analytic: dict | None = None) -> None:
         seeker_config = MinSpeedConfig(nominal_thrust=config.nominal_thrust, duration_s=config.duration_s,
                                        depth_setpoint=config.depth)
-        self.depth_gains_source = "Table 5.1 (autopilot's not readable)"
+        self.depth_gains_source = DEPTH_GAINS_SOURCES[1]
         if depth_gains:  # the seeker re-computes the autopilot's desired pitch with its depth-loop gains
             seeker_config = replace(seeker_config, depth_p=depth_gains["depth_p"], depth_i=depth_gains["depth_i"],
                                     pitch_max=depth_gains["pitch_max"])
-            self.depth_gains_source = "autopilot"
+            self.depth_gains_source = DEPTH_GAINS_SOURCES[0]
             if "pitch_p" in depth_gains:  # the θe crossover follows the pitch loop's gain (eq. M.1)
                 seeker_config = replace(seeker_config, pitch_p=depth_gains["pitch_p"])
         if config.period_s is not None:
@@ -107,14 +159,10 @@ class MinSpeedProcedure(SequenceBehavior):
                           Observe(config.settle_s, label="settle"), self.seeker],
                          name="min_speed", stop_on_failure=True)
 
-    def result(self) -> ProcedureResult:
+    def result(self) -> ProcedureResult[MinSpeedFigures]:
         # the seeker's figures; its abort reason is the procedure's own (ProcedureResult.reason)
-        figures = {k: v for k, v in self.seeker.result().to_dict().items() if k != "abort_reason"} \
-            if self.seeker.status.finished else {}
-        figures["depth_gains_source"] = self.depth_gains_source
-        if self.analytic:
-            figures.update(thrust_ratio_star=self.analytic.get("thrust_ratio_star"), v_min=self.analytic.get("v_min"),
-                           theta_star_deg=self.analytic.get("theta_star_deg"))
+        figures = MinSpeedFigures(self.seeker.result() if self.seeker.status.finished else None,
+                                  self.depth_gains_source, AnalyticMinimum.of(self.analytic) if self.analytic else None)
         return ProcedureResult.of("min_speed", self.status, self.reason, figures)
 
 
@@ -159,7 +207,8 @@ def min_speed_summary(result: dict) -> dict:
 
 
 def min_speed_procedure(link, abort, config: MinSpeedProcedureConfig = MinSpeedProcedureConfig(), *,
-                        analytic: dict | None = None, limits: SafetyLimits | None = None) -> ProcedureResult:
+                        analytic: dict | None = None,
+                        limits: SafetyLimits | None = None) -> ProcedureResult[MinSpeedFigures]:
     """Build and run the minimum-speed procedure under one restore point (module docstring)."""
     procedure = MinSpeedProcedure(config, depth_gains=read_depth_gains(link), analytic=analytic)
     return run_for_result(link, procedure, abort_requested=abort, limits=limits)

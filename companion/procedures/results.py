@@ -14,17 +14,21 @@ these words; :data:`STATUSES` lists them):
 :func:`status_name` is the only mapping from a behaviour's lifecycle status to these words.
 :class:`ProcedureResult` carries the status, the reason, the procedure's figures and what the
 runner saw (a pilot's takeover, restore problems); :meth:`ProcedureResult.to_json` is the stored
-and printed form. No I/O here.
+and printed form. The figures are a typed record of each procedure's own
+(:class:`ProcedureFigures`: ``CampaignFigures``, ``RollFigures``, ``MinSpeedFigures``,
+``SteadyStateFigures``, each beside its procedure; :data:`NO_FIGURES` for a procedure that never
+started), read by attribute; their ``to_dict()`` is taken only where the JSON is written. No I/O here.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from enum import StrEnum
-from typing import Any
+from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
 
 from behaviors.base import Status
 from behaviors.json_form import json_form
+from companion.checks import require_instance
 
 
 class Outcome(StrEnum):
@@ -73,30 +77,54 @@ def figures_of(result: dict, keys: tuple[str, ...]) -> dict:
     return figures
 
 
+@runtime_checkable
+class ProcedureFigures(Protocol):
+    """What a procedure measured (module docstring): a frozen record read by attribute, whose
+    ``to_dict`` is its strict JSON (NaN and infinities null), the keys its stored row begins with."""
+
+    def to_dict(self) -> dict: ...
+
+
 @dataclass(frozen=True)
-class ProcedureResult:
+class NoFigures:
+    """The figures of a procedure that measured nothing (refused, or never started): no key."""
+
+    def to_dict(self) -> dict:
+        return {}
+
+
+#: the figures of a procedure that never started
+NO_FIGURES = NoFigures()
+
+#: a procedure's own figures type (``IdentificationCampaign.result()`` gives ``ProcedureResult[CampaignFigures]``)
+Figures = TypeVar("Figures", bound=ProcedureFigures)
+
+
+@dataclass(frozen=True)
+class ProcedureResult(Generic[Figures]):
     """A procedure's outcome and figures (module docstring)."""
 
     procedure: str
     status: Outcome
     reason: str | None = None
-    figures: dict = field(default_factory=dict)
+    figures: Figures = NO_FIGURES  # type: ignore[assignment] # the default: no figures (never started)
     pilot_has_it: bool = False  # aborted because someone else took the vehicle
     restore_problems: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "status", Outcome.of(self.status))  # a word given is checked and typed
+        require_instance(self, "figures", ProcedureFigures)  # a record with to_dict(), never a dict
 
     @classmethod
-    def of(cls, procedure: str, status: Status, reason: str | None, figures: dict) -> "ProcedureResult":
+    def of(cls, procedure: str, status: Status, reason: str | None, figures: Figures) -> "ProcedureResult[Figures]":
         """The result of a behaviour in lifecycle ``status`` (the reason kept unless it succeeded)."""
-        return cls(procedure, status_name(status), None if status is Status.SUCCESS else reason, dict(figures))
+        return cls(procedure, status_name(status), None if status is Status.SUCCESS else reason, figures)
 
     @property
     def completed(self) -> bool:
         return self.status == "completed"
 
-    def with_outcome(self, outcome: Any) -> "ProcedureResult":
+    def with_outcome(self, outcome: Any) -> "ProcedureResult[Figures]":
         """This result as the runner saw it end (``RunOutcome``): an abort or failure it reported
         takes precedence over the procedure's own status; a takeover and restore problems are kept."""
         status, reason = self.status, self.reason
@@ -108,7 +136,7 @@ class ProcedureResult:
     def to_json(self) -> dict:
         """The stored and printed form: the figures, then ``status``, ``abort_reason`` (when there is
         a reason), ``pilot_has_it`` and ``restore_problems``."""
-        out = dict(self.figures)
+        out = self.figures.to_dict()
         out["status"] = self.status
         if self.reason:
             out["abort_reason"] = self.reason

@@ -17,8 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from behaviors.base import Status
+from behaviors.json_form import json_form
 from behaviors.sequence import SequenceBehavior
-from behaviors.steady_state import SquareConfig, SquarePattern, SteadyTurns, TurnConfig
+from behaviors.steady_state import SquareConfig, SquarePattern, SquaresResult, SteadyTurns, TurnConfig, TurnsResult
 from companion.checks import require_positive
 from companion.numerics.steady_state import current_direction_deg
 from companion.procedures.results import ProcedureResult, finite_or_none
@@ -39,12 +40,58 @@ class SteadyStateConfig:
         require_positive(self, "path_rate_hz")
 
 
-def _decimate(data: dict[str, np.ndarray], rate_hz: float) -> dict[str, list[float]]:
-    t = data["t"]
-    if t.size == 0:
-        return {"t": [], "north": [], "east": []}
-    keep = np.concatenate([[True], np.diff(np.floor(t * rate_hz)) > 0])
-    return {name: [float(v) for v in data[name][keep]] for name in ("t", "north", "east")}
+@dataclass(frozen=True)
+class DecimatedPath:
+    """A recorded path at about ``path_rate_hz``: vehicle time (s), north and east (m), one value of
+    each per sample. The JSON: ``t``, ``north``, ``east``."""
+
+    t: tuple[float, ...]
+    north: tuple[float, ...]
+    east: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if not len(self.t) == len(self.north) == len(self.east):
+            raise ValueError(f"DecimatedPath holds one north and one east per time, not {len(self.t)} times, "
+                             f"{len(self.north)} north, {len(self.east)} east")
+
+    @classmethod
+    def of(cls, data: dict[str, np.ndarray], rate_hz: float) -> "DecimatedPath":
+        """The first sample of each 1/rate_hz interval of a recorded path."""
+        t = data["t"]
+        if t.size == 0:
+            return cls((), (), ())
+        keep = np.concatenate([[True], np.diff(np.floor(t * rate_hz)) > 0])
+        return cls(*(tuple(float(v) for v in data[name][keep]) for name in ("t", "north", "east")))
+
+    def to_dict(self) -> dict:
+        return json_form({"t": self.t, "north": self.north, "east": self.east})
+
+
+@dataclass(frozen=True)
+class SteadyStateFigures:
+    """What the steady-state procedure measured: the squares (:class:`SquaresResult`) with their
+    decimated path, and the turns (:class:`TurnsResult`) with one decimated path per turn recorded;
+    each None (no path) until it started. The JSON: ``behavior`` (``steady_state``), then once
+    started ``squares`` (the squares' keys and ``path``) and ``turns`` (the turns' keys and ``paths``)."""
+
+    squares: SquaresResult | None = None
+    square_path: DecimatedPath | None = None
+    turns: TurnsResult | None = None
+    turn_paths: tuple[DecimatedPath, ...] = ()
+
+    def __post_init__(self) -> None:
+        if (self.squares is None) != (self.square_path is None):
+            raise ValueError("SteadyStateFigures holds the squares with their path, or neither")
+        if self.turns is None and self.turn_paths:
+            raise ValueError(f"SteadyStateFigures holds {len(self.turn_paths)} turn paths without the turns")
+
+    def to_dict(self) -> dict:
+        out: dict = {"behavior": "steady_state"}
+        if self.squares is not None and self.square_path is not None:
+            out["squares"] = {**self.squares.to_dict(), "path": self.square_path.to_dict()}
+        if self.turns is not None:
+            out["turns"] = {**self.turns.to_dict(), "paths": [path.to_dict() for path in self.turn_paths]}
+        return out
 
 
 class SteadyStateProcedure(SequenceBehavior):
@@ -67,19 +114,20 @@ class SteadyStateProcedure(SequenceBehavior):
                                                       for part in failed))
         return commands
 
-    def result(self) -> ProcedureResult:
-        figures: dict = {"behavior": "steady_state"}
-        if self.squares.status is not Status.INVALID:
-            figures["squares"] = {**self.squares.result().to_dict(),
-                                  "path": _decimate(self.squares.data(), self.config.path_rate_hz)}
-        if self.turns.status is not Status.INVALID:
-            figures["turns"] = {**self.turns.result().to_dict(),
-                                "paths": [_decimate(data, self.config.path_rate_hz) for data in self.turns.data()]}
+    def result(self) -> ProcedureResult[SteadyStateFigures]:
+        rate = self.config.path_rate_hz
+        squares = self.squares.status is not Status.INVALID
+        turns = self.turns.status is not Status.INVALID
+        figures = SteadyStateFigures(
+            self.squares.result() if squares else None,
+            DecimatedPath.of(self.squares.data(), rate) if squares else None,
+            self.turns.result() if turns else None,
+            tuple(DecimatedPath.of(data, rate) for data in self.turns.data()) if turns else ())
         return ProcedureResult.of("steady_state", self.status, self.reason, figures)
 
 
 def steady_state_procedure(link, abort, config: SteadyStateConfig = SteadyStateConfig(), *,
-                           limits: SafetyLimits | None = None) -> ProcedureResult:
+                           limits: SafetyLimits | None = None) -> ProcedureResult[SteadyStateFigures]:
     """Squares, then turns, under one restore point."""
     return run_for_result(link, SteadyStateProcedure(config), abort_requested=abort, limits=limits)
 

@@ -21,6 +21,7 @@ from companion.checks import is_number, require_non_negative, require_positive
 from companion.link.autopilots.ardusub import CAMPAIGN_DEFAULTS as ARDUSUB_CAMPAIGN
 from companion.procedures.app import AbortFlag, ConsoleProgress, run_campaign, vehicle_record
 from companion.procedures.campaign import CampaignConfig
+from companion.procedures.campaign_figures import loops_to_dict
 from companion.procedures.registry import rehearsal_behaviors, report_sections
 from companion.procedures.results import finite_or_none
 from companion.records.store import Store, json_safe
@@ -382,8 +383,8 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
         summary["checks"] = campaign.checks
         summary["verified"] = campaign.verifier.summary() if campaign.verifier is not None else None
         summary["heading_design"] = campaign.heading_choice.choice.to_dict() if campaign.heading_choice else None
-        summary["loops"] = campaign.loop_outcomes()
-        summary["thrust_levels"] = campaign.result().figures["thrust_levels"]
+        summary["loops"] = loops_to_dict(campaign.loop_outcomes())
+        summary["thrust_levels"] = campaign.result().figures.thrust_levels.to_dict()
         summary["final_gains"] = campaign.final_gains
         summary["store"] = str(store_path)
         summary["report"] = str(out / "report.html") if config.report else None

@@ -12,6 +12,10 @@ from companion.cli.commands._common import (ConnectFailed, add_connect_arguments
                                             link_quality_line, print_json, refused,
                                             thrust_list)
 
+#: the campaign's figures (``CampaignFigures``) ``identify --json`` prints, in the figures' order
+PRINTED_FIGURES = ("accepted", "design", "steps", "checks", "verified", "vehicle_time_by_phase", "final_gains",
+                   "speed_loop", "heading_design", "loops", "thrust_levels")
+
 
 def add_parser(subparsers) -> None:
     parser = subparsers.add_parser(
@@ -94,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
               "mission) is required", file=sys.stderr)
         return 2
     from companion.procedures.app import ConsoleProgress, run_campaign, vehicle_record
+    from companion.procedures.campaign_figures import loops_to_dict
     from companion.procedures.limits import SafetyLimits
     from companion.procedures.registry import report_sections
     from companion.records.report import write_report
@@ -132,13 +137,12 @@ def run(args: argparse.Namespace) -> int:
     except ConnectFailed as exc:
         print(exc, file=sys.stderr)
         return refused(args, str(exc))
+    figures = campaign.result().figures
     result = {"campaign_id": campaign_id, "status": outcome.status, "reason": outcome.reason,
               "restore_problems": outcome.restore_problems, "restore_notes": outcome.restore_notes,
               "store_problems": outcome.store_problems, "link_quality": link_quality,
               "store": args.store, "report": report,
-              **{k: v for k, v in campaign.result().figures.items()
-                 if k in ("accepted", "design", "steps", "final_gains", "speed_loop", "checks", "verified",
-                          "vehicle_time_s", "vehicle_time_by_phase", "heading_design", "loops", "thrust_levels")}}
+              **{k: v for k, v in figures.to_dict().items() if k in PRINTED_FIGURES}}
     if args.json:
         print_json(result)
     else:
@@ -147,22 +151,23 @@ def run(args: argparse.Namespace) -> int:
             print(f"  NOT restored: {line}")
         for line in outcome.restore_notes + outcome.store_problems:
             print(f"  {line}")
-        for a in result["accepted"]:
-            model = ", ".join(f"{k} {v:.4f}" for k, v in a["model"].items() if isinstance(v, float))
-            print(f"  {a['axis']:5s} thrust {a['thrust']:.2f} speed {a['speed']:.2f} m/s R2 {a['r2']:.3f}: {model}")
-        for line in (result.get("thrust_levels") or {}).get("respacing", []):
+        for a in figures.accepted:
+            model = ", ".join(f"{k} {v:.4f}" for k, v in vars(a.model).items() if isinstance(v, float))
+            print(f"  {a.axis:5s} thrust {a.thrust:.2f} speed {a.speed:.2f} m/s R2 {a.r2:.3f}: {model}")
+        for line in figures.thrust_levels.respacing:
             print(f"  thrust levels: {line}")
-        for line in loop_lines(result.get("loops"), result.get("heading_design")):
+        heading_design = figures.heading_design.to_dict() if figures.heading_design is not None else None
+        for line in loop_lines(loops_to_dict(figures.loops), heading_design):
             print(f"  {line}")
-        speed = campaign.speed.result() if campaign.speed is not None else None
+        speed = figures.speed_loop
         if speed is not None:
             print(f"  speed loop: {speed.reason or speed.verdict}" + (f"; {speed.surge.describe()}"
                                                                     if speed.surge is not None else ""))
-        for line in filter(None, [phase_line(result.get("vehicle_time_s"), result.get("vehicle_time_by_phase") or {}),
-                                  *verification_lines(result.get("verified"))]):
+        verified = figures.verified.summary() if figures.verified is not None else None
+        for line in filter(None, [phase_line(None, figures.vehicle_time_by_phase), *verification_lines(verified)]):
             print(f"  {line}")
-        if result["final_gains"]:
-            print(f"  gains written: {result['final_gains']}")
+        if figures.final_gains:
+            print(f"  gains written: {figures.final_gains}")
         line = link_quality_line(result["link_quality"] or {})
         if line:
             print(f"  {line}")
