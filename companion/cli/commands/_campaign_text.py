@@ -8,9 +8,12 @@ def _fmt(value, spec: str) -> str:
 
 
 def phase_line(total_s, phases: dict) -> str | None:
-    """``campaign: 258 s of vehicle time (settle 87 s, excitation 40 s, ...)``, or None without phases."""
+    """``campaign: 258 s of vehicle time (settle 87 s, excitation 40 s, ...)``, or None without phases;
+    without ``total_s`` the total is the phases' sum."""
     if not phases:
         return None
+    if total_s is None:
+        total_s = sum(seconds for seconds in phases.values() if isinstance(seconds, (int, float)))
     return (f"campaign: {_fmt(total_s, '.0f')} s of vehicle time ("
             + ", ".join(f"{name.replace('_', ' ')} {seconds:.0f} s" for name, seconds in phases.items()) + ")")
 
