@@ -17,6 +17,7 @@ from behaviors.json_form import json_form
 from companion.checks import require_count, require_measured, require_positive, require_range
 from companion.interface import Command, SetHeading, SetMode, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.angles import wrap_pi
+from companion.numerics.step_figures import FlownStepFigures
 from companion.numerics.step_response import OSCILLATION_BAND, SETTLE_BAND, smooth_heading, step_metrics  # noqa: F401
 
 
@@ -44,14 +45,15 @@ class StepTestConfig:
 
 @dataclass(frozen=True)
 class HeadingStepsResult:
-    """The step and its return flown with ``gains`` at ``thrust``: each step's metrics
-    (:func:`step_metrics` with ``step_deg`` and ``speed``), the largest overshoot (NaN: none measured),
-    the summed step error and the most reversals, the recorded series, and whether it was aborted."""
+    """The step and its return flown with ``gains`` at ``thrust``: each step's figures
+    (``FlownStepFigures``: :func:`step_metrics` with ``step_deg`` and ``speed``), the largest overshoot
+    (NaN: none measured), the summed step error and the most reversals, the recorded series, and
+    whether it was aborted."""
 
     label: str
     thrust: float
     gains: dict[str, float]
-    steps: tuple[dict, ...]
+    steps: tuple[FlownStepFigures, ...]
     max_overshoot_pct: float
     iae_s: float
     oscillations: int
@@ -62,9 +64,12 @@ class HeadingStepsResult:
     def __post_init__(self) -> None:
         require_measured(self, "max_overshoot_pct", "iae_s")
         require_count(self, "oscillations")
+        if any(not isinstance(step, FlownStepFigures) for step in self.steps):
+            raise ValueError(f"HeadingStepsResult.steps must be FlownStepFigures, not {self.steps!r}")
 
     def to_dict(self) -> dict:
-        return json_form({"label": self.label, "thrust": self.thrust, "gains": self.gains, "steps": self.steps,
+        return json_form({"label": self.label, "thrust": self.thrust, "gains": self.gains,
+                          "steps": [step.to_dict() for step in self.steps],
                           "max_overshoot_pct": self.max_overshoot_pct, "iae_s": self.iae_s,
                           "oscillations": self.oscillations, "config": asdict(self.config), "series": self.series,
                           "aborted": self.aborted})
@@ -88,7 +93,7 @@ class HeadingStepTest(Behaviour):
         self._unwrap_ref = math.nan
         self._unwrap_offset = 0.0
         self.series: dict[str, list[float]] = {"time": [], "heading": [], "target": [], "rudder": [], "speed": []}
-        self.steps: list[dict] = []
+        self.steps: list[FlownStepFigures] = []
 
     @property
     def aborted(self) -> bool:
@@ -142,10 +147,10 @@ class HeadingStepTest(Behaviour):
 
     def _score(self, start: float, target: float) -> None:
         first = self._segment_start
-        metrics = step_metrics(self.series["time"][first:], self.series["heading"][first:], start, target)
+        figures = step_metrics(self.series["time"][first:], self.series["heading"][first:], start, target)
         speeds = [s for s in self.series["speed"][first:] if math.isfinite(s)]
-        metrics.update(step_deg=math.degrees(target - start), speed=float(np.mean(speeds)) if speeds else math.nan)
-        self.steps.append(metrics)
+        self.steps.append(FlownStepFigures(figures, step_deg=math.degrees(target - start),
+                                           speed=float(np.mean(speeds)) if speeds else math.nan))
 
     def terminate(self, status: Status) -> Sequence[Command]:
         if status is not Status.ABORTED:
@@ -153,10 +158,11 @@ class HeadingStepTest(Behaviour):
         return [SetHeading(wrap_pi(self._course))] if math.isfinite(self._course) else []
 
     def result(self) -> HeadingStepsResult:
-        overshoots = [s["overshoot_pct"] for s in self.steps if math.isfinite(s["overshoot_pct"])]
+        figures = [s.figures for s in self.steps]
+        overshoots = [f.overshoot_pct for f in figures if math.isfinite(f.overshoot_pct)]
         return HeadingStepsResult(
-            label=self.label, thrust=self.thrust, gains=dict(self.gains), steps=tuple(dict(s) for s in self.steps),
+            label=self.label, thrust=self.thrust, gains=dict(self.gains), steps=tuple(self.steps),
             max_overshoot_pct=max(overshoots) if overshoots else math.nan,
-            iae_s=float(sum(s["iae_s"] for s in self.steps)) if self.steps else math.nan,
-            oscillations=int(max((s["oscillations"] for s in self.steps), default=0)), config=self.config,
+            iae_s=float(sum(f.iae_s for f in figures)) if figures else math.nan,
+            oscillations=int(max((f.oscillations for f in figures), default=0)), config=self.config,
             series={k: list(v) for k, v in self.series.items()}, aborted=self.aborted)

@@ -402,7 +402,7 @@ class MissionLearner(Behaviour):
     # ------------------------------------------------------------------ turns and the verdict
     def _turn_flown(self, turn: FlownTurn) -> None:
         figures = turn.figures()
-        if not math.isfinite(figures["iae_s"]):
+        if not math.isfinite(figures.iae_s):
             return
         written = self.written
         learned = written is not None and turn.t_start >= self.written_at
@@ -412,8 +412,8 @@ class MissionLearner(Behaviour):
                 predicted, predicted_overshoot = self.design.predict(written, turn.speed, turn.step)
             original = self.design.predict(self.original, turn.speed, turn.step)[0]
         self.turns.append(TurnFigures(t_start=turn.t_start, speed=turn.speed, size=math.degrees(turn.step),
-                                      gains="learned" if learned else "original", error=figures["iae_s"],
-                                      overshoot_pct=figures["overshoot_pct"], predicted_error=predicted,
+                                      gains="learned" if learned else "original", error=figures.iae_s,
+                                      overshoot_pct=figures.overshoot_pct, predicted_error=predicted,
                                       predicted_overshoot_pct=predicted_overshoot, original_error=original,
                                       metric=STEP_ERROR))
 

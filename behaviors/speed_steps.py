@@ -17,9 +17,10 @@ import numpy as np
 from behaviors.base import Behaviour, Footprint, Status
 from behaviors.heading_steps import step_metrics
 from behaviors.json_form import json_form
-from companion.checks import require_measured, require_positive
+from companion.checks import require_finite, require_measured, require_positive
 from companion.interface import Command, SetHeading, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.angles import wrap_pi
+from companion.numerics.step_figures import StepFigures
 
 
 @dataclass(frozen=True)
@@ -32,16 +33,34 @@ class SpeedStepConfig:
 
 
 @dataclass(frozen=True)
+class FlownSpeedStep:
+    """One flown speed step's ``figures`` (:func:`step_metrics` on the measured speed) from the speed
+    ``start`` to ``target`` (m/s). Its JSON: the figures' keys, then ``start``, ``target``."""
+
+    figures: StepFigures
+    start: float
+    target: float
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.figures, StepFigures):
+            raise ValueError(f"FlownSpeedStep.figures must be StepFigures, not {self.figures!r}")
+        require_finite(self, "start", "target")
+
+    def to_dict(self) -> dict:
+        return {**self.figures.to_dict(), "start": self.start, "target": self.target}
+
+
+@dataclass(frozen=True)
 class SpeedStepsResult:
     """The speed step and its return flown with ``gains`` between ``speeds`` (m/s): each step's
-    metrics (:func:`step_metrics` with ``start`` and ``target``), the largest overshoot (NaN: none
+    figures (:class:`FlownSpeedStep`), the largest overshoot (NaN: none
     measured), the summed settling time (a step that never settled counts as its hold; NaN: no step),
     the recorded series, and whether it was aborted."""
 
     label: str
     gains: dict[str, float]
     speeds: tuple[float, float]
-    steps: tuple[dict, ...]
+    steps: tuple[FlownSpeedStep, ...]
     max_overshoot_pct: float
     settling_time_s: float
     config: SpeedStepConfig
@@ -52,9 +71,12 @@ class SpeedStepsResult:
         require_measured(self, "max_overshoot_pct", "settling_time_s")
         if not (len(self.speeds) == 2 and all(speed > 0.0 for speed in self.speeds)):
             raise ValueError(f"SpeedStepsResult.speeds must be two speeds > 0 (from, to), not {self.speeds!r}")
+        if any(not isinstance(step, FlownSpeedStep) for step in self.steps):
+            raise ValueError(f"SpeedStepsResult.steps must be FlownSpeedStep, not {self.steps!r}")
 
     def to_dict(self) -> dict:
-        return json_form({"label": self.label, "gains": self.gains, "speeds": self.speeds, "steps": self.steps,
+        return json_form({"label": self.label, "gains": self.gains, "speeds": self.speeds,
+                          "steps": [step.to_dict() for step in self.steps],
                           "max_overshoot_pct": self.max_overshoot_pct, "settling_time_s": self.settling_time_s,
                           "config": asdict(self.config), "series": self.series, "aborted": self.aborted})
 
@@ -102,7 +124,7 @@ class SpeedStepTest(Behaviour):
         self._phase_start = math.nan
         self._segment = 0
         self.series: dict[str, list[float]] = {"time": [], "speed": [], "demand": [], "throttle": []}
-        self.steps: list[dict] = []
+        self.steps: list[FlownSpeedStep] = []
 
     def _thrust(self, speed: float) -> SetThrust:
         return SetThrust(min(1.0, speed / self.speed_per_thrust))
@@ -140,9 +162,7 @@ class SpeedStepTest(Behaviour):
         times = np.asarray(self.series["time"][first:], dtype=float)
         speed = np.asarray(self.series["speed"][first:], dtype=float)
         ok = np.isfinite(speed)
-        metrics = step_metrics(times[ok], speed[ok], start, target)
-        metrics.update(start=start, target=target)
-        self.steps.append(metrics)
+        self.steps.append(FlownSpeedStep(step_metrics(times[ok], speed[ok], start, target), start, target))
 
     def terminate(self, status: Status) -> Sequence[Command]:
         if status is not Status.ABORTED:
@@ -150,11 +170,11 @@ class SpeedStepTest(Behaviour):
         return [self._thrust(self.speeds[0])]
 
     def result(self) -> SpeedStepsResult:
-        overshoots = [s["overshoot_pct"] for s in self.steps if math.isfinite(s["overshoot_pct"])]
+        overshoots = [s.figures.overshoot_pct for s in self.steps if math.isfinite(s.figures.overshoot_pct)]
         return SpeedStepsResult(
             label=self.label, gains=dict(self.gains), speeds=(self.speeds[0], self.speeds[1]),
-            steps=tuple(dict(s) for s in self.steps), max_overshoot_pct=max(overshoots) if overshoots else math.nan,
-            settling_time_s=_total([s["settling_time_s"] for s in self.steps], self.config.hold_s),
+            steps=tuple(self.steps), max_overshoot_pct=max(overshoots) if overshoots else math.nan,
+            settling_time_s=_total([s.figures.settling_time_s for s in self.steps], self.config.hold_s),
             config=self.config, series={k: list(v) for k, v in self.series.items()},
             aborted=self.status is Status.ABORTED)
 

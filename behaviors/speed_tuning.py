@@ -71,9 +71,10 @@ class SpeedCheck:
         if len(steps) != len(predicted):
             return f"{len(steps)} speed steps flown where {len(predicted)} were predicted"
         for step, prediction in zip(steps, predicted):
-            gap = abs(step["overshoot_pct"] - prediction["overshoot_pct"])
+            gap = abs(step.figures.overshoot_pct - prediction["overshoot_pct"])
             if not gap <= self.overshoot_tolerance_pct:
-                return (f"speed step overshoot {step['overshoot_pct']:.1f} % where {prediction['overshoot_pct']:.1f} % "
+                return (f"speed step overshoot {step.figures.overshoot_pct:.1f} % where "
+                        f"{prediction['overshoot_pct']:.1f} % "
                         f"was predicted")
         predicted_s = _summed(prediction["settling_time_s"] for prediction in predicted)
         if not abs(flown.settling_time_s - predicted_s) <= self.settling_tolerance_s:
@@ -83,7 +84,7 @@ class SpeedCheck:
     def verdict(self, original: SpeedStepFigures | None, design: SpeedStepsResult) -> str | None:
         """None when the design passes, else the reason."""
         for step in design.steps:
-            overshoot = step["overshoot_pct"]
+            overshoot = step.figures.overshoot_pct
             if not (isinstance(overshoot, float) and math.isfinite(overshoot)):
                 return "a speed step without a measured overshoot"
             if overshoot > self.max_overshoot_pct:

@@ -17,7 +17,8 @@ decided, the record goes on until the speed is back, up to ``max_s``), or the ru
 for more than ``max_saturated_s`` longer than the step's prediction on its model says it does (the
 predicted steps include the rudder's limit, eq. A.3; saturation they do not predict means the model
 does not stand for the step) — and a second such step ends it undecided. The figures of
-merit are :func:`companion.numerics.step_response.step_metrics`.
+merit are :func:`companion.numerics.step_response.step_metrics`'s, recorded with how the step ended
+as a ``companion.numerics.step_figures.FlownStepFigures``.
 
 Chaining: the course the step ends on is the next check's course; nothing returns to the start.
 """
@@ -36,6 +37,7 @@ from behaviors.steadiness import SteadinessDetector, SteadinessRule
 from companion.checks import require_count, require_measured, require_positive, require_range
 from companion.interface import Command, SetHeading, SetParameters, SetThrust, StatusText, Telemetry
 from companion.numerics.angles import wrap_pi
+from companion.numerics.step_figures import FlownStepFigures
 from companion.numerics.step_response import SETTLE_BAND, smooth_heading, step_metrics
 
 
@@ -64,8 +66,9 @@ class VerificationResult:
     """One verification step as flown (module docstring): whether it ``decided`` (False: disturbed or
     saturated twice, or aborted) and why not, how many flights it took and why each undecided one was,
     the flown step's overshoot, step error and reversals (NaN, NaN, 0 before a step was scored), its
-    metrics (:func:`step_metrics` with ``step_deg``, ``speed``, ``ended``, ``duration_s``; empty
-    before), the recorded series, the vehicle seconds per stage, and whether it was aborted."""
+    figures (a ``FlownStepFigures``: :func:`step_metrics` with ``step_deg``, ``speed``, ``ended``,
+    ``duration_s``; none before), the recorded series, the vehicle seconds per stage, and whether it
+    was aborted."""
 
     label: str
     thrust: float
@@ -77,7 +80,7 @@ class VerificationResult:
     max_overshoot_pct: float
     iae_s: float
     oscillations: int
-    steps: tuple[dict, ...]
+    steps: tuple[FlownStepFigures, ...]
     config: VerificationConfig
     series: dict[str, list[float]]
     stage_times: dict[str, float]
@@ -88,6 +91,8 @@ class VerificationResult:
         require_measured(self, "max_overshoot_pct", "iae_s")
         if any(not seconds >= 0.0 for seconds in self.stage_times.values()):
             raise ValueError(f"VerificationResult.stage_times must be durations ≥ 0, not {self.stage_times!r}")
+        if any(not isinstance(step, FlownStepFigures) for step in self.steps):
+            raise ValueError(f"VerificationResult.steps must be FlownStepFigures, not {self.steps!r}")
         if self.decided and (self.why_undecided is not None or self.aborted):
             raise ValueError("VerificationResult: a step that decided is neither undecided "
                              f"({self.why_undecided!r}) nor aborted")
@@ -96,7 +101,8 @@ class VerificationResult:
         return json_form({"label": self.label, "thrust": self.thrust, "gains": self.gains, "decided": self.decided,
                           "why_undecided": self.why_undecided, "flights": self.flights,
                           "undecided": self.undecided, "max_overshoot_pct": self.max_overshoot_pct,
-                          "iae_s": self.iae_s, "oscillations": self.oscillations, "steps": self.steps,
+                          "iae_s": self.iae_s, "oscillations": self.oscillations,
+                          "steps": [step.to_dict() for step in self.steps],
                           "config": asdict(self.config), "series": self.series, "stage_times": self.stage_times,
                           "aborted": self.aborted})
 
@@ -133,7 +139,7 @@ class VerificationStep(Behaviour):
         self.flights = 0
         self.why_undecided: str | None = None
         self.undecided: list[str] = []  # why each flight that could not decide did not (figures included)
-        self.metrics: dict = {}
+        self.metrics: FlownStepFigures | None = None
         self.series: dict[str, list[float]] = {"time": [], "heading": [], "target": [], "rudder": [], "speed": []}
         self.stage_times: dict[str, float] = {}
 
@@ -261,12 +267,12 @@ class VerificationStep(Behaviour):
 
     def _conclude(self, verdict: str, now: float, heading: float) -> list[Command]:
         first = self._first_index
-        self.metrics = step_metrics(self.series["time"][first:], self.series["heading"][first:],
-                                    self._course, self._target)
         speeds = self._speeds
-        self.metrics.update(step_deg=math.degrees(self._target - self._course),
-                            speed=float(np.mean([v for _, v in speeds])) if speeds else math.nan, ended=verdict,
-                            duration_s=now - self._phase_start)
+        self.metrics = FlownStepFigures(
+            step_metrics(self.series["time"][first:], self.series["heading"][first:], self._course, self._target),
+            step_deg=math.degrees(self._target - self._course),
+            speed=float(np.mean([v for _, v in speeds])) if speeds else math.nan, ended=verdict,
+            duration_s=now - self._phase_start)
         if verdict in ("settled", "timeout"):
             self.why_undecided = None
             self._enter("done", now)
@@ -294,10 +300,13 @@ class VerificationStep(Behaviour):
         return self.status is Status.SUCCESS
 
     def result(self) -> VerificationResult:
+        figures = self.metrics.figures if self.metrics is not None else None
         return VerificationResult(
             label=self.label, thrust=self.thrust, gains=dict(self.gains), decided=self.decided,
             why_undecided=self.why_undecided, flights=self.flights, undecided=tuple(self.undecided),
-            max_overshoot_pct=self.metrics.get("overshoot_pct", math.nan), iae_s=self.metrics.get("iae_s", math.nan),
-            oscillations=self.metrics.get("oscillations", 0), steps=(dict(self.metrics),) if self.metrics else (),
+            max_overshoot_pct=figures.overshoot_pct if figures is not None else math.nan,
+            iae_s=figures.iae_s if figures is not None else math.nan,
+            oscillations=figures.oscillations if figures is not None else 0,
+            steps=(self.metrics,) if self.metrics is not None else (),
             config=self.config, series={k: list(v) for k, v in self.series.items()},
             stage_times=dict(self.stage_times), aborted=self.status is Status.ABORTED)

@@ -74,9 +74,9 @@ def main() -> int:
             flown = step["iae_s"]
             row = []
             for name, predicted in (("A.2s", shaped), ("A.2", plain)):
-                error = 100.0 * (predicted["iae_s"] / flown - 1.0)
+                error = 100.0 * (predicted.figures.iae_s / flown - 1.0)
                 errors[name].append(error)
-                row.append(f"{predicted['iae_s']:6.2f} {error:+6.1f}")
+                row.append(f"{predicted.figures.iae_s:6.2f} {error:+6.1f}")
             print(f"{folder.name[4:]:>4} {thrust:6.2f} {flown:9.2f} {row[0]} {row[1]} | {step['overshoot_pct']:9.1f} "
                   f"{shaped['overshoot_pct']:5.1f} {plain['overshoot_pct']:5.1f}")
     for name, values in errors.items():

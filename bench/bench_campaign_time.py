@@ -90,12 +90,12 @@ def after_campaign(seed: int) -> dict:
             if not step.decided:
                 rows.append({"thrust": point.thrust, "label": label, "decided": False})
                 continue
-            predicted = verifier.step_prediction(model, gains, step.metrics["duration_s"])
+            predicted = verifier.step_prediction(model, gains, step.metrics.duration_s)
             rows.append({"thrust": point.thrust, "label": label, "decided": True,
-                         "overshoot": step.metrics["overshoot_pct"], "predicted_overshoot": predicted["overshoot_pct"],
-                         "iae": step.metrics["iae_s"], "predicted_iae": predicted["iae_s"]})
-    in_campaign = [{"overshoot": s.max_overshoot_pct, "predicted_overshoot": s.predicted["overshoot_pct"],
-                    "iae": s.iae_s, "predicted_iae": s.predicted["iae_s"]}
+                         "overshoot": step.metrics.figures.overshoot_pct, "predicted_overshoot": predicted.figures.overshoot_pct,
+                         "iae": step.metrics.figures.iae_s, "predicted_iae": predicted.figures.iae_s})
+    in_campaign = [{"overshoot": s.max_overshoot_pct, "predicted_overshoot": s.predicted.figures.overshoot_pct,
+                    "iae": s.iae_s, "predicted_iae": s.predicted.figures.iae_s}
                    for s in verifier.flown if s.predicted and s.decided]
     return {"status": outcome.status, "rows": rows, "flown_in_campaign": in_campaign}
 

@@ -81,8 +81,8 @@ def legs_after(samples: np.ndarray, start_s: float) -> dict:
         if turn is not None:
             turns.append(turn.figures())
     return {"heading_rms_deg": float(np.sqrt(np.mean(error ** 2))) if error.size else math.nan,
-            "turn_iae_s": float(np.mean([f["iae_s"] for f in turns])) if turns else math.nan,
-            "turn_overshoot_pct": float(max(f["overshoot_pct"] for f in turns)) if turns else math.nan,
+            "turn_iae_s": float(np.mean([f.iae_s for f in turns])) if turns else math.nan,
+            "turn_overshoot_pct": float(max(f.overshoot_pct for f in turns)) if turns else math.nan,
             "turns": len(turns)}
 
 

@@ -114,10 +114,10 @@ def main() -> int:
                 for name, skid in variants.items():
                     predicted = predicted_step(controller, model, record["gains"],
                                                dataclasses.replace(limits, skid=skid), size, duration, speed)
-                    gap = (predicted["iae_s"] / step["iae_s"] - 1.0, predicted["overshoot_pct"] - step["overshoot_pct"])
+                    gap = (predicted.figures.iae_s / step["iae_s"] - 1.0, predicted.figures.overshoot_pct - step["overshoot_pct"])
                     gaps[name].append(gap)
-                    row_iae.append(f"{predicted['iae_s']:5.2f} {100 * gap[0]:+5.0f}%")
-                    row_os.append(f"{predicted['overshoot_pct']:5.1f}")
+                    row_iae.append(f"{predicted.figures.iae_s:5.2f} {100 * gap[0]:+5.0f}%")
+                    row_os.append(f"{predicted.figures.overshoot_pct:5.1f}")
                 run = folder.name.removeprefix("run-")[:4]
                 print(f"{run:>4} {record['thrust']:6.2f} {record['label']:>9} | {step['iae_s']:9.2f} "
                       + " ".join(row_iae) + f" | {step['overshoot_pct']:8.1f} " + " ".join(row_os))

@@ -64,7 +64,7 @@ def test_the_target_rate_is_fed_forward_so_a_quick_shaping_turns_sooner_and_a_sl
     plain = heading(0.0)
     assert heading(0.5)[early] > plain[early]  # 1/tc = 2 > ANG_P 1
     assert heading(2.0)[early] < plain[early]  # 1/tc = 0.5 < ANG_P 1
-    assert step_metrics(np.arange(plain.size) * 0.01, heading(0.5), 0.0, step, smooth=False)["iae_s"] < \
-        step_metrics(np.arange(plain.size) * 0.01, plain, 0.0, step, smooth=False)["iae_s"]
+    assert step_metrics(np.arange(plain.size) * 0.01, heading(0.5), 0.0, step, smooth=False).iae_s < \
+        step_metrics(np.arange(plain.size) * 0.01, plain, 0.0, step, smooth=False).iae_s
     with pytest.raises(ValueError, match="rate_max"):
         ShapedYawTarget(input_tc=0.15, angle_p=1.0, rate_p=1.0, rate_max=0.0)

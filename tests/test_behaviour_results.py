@@ -21,7 +21,7 @@ from behaviors.observe import ObserveResult
 from behaviors.roll_kick import RollKickResult
 from behaviors.roll_stabilisation import RollStabilisationResult, default_gains
 from behaviors.sequence import SequenceResult
-from behaviors.speed_steps import PredictedSpeedSteps, SpeedStepConfig, SpeedStepsResult
+from behaviors.speed_steps import FlownSpeedStep, PredictedSpeedSteps, SpeedStepConfig, SpeedStepsResult
 from behaviors.speed_tuning import SpeedTuningResult
 from behaviors.steady_state import SquareConfig, SquaresResult, TurnConfig, TurnOutcome, TurnsResult
 from behaviors.verification import VerificationConfig, VerificationResult
@@ -29,31 +29,40 @@ from companion.numerics.drift import DriftConfig
 from companion.numerics.identification import YawModel
 from companion.numerics.speed_gains import design_speed_gains
 from companion.numerics.steady_state import StraightLegFit, TurnFit
+from companion.numerics.step_figures import FlownStepFigures, PredictedStep, StepFigures
 from companion.numerics.surge import SurgeModel
 from companion.procedures.verified_design import FlownStep
 from companion.records.serialise import json_ready, to_json
 
 NAN = math.nan
 SERIES = {"time": [0.0, 0.1, 0.2], "heading": [0.0, NAN, 0.3]}
-STEP = {"overshoot_pct": 4.0, "rise_time_s": 2.0, "settling_time_s": NAN, "iae_s": 1.5, "oscillations": 0}
+STEP = StepFigures(overshoot_pct=4.0, rise_time_s=2.0, settling_time_s=NAN, iae_s=1.5, oscillations=0)
+HEADING_STEP = FlownStepFigures(STEP, step_deg=20.0, speed=1.6)
+VERIFIED_STEP = FlownStepFigures(STEP, step_deg=-20.0, speed=1.6, ended="settled", duration_s=9.5)
+SPEED_STEP = FlownSpeedStep(STEP, 1.0, 2.0)
+PREDICTED_STEP = PredictedStep(STEP, rudder_peak=0.31, saturated=False, saturated_s=0.0)
+#: a speed step predicted on the surge model (``companion.numerics.speed_gains``' figures)
+PREDICTED_SPEED_STEP = {"overshoot_pct": 4.0, "rise_time_s": 2.0, "settling_time_s": NAN, "iae_s": 1.5,
+                        "oscillations": 0}
 SURGE = SurgeModel(gain=2.5, exponent=1.0, gamma=0.28, lag=0.4)  # r2 NaN: not scored
 
 
 def heading_steps(**changes: Any) -> HeadingStepsResult:
-    fields = dict(label="scheduled", thrust=0.8, gains={"heading_p": 0.6}, steps=(STEP, STEP), max_overshoot_pct=4.0,
-                  iae_s=3.0, oscillations=0, config=StepTestConfig(), series=SERIES, aborted=False)
+    fields = dict(label="scheduled", thrust=0.8, gains={"heading_p": 0.6}, steps=(HEADING_STEP, HEADING_STEP),
+                  max_overshoot_pct=4.0, iae_s=3.0, oscillations=0, config=StepTestConfig(), series=SERIES, aborted=False)
     return HeadingStepsResult(**(fields | changes))
 
 
 def verification(**changes: Any) -> VerificationResult:
     fields = dict(label="own", thrust=0.6, gains={"heading_p": 0.8}, decided=True, why_undecided=None, flights=1,
-                  undecided=(), max_overshoot_pct=4.0, iae_s=1.5, oscillations=0, steps=(STEP,),
+                  undecided=(), max_overshoot_pct=4.0, iae_s=1.5, oscillations=0, steps=(VERIFIED_STEP,),
                   config=VerificationConfig(), series=SERIES, stage_times={"settle": 3.0, "step": 9.5}, aborted=False)
     return VerificationResult(**(fields | changes))
 
 
 def speed_steps(**changes: Any) -> SpeedStepsResult:
-    fields = dict(label="design", gains={"speed_p": 0.2}, speeds=(1.0, 2.0), steps=(STEP, STEP), max_overshoot_pct=4.0,
+    fields = dict(label="design", gains={"speed_p": 0.2}, speeds=(1.0, 2.0), steps=(SPEED_STEP, SPEED_STEP),
+                  max_overshoot_pct=4.0,
                   settling_time_s=NAN, config=SpeedStepConfig(), series={"time": [0.0], "speed": [NAN]}, aborted=False)
     return SpeedStepsResult(**(fields | changes))
 
@@ -62,7 +71,8 @@ def speed_tuning(**changes: Any) -> SpeedTuningResult:
     design = design_speed_gains(SURGE, 2.0, (1.0, 2.0), speed_max=2.0)
     fields = dict(status=Status.SUCCESS, reason=None, error=None, surge=SURGE, design=design,
                   original={"speed_p": 0.1}, context={"speed_default": 2.5}, steps={"design": speed_steps()},
-                  verdict="passed", original_steps=PredictedSpeedSteps("original", (STEP,), 19.0, math.inf),
+                  verdict="passed",
+                  original_steps=PredictedSpeedSteps("original", (PREDICTED_SPEED_STEP,), 19.0, math.inf),
                   original_flown_because=None, kept=design.gains.params(),
                   record={"time": [0.0], "throttle": [0.5], "speed": [NAN], "levels": [], "decimation": 5})
     return SpeedTuningResult(**(fields | changes))
@@ -118,11 +128,15 @@ CASES: dict[str, tuple[Callable[[], Any], Callable[[], Any]]] = {
                  lambda: SequenceResult("roll", "done", None, ())),
     "heading steps": (heading_steps, lambda: heading_steps(oscillations=-1)),
     "verification step": (verification, lambda: verification(why_undecided="the step was saturated")),
-    "flown step with its prediction": (lambda: FlownStep.of(verification(), dict(STEP, saturated=np.bool_(False))),
+    "flown step with its prediction": (lambda: FlownStep.of(verification(), PREDICTED_STEP),
                                        lambda: FlownStep.of(verification(stage_times={"step": -1.0}), None)),
+    "step figures": (lambda: STEP, lambda: dataclasses.replace(STEP, oscillations=1.5)),
+    "predicted step": (lambda: PREDICTED_STEP, lambda: dataclasses.replace(PREDICTED_STEP, saturated_s=-0.1)),
+    "flown heading step": (lambda: VERIFIED_STEP, lambda: dataclasses.replace(VERIFIED_STEP, ended="finished")),
+    "flown speed step": (lambda: SPEED_STEP, lambda: FlownSpeedStep(STEP, 1.0, NAN)),
     "speed steps": (speed_steps, lambda: speed_steps(speeds=(0.0, 2.0))),
-    "predicted speed steps": (lambda: PredictedSpeedSteps("original", (STEP,), 19.0, math.inf),
-                              lambda: PredictedSpeedSteps("original", (STEP,), 19.0, -1.0)),
+    "predicted speed steps": (lambda: PredictedSpeedSteps("original", (PREDICTED_SPEED_STEP,), 19.0, math.inf),
+                              lambda: PredictedSpeedSteps("original", (PREDICTED_SPEED_STEP,), 19.0, -1.0)),
     "speed tuning": (speed_tuning, lambda: speed_tuning(verdict="not faster than the original gains")),
     "identification": (identification, lambda: identification(outcome="maybe")),
     "observation": (lambda: ObserveResult("open loop", 60.0, False, {"time": [0.0, 0.1], "roll": [NAN, 0.01]}),

@@ -231,7 +231,7 @@ def test_new_trim_is_not_counted_twice_by_a_charged_integrator():
     gains = {"heading_p": 0.547, "heading_i": 0.0, "rudder_trim": 0.01}  # P only: 4.3 % by design
     steps = HeadingStepTest(0.8, gains, label="P")
     run_behavior(link, SequenceBehavior([Observe(30.0), steps]))
-    up, down = (step["overshoot_pct"] for step in steps.result().steps)
+    up, down = (step.figures.overshoot_pct for step in steps.result().steps)
     assert abs(up - down) < 1.5, (up, down)
     assert up < 5.5 and down < 5.5
     assert "guided" in link.mode_changes and link.mode == "hold"

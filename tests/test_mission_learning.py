@@ -142,7 +142,7 @@ def test_a_turn_is_a_set_point_jump_and_an_interrupted_one_is_dropped():
     assert [round(turn.t_start, 1) for turn in out] == [5.0, 25.0]
     assert recorder.interrupted == 1
     assert math.degrees(out[0].step) == pytest.approx(30.0)
-    assert out[0].figures()["overshoot_pct"] < 1.0
+    assert out[0].figures().overshoot_pct < 1.0
 
 
 def _turns(label: str, iae: float, overshoot: float = 2.0, predicted: float = math.nan) -> list[TurnFigures]:

@@ -125,7 +125,7 @@ def test_the_rover_model_predicts_the_flown_overshoot_of_px4_sitls_own_gains():
         limits = HeadingLimits(rudder_max=0.5236, rudder_rate=5.0, rate_max=math.radians(30.0),
                                steering_rate=math.radians(286.0), rate_threshold=math.radians(0.5))
         step = predicted_step("px4_rover", model, gains, limits, math.radians(20.0), 30.0, speed)
-        assert 15.0 < step["overshoot_pct"] < 24.0
+        assert 15.0 < step.figures.overshoot_pct < 24.0
 
 
 # ---------------------------------------------------------------------- eq. A.5: the UUV

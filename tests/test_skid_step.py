@@ -114,9 +114,10 @@ def test_the_quick_step_is_slower_and_overshoots_less_where_the_mixer_binds():
     plain = predict_step(_cascade(), "cascade", QUICK, STEP, 6.2, **LIMITS)
     drive = SkidDrive(SkidMixer(), speed=2.0, throttle=0.81)
     held = predict_step(_cascade(), "cascade", QUICK, STEP, 6.2, skid=drive, **LIMITS)
-    assert plain["iae_s"] == pytest.approx(1.27, abs=0.03) and plain["overshoot_pct"] == pytest.approx(2.5, abs=0.3)
-    assert held["iae_s"] == pytest.approx(2.36, rel=0.1) and held["overshoot_pct"] < 1.5
-    assert held["saturated"] and held["speed_dip_pct"] == 0.0  # full steering asked for; the speed held
+    assert plain.figures.iae_s == pytest.approx(1.27, abs=0.03)
+    assert plain.figures.overshoot_pct == pytest.approx(2.5, abs=0.3)
+    assert held.figures.iae_s == pytest.approx(2.36, rel=0.1) and held.figures.overshoot_pct < 1.5
+    assert held.saturated and held.speed_dip_pct == 0.0  # full steering asked for; the speed held
 
 
 def test_the_speed_dip_is_predicted():
@@ -124,9 +125,9 @@ def test_the_speed_dip_is_predicted():
     # 2.00 to 1.72 m/s (14 %); its surge model (γ 0.28, lag 0.4 s) says about the same
     drive = SkidDrive(SkidMixer(), speed=2.0, throttle=0.81, gamma=0.28, lag=0.4, b2_exponent=1.0)
     step = predict_step(_cascade(), "cascade", QUICK, STEP, 6.2, skid=drive, **LIMITS)
-    assert step["speed_dip_pct"] == pytest.approx(13.0, abs=2.0)
+    assert step.speed_dip_pct == pytest.approx(13.0, abs=2.0)
     gentle = predict_step(_cascade(), "cascade", QUICK, math.radians(2.0), 6.2, skid=drive, **LIMITS)
-    assert gentle["speed_dip_pct"] < 0.5
+    assert gentle.speed_dip_pct < 0.5
 
 
 def test_the_step_is_slower_when_the_authority_follows_the_falling_speed():
@@ -136,12 +137,12 @@ def test_the_step_is_slower_when_the_authority_follows_the_falling_speed():
     slowing = dataclasses.replace(held, gamma=0.28, lag=0.4)
     fixed = predict_step(_cascade(), "cascade", QUICK, STEP, 6.2, skid=held, **LIMITS)
     falling = predict_step(_cascade(), "cascade", QUICK, STEP, 6.2, skid=slowing, **LIMITS)
-    assert falling["speed_dip_pct"] > 10.0 and falling["iae_s"] > fixed["iae_s"] + 0.05
+    assert falling.speed_dip_pct > 10.0 and falling.figures.iae_s > fixed.figures.iae_s + 0.05
     # with thrust ∝ demand² and b2 ∝ u, b2(u)/t_ss(u) is constant: the speed alone changes nothing
     quadratic = dataclasses.replace(slowing, thrust_exponent=2.0)
-    assert predict_step(_cascade(), "cascade", QUICK, STEP, 6.2, skid=quadratic, **LIMITS)["iae_s"] == pytest.approx(
+    assert predict_step(_cascade(), "cascade", QUICK, STEP, 6.2, skid=quadratic, **LIMITS).figures.iae_s == pytest.approx(
         predict_step(_cascade(), "cascade", QUICK, STEP, 6.2, skid=dataclasses.replace(held, thrust_exponent=2.0),
-                     **LIMITS)["iae_s"], rel=1e-6)
+                     **LIMITS).figures.iae_s, rel=1e-6)
 
 
 def test_the_speed_loop_pushes_the_throttle_back():
@@ -153,7 +154,7 @@ def test_the_speed_loop_pushes_the_throttle_back():
     free = predict_step(_cascade(model), "cascade", original, STEP, 20.0, skid=drive)
     looped = predict_step(_cascade(model), "cascade", original, STEP, 20.0,
                           skid=dataclasses.replace(drive, speed_loop=SpeedHold(0.1, 0.2)))
-    assert looped["iae_s"] > free["iae_s"]
+    assert looped.figures.iae_s > free.figures.iae_s
 
 
 # ---------------------------------------------------------------------------- the campaign's wiring
@@ -163,7 +164,7 @@ def test_a_rudder_boat_is_predicted_as_before():
     assert case.skid is None
     plain = predict_step(case.plant, "cascade", QUICK, STEP, 6.2, **case.limits)
     assert predicted_step("cascade", MODEL, QUICK, limits, STEP, 6.2, 2.0) == plain
-    assert plain["iae_s"] == pytest.approx(1.27, abs=0.03) and "speed_dip_pct" not in plain
+    assert plain.figures.iae_s == pytest.approx(1.27, abs=0.03) and plain.speed_dip_pct is None
     rover = CampaignConfig(thrusts=(0.6, 1.0), axes=("yaw",)).resolved_for(get_profile("ardurover"))
     assert rover.skid_mixer is None
 
@@ -175,8 +176,8 @@ def test_a_skid_boats_limits_carry_its_drive_at_each_speed():
     assert case.skid is not None and case.skid.throttle == pytest.approx(2.0 / 2.48)
     assert limits_case("cascade", MODEL, None, limits).skid is None  # no speed: no throttle to mix
     skid_step = predicted_step("cascade", MODEL, QUICK, limits, STEP, 6.2, 2.0)
-    assert skid_step["iae_s"] > 1.7 * predicted_step("cascade", MODEL, QUICK, HeadingLimits(rudder_max=FULL_SCALE),
-                                                     STEP, 6.2, 2.0)["iae_s"]
+    assert skid_step.figures.iae_s > 1.7 * predicted_step("cascade", MODEL, QUICK, HeadingLimits(rudder_max=FULL_SCALE),
+                                                     STEP, 6.2, 2.0).figures.iae_s
     with pytest.raises(ValueError, match="skid"):
         HeadingLimits(rudder_max=FULL_SCALE, skid=math.inf)  # type: ignore[arg-type]
 

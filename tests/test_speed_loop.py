@@ -10,13 +10,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from behaviors.speed_steps import PredictedSpeedSteps, SpeedStepConfig, SpeedStepsResult
+from behaviors.speed_steps import FlownSpeedStep, PredictedSpeedSteps, SpeedStepConfig, SpeedStepsResult
 from behaviors.speed_tuning import (SPEED_CONTEXT, SPEED_GAINS, SpeedCheck, SpeedLoopConfig, SpeedTuning, SurgeRecord,
                                     SurgeRecorder)
 from companion.interface import SetParameters, SetThrust, Telemetry
 from companion.link.autopilots.ardurover import PROFILE as ROVER
 from companion.link.autopilots.sim import PROFILE as SIM
 from companion.numerics.speed_gains import (SpeedLoopGains, design_speed_gains, simulate_speed_step, step_metrics)
+from companion.numerics.step_figures import StepFigures
 from companion.numerics.surge import SurgeModel, fit_surge_model, simulate_surge
 from companion.procedures.campaign import CampaignConfig, IdentificationCampaign
 
@@ -101,8 +102,9 @@ def test_the_speed_steps_stay_within_what_the_autopilot_can_be_asked_for():
 def _flown(overshoots: tuple[float, ...], settling_time_s: float) -> SpeedStepsResult:
     """Speed steps as flown with these overshoots (%) and this summed settling time (s)."""
     measured = [o for o in overshoots if math.isfinite(o)]
-    return SpeedStepsResult("design", {}, (1.0, 2.0), tuple({"overshoot_pct": o} for o in overshoots),
-                            max(measured) if measured else math.nan, settling_time_s, SpeedStepConfig(), {}, False)
+    steps = tuple(FlownSpeedStep(StepFigures(o, math.nan, math.nan, math.nan, 0), 1.0, 2.0) for o in overshoots)
+    return SpeedStepsResult("design", {}, (1.0, 2.0), steps, max(measured) if measured else math.nan,
+                            settling_time_s, SpeedStepConfig(), {}, False)
 
 
 def test_the_check_wants_less_overshoot_and_a_shorter_settle():

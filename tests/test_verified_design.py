@@ -12,7 +12,8 @@ from behaviors.base import Status
 from behaviors.verification import VerificationConfig, VerificationStep
 from companion.interface import SetHeading, Telemetry
 from companion.numerics.angles import wrap_pi
-from companion.procedures.verified_design import FlownStep, HeadingLimits, KeepRule, predicted_step
+from companion.numerics.step_figures import PredictedStep, StepFigures
+from companion.procedures.verified_design import FlownStep, HeadingLimits, KeepRule, PredictedAtSpeed, predicted_step
 
 RUDDER_MAX = math.radians(30.0)
 
@@ -62,9 +63,9 @@ def test_a_decided_step_is_flown_once_and_its_prediction_agrees_with_it():
     assert step.status is Status.SUCCESS and step.flights == 1
     flown = step.result()
     predicted = predicted_step("pi", YawModel(), GAINS, HeadingLimits(rudder_max=RUDDER_MAX),
-                               VerificationConfig().step, step.metrics["duration_s"])
+                               VerificationConfig().step, step.metrics.duration_s)
     assert KeepRule().agree(flown, predicted) is None
-    assert step.metrics["duration_s"] < VerificationConfig().max_s  # it ended on the band, not the clock
+    assert step.metrics.duration_s < VerificationConfig().max_s  # it ended on the band, not the clock
 
 
 def test_a_step_waits_for_the_heading_hold_to_come_to_rest_and_is_then_flown_once():
@@ -103,10 +104,22 @@ def test_a_slow_recovery_of_the_speed_lost_in_the_turn_is_waited_for_not_taken_f
     step = VerificationStep(0.6, GAINS, VerificationConfig(settle_max_s=5.0), rudder_max=RUDDER_MAX)
     _fly(step, YawModel(), speed=skid)
     assert step.status is Status.SUCCESS and step.flights == 1
-    assert step.metrics["ended"] == "settled" and step.metrics["duration_s"] < VerificationConfig().max_s
+    assert step.metrics.ended == "settled" and step.metrics.duration_s < VerificationConfig().max_s
 
 
-def _flown(thrust: float, label: str, overshoot_pct: float, iae_s: float, predicted: dict | None = None) -> FlownStep:
+def _predicted(overshoot_pct: float, iae_s: float) -> PredictedStep:
+    """A step predicted with this overshoot and step error, no reversal, the rudder never at its limit."""
+    return PredictedStep(StepFigures(overshoot_pct, math.nan, math.nan, iae_s, 0), rudder_peak=0.1, saturated=False,
+                         saturated_s=0.0)
+
+
+def _at(thrust: float, label: str, overshoot_pct: float, iae_s: float) -> PredictedAtSpeed:
+    """The ``label`` gains' step predicted at ``thrust``."""
+    return PredictedAtSpeed(thrust, None, label, _predicted(overshoot_pct, iae_s))
+
+
+def _flown(thrust: float, label: str, overshoot_pct: float, iae_s: float,
+           predicted: PredictedStep | None = None) -> FlownStep:
     """A verification step flown once, decided, with these figures and this prediction."""
     return FlownStep(label=label, thrust=thrust, gains={}, decided=True, why_undecided=None, flights=1, undecided=(),
                      max_overshoot_pct=overshoot_pct, iae_s=iae_s, oscillations=0, steps=(),
@@ -115,9 +128,8 @@ def _flown(thrust: float, label: str, overshoot_pct: float, iae_s: float, predic
 
 def test_the_keep_rule_refuses_what_overshoots_what_was_not_predicted_and_what_is_worse_than_the_original():
     rule = KeepRule()
-    good = _flown(0.6, "own", 5.0, 2.6, {"overshoot_pct": 4.4, "iae_s": 2.7})
-    predicted = [{"thrust": 0.6, "label": "scheduled", "overshoot_pct": 4.4, "iae_s": 2.9, "oscillations": 0},
-                 {"thrust": 0.6, "label": "original", "overshoot_pct": 19.0, "iae_s": 4.5, "oscillations": 0}]
+    good = _flown(0.6, "own", 5.0, 2.6, _predicted(4.4, 2.7))
+    predicted = [_at(0.6, "scheduled", 4.4, 2.9), _at(0.6, "original", 19.0, 4.5)]
     assert rule.verdict([good], predicted) is None
     assert "no verification step" in rule.verdict([], predicted)
     overshooting = replace(good, max_overshoot_pct=12.0)
@@ -129,23 +141,22 @@ def test_the_keep_rule_refuses_what_overshoots_what_was_not_predicted_and_what_i
     flown_original = _flown(0.6, "original", 18.0, 3.5)
     assert "not better than the original" in rule.verdict([surprising, flown_original], predicted)
     assert rule.verdict([surprising, replace(flown_original, iae_s=5.0)], predicted) is None
-    worse_predicted = [predicted[0], {**predicted[1], "iae_s": 2.0}]
+    worse_predicted = [predicted[0], _at(0.6, "original", 19.0, 2.0)]
     assert "(predicted): not better" in rule.verdict([good], worse_predicted)
     # a schedule flown at a speed whose model mispredicted it (ArduPilot's own motorboat: 7.8 % flown,
     # 62.8 % predicted): the flight, better than the original gains flown there, decides that speed
     flown_schedule = replace(good, label="scheduled", max_overshoot_pct=7.8, iae_s=1.2,
-                             predicted={"overshoot_pct": 62.8, "iae_s": 3.0})
-    mispredicted = [{**predicted[0], "overshoot_pct": 62.8}, predicted[1]]
+                             predicted=_predicted(62.8, 3.0))
+    mispredicted = [_at(0.6, "scheduled", 62.8, 2.9), predicted[1]]
     assert rule.verdict([flown_schedule, replace(flown_original, iae_s=2.0)], mispredicted) is None
     assert "(predicted): overshoot 62.8" in rule.verdict([good], mispredicted)  # only predicted: it counts
 
 
 def test_the_vehicles_own_gains_stand_when_the_design_only_fails_to_beat_them_and_they_pass_themselves():
     rule = KeepRule()
-    design = _flown(0.65, "scheduled", 0.5, 0.46, {"overshoot_pct": 0.2, "iae_s": 0.34})  # ArduSub's vectored model
+    design = _flown(0.65, "scheduled", 0.5, 0.46, _predicted(0.2, 0.34))  # ArduSub's vectored model
     own = _flown(0.65, "original", 1.0, 0.46)
-    predicted = [{"thrust": 0.45, "label": "original", "overshoot_pct": 1.5, "iae_s": 0.44, "oscillations": 0},
-                 {"thrust": 0.45, "label": "scheduled", "overshoot_pct": 0.2, "iae_s": 0.33, "oscillations": 0}]
+    predicted = [_at(0.45, "original", 1.5, 0.44), _at(0.45, "scheduled", 0.2, 0.33)]
     assert "not better than the original" in rule.verdict([design, own], predicted)
     assert rule.originals_stand([design, own], predicted)
     assert not rule.originals_stand([design, replace(own, max_overshoot_pct=15.0)], predicted)  # they fail themselves
@@ -156,9 +167,9 @@ def test_the_vehicles_own_gains_stand_when_the_design_only_fails_to_beat_them_an
 def test_a_prediction_sees_the_rudder_limit_and_the_schedule_covered_by_a_nearby_design():
     limits = HeadingLimits(rudder_max=math.radians(5.0))
     saturated = predicted_step("pi", YawModel(), {"heading_p": 3.0, "heading_i": 0.1}, limits, math.radians(20.0), 25.0)
-    assert saturated["saturated"]
+    assert saturated.saturated
     free = predicted_step("pi", YawModel(), GAINS, HeadingLimits(rudder_max=RUDDER_MAX), math.radians(20.0), 25.0)
-    assert not free["saturated"]
+    assert not free.saturated
     nearby = predicted_step("pi", YawModel(), {"heading_p": 0.82, "heading_i": 0.05}, HeadingLimits(rudder_max=RUDDER_MAX),
                             math.radians(20.0), 25.0)
     far = predicted_step("pi", YawModel(), {"heading_p": 0.3, "heading_i": 0.05}, HeadingLimits(rudder_max=RUDDER_MAX),
@@ -197,7 +208,7 @@ def test_the_quick_campaign_flies_the_ends_predicts_the_middle_and_writes_what_i
     assert campaign.heading_choice is not None and not campaign.heading_choice.keeps_original
     assert all(s.decided and s.flights == 1 for s in flown)
     assert all(KeepRule().agree(s, s.predicted) is None for s in flown)
-    assert {s["thrust"] for s in campaign.verifier.predicted} == {0.7, 0.85, 1.0}
+    assert {s.thrust for s in campaign.verifier.predicted} == {0.7, 0.85, 1.0}
     phases = campaign.phases_in_order()
     assert "verification" in phases and "heading_steps" not in phases
     assert list(phases)[:3] == ["settle", "excitation", "validation"]
@@ -297,14 +308,14 @@ def test_a_step_its_model_predicts_saturated_decides_where_unpredicted_saturatio
     slow, gains = YawModel(a22=-0.9, b2=0.3), {"heading_p": 2.0, "heading_i": 0.05}
     config = VerificationConfig(step=math.radians(40.0))
     predicted = predicted_step("pi", slow, gains, HeadingLimits(rudder_max=RUDDER_MAX), config.step, config.max_s)
-    assert predicted["saturated_s"] > config.max_saturated_s  # the premise: a long saturated turn
+    assert predicted.saturated_s > config.max_saturated_s  # the premise: a long saturated turn
     unpredicted = VerificationStep(0.6, gains, config, rudder_max=RUDDER_MAX)
     _fly(unpredicted, slow)
     assert unpredicted.status is Status.FAILURE and "saturated" in unpredicted.why_undecided
-    allowed = VerificationStep(0.6, gains, config, rudder_max=RUDDER_MAX, predicted_saturated_s=predicted["saturated_s"])
+    allowed = VerificationStep(0.6, gains, config, rudder_max=RUDDER_MAX, predicted_saturated_s=predicted.saturated_s)
     _fly(allowed, slow)
     assert allowed.status is Status.SUCCESS and allowed.flights == 1
     assert KeepRule().agree(allowed.result(), predicted_step("pi", slow, gains, HeadingLimits(rudder_max=RUDDER_MAX),
-                                                             config.step, allowed.metrics["duration_s"])) is None
+                                                             config.step, allowed.metrics.duration_s)) is None
     with pytest.raises(ValueError, match="predicted_saturated_s"):
         VerificationStep(0.6, gains, config, predicted_saturated_s=math.nan)

@@ -39,6 +39,7 @@ import numpy as np
 
 from companion.checks import require_non_negative, require_positive
 from .angles import wrap_pi
+from .step_figures import StepFigures
 from .step_response import step_metrics
 
 
@@ -92,7 +93,7 @@ class FlownTurn:
     def step(self) -> float:
         return self.target - self.start
 
-    def figures(self) -> dict:
+    def figures(self) -> StepFigures:
         return step_metrics(self.times, self.heading, self.start, self.target)
 
 

@@ -191,14 +191,14 @@ def score(cases: Sequence[StepCase], gains: Sequence[Gains], objective: DesignOb
                                                   speed_trace=None, rudder_trace=None, **case.limits)
             except ValueError:  # a configuration the autopilot refuses to fly (PX4: no wheel base): never settles
                 times, heading = np.array([0.0, objective.duration_s]), np.zeros(2)
-            metrics = step_metrics(times, heading, 0.0, size, smooth=False)
-            overshoot, reversals = metrics["overshoot_pct"], int(metrics["oscillations"])
-            iae = metrics["iae_s"] if math.isfinite(metrics["iae_s"]) else objective.duration_s
+            figures = step_metrics(times, heading, 0.0, size, smooth=False)
+            overshoot, reversals = figures.overshoot_pct, figures.oscillations
+            iae = figures.iae_s if math.isfinite(figures.iae_s) else objective.duration_s
             iaes.append(iae)
             worst_overshoot = max(worst_overshoot, overshoot if math.isfinite(overshoot) else 100.0)
             worst_reversals = max(worst_reversals, reversals)
             violation += max(0.0, overshoot - target) + max(0, reversals - objective.max_reversals)
-            if not math.isfinite(metrics["settling_time_s"]):
+            if not math.isfinite(figures.settling_time_s):
                 unsettled += 1
                 violation += 1.0
     mean_iae = float(np.mean(iaes)) if iaes else math.inf

@@ -1,7 +1,8 @@
 """Heading steps: their figures of merit, and their prediction from an identified yaw model.
 
 :func:`step_metrics` scores a flown (or predicted) step: overshoot, rise time, settling time, the
-integrated absolute error normalised by the step (IAE, seconds) and the reversals of the error.
+integrated absolute error normalised by the step (IAE, seconds) and the reversals of the error, a
+``companion.numerics.step_figures.StepFigures`` (a prediction: a ``PredictedStep``).
 :func:`predict_step` flies the step on the identified model instead of the vehicle (eq. 3.6 with the
 rudder's limit and slew rate), under the autopilot's own heading controller:
 
@@ -31,6 +32,7 @@ from scipy.signal import savgol_filter
 from .attitude_shaping import ShapedYawTarget
 from .px4_step import PX4_CONTROLLERS, fly, px4_controller
 from .skid_step import SkidDrive, SkidState
+from .step_figures import PredictedStep, StepFigures
 
 #: a reversal of the error counts only beyond this fraction of the step (noise stays inside)
 OSCILLATION_BAND = 0.03
@@ -53,20 +55,19 @@ def smooth_heading(times: np.ndarray, heading: np.ndarray, window_s: float = 1.0
 
 
 def step_metrics(times: ArrayLike, heading: ArrayLike, start: float, target: float,
-                 smooth: bool = True) -> dict:
+                 smooth: bool = True) -> StepFigures:
     """One heading step (headings unwrapped; smoothed by :func:`smooth_heading` unless ``smooth`` is
     False, for a noise-free prediction): overshoot (% of the step), 90 % rise time, settling time
     (within 5 % to the end, NaN if never), the integrated absolute error normalised by the step
     (``iae_s``, seconds: one figure of merit to compare gain sets) and the number of reversals of the
     error beyond ±3 % of the step after the target was first crossed (``oscillations``; a well-damped
-    step has at most one)."""
+    step has at most one), as a :class:`~companion.numerics.step_figures.StepFigures`."""
     t = np.asarray(times, dtype=float)
     psi = np.asarray(heading, dtype=float)
     psi = smooth_heading(t, psi) if smooth else psi
     size = target - start
     if len(t) < 2 or abs(size) < 1e-9:
-        return {"overshoot_pct": math.nan, "rise_time_s": math.nan, "settling_time_s": math.nan,
-                "iae_s": math.nan, "oscillations": 0}
+        return StepFigures.unmeasured()
     progress = (psi - start) / size  # 0 at the start, 1 on target
     overshoot = max(0.0, float(np.max(progress)) - 1.0) * 100.0
     reached = np.nonzero(progress >= 0.9)[0]
@@ -89,8 +90,8 @@ def step_metrics(times: ArrayLike, heading: ArrayLike, start: float, target: flo
         if sign and current != sign:
             reversals += 1
         sign = current
-    return {"overshoot_pct": overshoot, "rise_time_s": rise, "settling_time_s": settling, "iae_s": iae,
-            "oscillations": reversals}
+    return StepFigures(overshoot_pct=overshoot, rise_time_s=rise, settling_time_s=settling, iae_s=iae,
+                       oscillations=reversals)
 
 
 @dataclass(frozen=True)
@@ -264,25 +265,23 @@ def simulate_rate_tracking(plant: RudderPlant, gains: dict[str, float], times: A
 
 
 def predict_step(plant: RudderPlant, controller: str, gains: dict[str, float], step: float,
-                 duration_s: float = 30.0, **limits) -> dict:
+                 duration_s: float = 30.0, **limits) -> PredictedStep:
     """The figures of merit (:func:`step_metrics`) of a step flown on the model, and whether the
     rudder saturated (``rudder_peak`` against its limit; PX4's UUV: its torque limit's, eq. A.5) and
     for how long it sat at its limit (``saturated_s``, what a flown step is allowed too); a
     skid-steered boat's (``skid``, eq. A.2k) also the speed it loses (``speed_dip_pct``, % of its
-    speed at the step's start, at the lowest)."""
+    speed at the step's start, at the lowest). A :class:`~companion.numerics.step_figures.PredictedStep`."""
     speeds: list[float] = []
     rudder: list[float] = []
     times, heading, peak = simulate_step(plant, controller, gains, step, duration_s, speed_trace=speeds,
                                          rudder_trace=rudder, **limits)
-    metrics = step_metrics(times, heading, 0.0, step, smooth=False)
-    if speeds:
-        metrics["speed_dip_pct"] = 100.0 * (1.0 - min(speeds) / speeds[0])
+    figures = step_metrics(times, heading, 0.0, step, smooth=False)
+    speed_dip = float(100.0 * (1.0 - min(speeds) / speeds[0])) if speeds else None
     limit = plant.rudder_max
     if controller == "px4_uuv":
         limit = min(limit, limits.get("torque_max", 1.0) * limits.get("full_scale", limit))
-    metrics["rudder_peak"] = peak
-    metrics["saturated"] = peak >= 0.999 * limit
     # the time at the rudder's limit, by the verification's own test (|δ| ≥ 98 % of the limit)
     at_limit = np.abs(np.asarray(rudder)) >= 0.98 * plant.rudder_max
-    metrics["saturated_s"] = float(np.count_nonzero(at_limit[1:]) * (times[1] - times[0])) if times.size > 1 else 0.0
-    return metrics
+    saturated_s = float(np.count_nonzero(at_limit[1:]) * (times[1] - times[0])) if times.size > 1 else 0.0
+    return PredictedStep(figures, rudder_peak=float(peak), saturated=bool(peak >= 0.999 * limit),
+                         saturated_s=saturated_s, speed_dip_pct=speed_dip)

@@ -22,7 +22,9 @@ from behaviors.gain_scheduling import GainDesign, ScheduleKind
 from behaviors.json_form import json_form
 from behaviors.verification import VerificationConfig, VerificationStep
 from companion.numerics.step_response import SETTLE_BAND
-from companion.procedures.verified_design import CONTROLLERS, FlownStep, HeadingLimits, KeepRule, predicted_step
+from companion.numerics.step_figures import PredictedStep
+from companion.procedures.verified_design import (CONTROLLERS, FlownStep, HeadingLimits, KeepRule, PredictedAtSpeed,
+                                                  predicted_step)
 
 log = logging.getLogger(__name__)
 
@@ -34,14 +36,14 @@ COVERAGE = ("covered", "not covered")
 @dataclass(frozen=True)
 class VerifiedSteps:
     """What the verification flew and predicted, as it stood: each flown step with its prediction
-    (:class:`FlownStep`), each predicted step (``predicted_step``'s metrics with its ``thrust``,
-    ``speed`` and ``label``, scheduled or original), the coverage by thrust (:data:`COVERAGE`), and
-    the controller and limits the predictions were made with. The JSON (:meth:`summary`): ``flown``
-    (figures only, no series), ``predicted``, ``coverage`` (by thrust, two decimals), ``settle_band``,
-    ``controller``, ``limits``."""
+    (:class:`FlownStep`), each predicted step (:class:`PredictedAtSpeed`: ``predicted_step``'s step
+    with its ``thrust``, ``speed`` and ``label``, scheduled or original), the coverage by thrust
+    (:data:`COVERAGE`), and the controller and limits the predictions were made with. The JSON
+    (:meth:`summary`): ``flown`` (figures only, no series), ``predicted``, ``coverage`` (by thrust, two
+    decimals), ``settle_band``, ``controller``, ``limits``."""
 
     flown: tuple[FlownStep, ...]
-    predicted: tuple[dict, ...]
+    predicted: tuple[PredictedAtSpeed, ...]
     coverage: dict[float, str]
     controller: str
     limits: HeadingLimits
@@ -49,26 +51,32 @@ class VerifiedSteps:
     def __post_init__(self) -> None:
         if any(value not in COVERAGE for value in self.coverage.values()):
             raise ValueError(f"VerifiedSteps.coverage is one of {', '.join(COVERAGE)} by thrust, not {self.coverage!r}")
-        if any({"thrust", "label"} - set(step) for step in self.predicted):
-            raise ValueError("VerifiedSteps.predicted steps each name their thrust and label")
+        if any(not isinstance(step, PredictedAtSpeed) for step in self.predicted):
+            raise ValueError("VerifiedSteps.predicted steps are each a PredictedAtSpeed (its thrust and label)")
 
     def summary(self) -> dict:
         """Flown and predicted steps (figures only, no series), the coverage and the rule, as
         computed (NaN where a figure is not known: the command lines print it so)."""
-        def predicted_figures(step: dict) -> dict:
-            return {k: step[k] for k in ("thrust", "label", "iae_s", "oscillations", "overshoot_pct", "settling_time_s",
-                                         "rise_time_s", "speed", "saturated") if k in step}
+        def predicted_figures(step: PredictedAtSpeed) -> dict:
+            figures = step.step.figures
+            return {"thrust": step.thrust, "label": step.label, "iae_s": figures.iae_s,
+                    "oscillations": figures.oscillations, "overshoot_pct": figures.overshoot_pct,
+                    "settling_time_s": figures.settling_time_s, "rise_time_s": figures.rise_time_s,
+                    "speed": step.speed, "saturated": step.step.saturated}
 
         def flown_figures(step: FlownStep) -> dict:
             out = {"thrust": step.thrust, "label": step.label, "decided": step.decided,
                    "why_undecided": step.why_undecided, "undecided": list(step.undecided), "flights": step.flights,
                    "max_overshoot_pct": step.max_overshoot_pct, "iae_s": step.iae_s, "oscillations": step.oscillations}
             if step.steps:
-                out["settling_time_s"] = step.steps[0].get("settling_time_s", math.nan)
-                out["duration_s"] = step.steps[0].get("duration_s", math.nan)
+                flown = step.steps[0]
+                out["settling_time_s"] = flown.figures.settling_time_s
+                out["duration_s"] = flown.duration_s if flown.duration_s is not None else math.nan
             if step.predicted is not None:
-                out["predicted"] = {k: step.predicted[k] for k in ("overshoot_pct", "iae_s", "settling_time_s",
-                                                                   "oscillations", "saturated")}
+                predicted = step.predicted.figures
+                out["predicted"] = {"overshoot_pct": predicted.overshoot_pct, "iae_s": predicted.iae_s,
+                                    "settling_time_s": predicted.settling_time_s,
+                                    "oscillations": predicted.oscillations, "saturated": step.predicted.saturated}
             return out
 
         return {"flown": [flown_figures(s) for s in self.flown], "predicted": [predicted_figures(s) for s in self.predicted],
@@ -88,7 +96,7 @@ class CampaignVerification:
         self.kind, self.config, self.rule, self.limits = kind, config, rule, limits
         self.controller = CONTROLLERS.get(kind.name, "pi")
         self.flown: list[FlownStep] = []
-        self.predicted: list[dict] = []
+        self.predicted: list[PredictedAtSpeed] = []
         self.coverage: dict[float, str] = {}  # lowest thrust -> whether its own-design flight stands for the schedule
         self._sign = 1.0
         self._attempts: Sequence = ()  # the accepted identifications last seen (the steps' predictions)
@@ -108,7 +116,7 @@ class CampaignVerification:
         return attempt.model if attempt is not None else None
 
     def step_prediction(self, model, gains: dict[str, float], duration_s: float | None = None,
-                        speed: float | None = None) -> dict:
+                        speed: float | None = None) -> PredictedStep:
         """The model's step with ``gains`` at ``speed``, over ``duration_s`` (default: the longest a
         flown step lasts)."""
         duration = duration_s if duration_s and math.isfinite(duration_s) and duration_s > 1.0 else self.config.max_s
@@ -119,8 +127,7 @@ class CampaignVerification:
         attempt = self.attempt_at(self._attempts, thrust)
         if attempt is None:
             return 0.0
-        seconds = self.step_prediction(attempt.model, gains, speed=attempt.speed).get("saturated_s", 0.0)
-        return float(seconds) if math.isfinite(seconds) else 0.0
+        return self.step_prediction(attempt.model, gains, speed=attempt.speed).saturated_s
 
     def _step(self, thrust: float, gains: dict[str, float], label: str) -> VerificationStep:
         step = VerificationStep(thrust, gains, self.config, sign=self._sign, rudder_max=self.limits.rudder_max,
@@ -184,7 +191,7 @@ class CampaignVerification:
     def record(self, step: VerificationStep, attempts: Sequence) -> FlownStep:
         """A flown step's result with the model's prediction for its gains."""
         attempt = self.attempt_at(attempts, step.thrust)
-        flown_s = step.metrics.get("duration_s")
+        flown_s = step.metrics.duration_s if step.metrics is not None else None
         predicted = self.step_prediction(attempt.model, step.gains, flown_s, attempt.speed) \
             if attempt is not None else None
         result = FlownStep.of(step.result(), predicted)
@@ -203,10 +210,10 @@ class CampaignVerification:
             if model is None:
                 continue
             scheduled = self.step_prediction(model, point.scheduled, speed=point.speed)
-            self.predicted.append({"thrust": point.thrust, "speed": point.speed, "label": "scheduled", **scheduled})
+            self.predicted.append(PredictedAtSpeed(point.thrust, point.speed, "scheduled", scheduled))
             if original:
-                self.predicted.append({"thrust": point.thrust, "speed": point.speed, "label": "original",
-                                       **self.step_prediction(model, original, speed=point.speed)})
+                self.predicted.append(PredictedAtSpeed(point.thrust, point.speed, "original",
+                                                       self.step_prediction(model, original, speed=point.speed)))
             own = next((s for s in self.flown if s.thrust == point.thrust and s.label == "own"), None)
             if own is not None and own.predicted is not None:
                 self.coverage[point.thrust] = "covered" if self.rule.covers(own.predicted, scheduled) else \
@@ -222,7 +229,7 @@ class CampaignVerification:
 
     def verified(self) -> VerifiedSteps:
         """What was flown and predicted so far, as a record."""
-        return VerifiedSteps(tuple(self.flown), tuple(dict(step) for step in self.predicted), dict(self.coverage),
+        return VerifiedSteps(tuple(self.flown), tuple(self.predicted), dict(self.coverage),
                              self.controller, self.limits)
 
     def summary(self) -> dict:

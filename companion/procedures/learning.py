@@ -93,8 +93,8 @@ class ScheduledDesign:
 
     def predict(self, gains: dict[str, float], speed: float, step: float) -> tuple[float, float]:
         case = self._case(speed)
-        metrics = predict_step(case.plant, case.controller, dict(gains), step, PREDICTED_S, **case.limits)
-        return float(metrics["iae_s"]), float(metrics["overshoot_pct"])
+        figures = predict_step(case.plant, case.controller, dict(gains), step, PREDICTED_S, **case.limits).figures
+        return figures.iae_s, figures.overshoot_pct
 
     def replay(self, gains: dict[str, float], speed: float, segment: FlownSegment) -> np.ndarray:
         """The turn rates the rate loop with ``gains`` achieves on the model at the segment's speed,

@@ -44,6 +44,7 @@ from companion.link.autopilots import registered_profiles
 from companion.numerics.skid_step import SkidMixer, SkidPlant, SpeedHold
 from companion.numerics.speed_law import choose_speed_law
 from companion.numerics.step_design import StepCase, cascade_case, pi_case, px4_rover_case, px4_uuv_case
+from companion.numerics.step_figures import PredictedStep, StepFigures
 from companion.numerics.step_response import predict_step
 from companion.numerics.surge import SurgeModel, steady_law
 
@@ -150,7 +151,7 @@ def _case(controller: str, model, speed: float | None, at: float, limits: Headin
 
 
 def predicted_step(controller: str, model, gains: dict[str, float], limits: HeadingLimits, step: float,
-                   duration_s: float, speed: float | None = None) -> dict:
+                   duration_s: float, speed: float | None = None) -> PredictedStep:
     """One heading step of ``step`` rad flown on the yaw ``model`` (a22, b2, δ0) with ``gains`` at
     ``speed`` (m/s: the output's speed scaling), scored over ``duration_s`` (a flown step's own
     length when compared with it: the step error integrates to the end of the record)."""
@@ -200,25 +201,59 @@ class FlownStep(VerificationResult):
     """A verification step as the campaign recorded it: the step's result and the model's predicted
     step for the same gains (:func:`predicted_step`; None without an accepted model at its thrust)."""
 
-    predicted: dict | None = None
+    predicted: PredictedStep | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.predicted is not None and not isinstance(self.predicted, PredictedStep):
+            raise ValueError(f"FlownStep.predicted must be a PredictedStep or None, not {self.predicted!r}")
 
     @classmethod
-    def of(cls, result: VerificationResult, predicted: dict | None) -> "FlownStep":
+    def of(cls, result: VerificationResult, predicted: PredictedStep | None) -> "FlownStep":
         return cls(**vars(result), predicted=predicted)
 
     def to_dict(self) -> dict:
-        return {**super().to_dict(), "predicted": json_form(self.predicted)}
+        return {**super().to_dict(),
+                "predicted": None if self.predicted is None else json_form(self.predicted.to_dict())}
 
 
-#: a step the keep rule judges: flown (its result), or predicted (:func:`predicted_step`'s metrics)
-Step = Union[VerificationResult, Mapping[str, Any]]
+#: the labels of a predicted step at an identified speed: the schedule's gains or the vehicle's own
+PREDICTED_LABELS = ("scheduled", "original")
+
+
+@dataclass(frozen=True)
+class PredictedAtSpeed:
+    """A predicted step at one identified speed (:func:`predicted_step`): its ``thrust``, ``speed``
+    (m/s; None: not known), ``label`` (:data:`PREDICTED_LABELS`) and the ``step`` itself. Its JSON is
+    ``thrust``, ``speed``, ``label`` then the step's keys (``PredictedStep.to_dict``)."""
+
+    thrust: float
+    speed: float | None
+    label: str
+    step: PredictedStep
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.thrust, (int, float)) and math.isfinite(self.thrust)):
+            raise ValueError(f"PredictedAtSpeed.thrust must be a finite number, not {self.thrust!r}")
+        if self.label not in PREDICTED_LABELS:
+            raise ValueError(f"PredictedAtSpeed.label must be one of {', '.join(PREDICTED_LABELS)}, not {self.label!r}")
+        if not isinstance(self.step, PredictedStep):
+            raise ValueError(f"PredictedAtSpeed.step must be a PredictedStep, not {self.step!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"thrust": self.thrust, "speed": self.speed, "label": self.label, **self.step.to_dict()}
+
+
+#: a step the keep rule judges: flown (its result), or predicted (:func:`predicted_step`, alone or at a speed)
+Step = Union[VerificationResult, PredictedStep, PredictedAtSpeed]
 
 
 def step_figures(step: Step) -> tuple[float, float, int]:
     """A step's overshoot (%), step error (``iae_s``) and heading reversals, flown or predicted."""
     if isinstance(step, VerificationResult):
         return step.max_overshoot_pct, step.iae_s, step.oscillations
-    return step.get("overshoot_pct", math.nan), step.get("iae_s", math.nan), step.get("oscillations", 0)
+    figures: StepFigures = (step.step if isinstance(step, PredictedAtSpeed) else step).figures
+    return figures.overshoot_pct, figures.iae_s, figures.oscillations
 
 
 @dataclass(frozen=True)
@@ -249,14 +284,14 @@ class KeepRule:
             return f"the heading oscillates ({oscillations} reversals)"
         return None
 
-    def agree(self, flown: Step, predicted: Mapping[str, Any]) -> str | None:
+    def agree(self, flown: Step, predicted: Step) -> str | None:
         """None when ``predicted`` matches ``flown`` within the tolerances, else how it does not."""
         flown_overshoot, flown_iae, _ = step_figures(flown)
-        overshoot_gap = abs(flown_overshoot - predicted["overshoot_pct"])
-        predicted_iae = predicted["iae_s"]
+        predicted_overshoot, predicted_iae, _ = step_figures(predicted)
+        overshoot_gap = abs(flown_overshoot - predicted_overshoot)
         iae_gap = abs(flown_iae / predicted_iae - 1.0) if predicted_iae > 0 else math.inf
         if not overshoot_gap <= self.overshoot_tolerance_pct:
-            return (f"overshoot {flown_overshoot:.1f} % where {predicted['overshoot_pct']:.1f} % was predicted "
+            return (f"overshoot {flown_overshoot:.1f} % where {predicted_overshoot:.1f} % was predicted "
                     f"(tolerance {self.overshoot_tolerance_pct:g} points)")
         if not iae_gap <= self.iae_tolerance:
             return (f"step error {flown_iae:.2f} s where {predicted_iae:.2f} s was predicted "
@@ -264,13 +299,13 @@ class KeepRule:
         return None
 
     # ------------------------------------------------------------------ the verdict
-    def verdict(self, flown: Sequence[FlownStep], predicted: Iterable[dict]) -> str | None:
+    def verdict(self, flown: Sequence[FlownStep], predicted: Iterable[PredictedAtSpeed]) -> str | None:
         """None when the designed gains may stay, else why not (one sentence).
 
         ``flown``: the flown steps (``label`` "scheduled" or "own", or "original" where a prediction
         failed), each with its ``predicted`` step (the model's, with the same gains); ``predicted``:
-        per identified thrust, the schedule's and the original gains' predicted steps (``thrust``,
-        ``label`` "scheduled" / "original" and :func:`predicted_step`'s metrics)."""
+        per identified thrust, the schedule's and the original gains' predicted steps
+        (:class:`PredictedAtSpeed`: ``label`` "scheduled" / "original")."""
         designed = [s for s in flown if s.label in ("scheduled", "own")]
         if not designed:
             return "no verification step was flown"
@@ -295,9 +330,9 @@ class KeepRule:
             if self.better_than_original and not step.iae_s < original.iae_s:
                 return (f"thrust {thrust:.2f}: not better than the original gains as flown "
                         f"(step error {step.iae_s:.2f} s vs {original.iae_s:.2f} s)")
-        by_thrust: dict[float, dict[str, dict]] = {}
+        by_thrust: dict[float, dict[str, PredictedAtSpeed]] = {}
         for prediction in predicted:
-            by_thrust.setdefault(prediction["thrust"], {})[prediction["label"]] = prediction
+            by_thrust.setdefault(prediction.thrust, {})[prediction.label] = prediction
         # where the schedule itself was flown, its flight (checked above) decides, not its prediction
         flown_schedule = {s.thrust for s in designed if s.label == "scheduled"}
         for thrust, steps in sorted(by_thrust.items()):
@@ -309,12 +344,13 @@ class KeepRule:
                 return f"thrust {thrust:.2f} (predicted): {failure}"
             predicted_original = steps.get("original")
             if (self.better_than_original and predicted_original is not None and thrust not in untrusted
-                    and not scheduled["iae_s"] < predicted_original["iae_s"]):
+                    and not scheduled.step.figures.iae_s < predicted_original.step.figures.iae_s):
                 return (f"thrust {thrust:.2f} (predicted): not better than the original gains "
-                        f"(step error {scheduled['iae_s']:.2f} s vs {predicted_original['iae_s']:.2f} s)")
+                        f"(step error {scheduled.step.figures.iae_s:.2f} s vs "
+                        f"{predicted_original.step.figures.iae_s:.2f} s)")
         return None
 
-    def originals_stand(self, flown: Sequence[FlownStep], predicted: Iterable[dict]) -> bool:
+    def originals_stand(self, flown: Sequence[FlownStep], predicted: Iterable[PredictedAtSpeed]) -> bool:
         """The verdict refuses the design only because it is not better than the original gains, and
         the original gains pass the step checks themselves (flown where they were flown, else
         predicted): the vehicle's own gains are as good as anything designed, and they stay."""
@@ -327,9 +363,9 @@ class KeepRule:
         if any(not s.decided or self.step_fails(s) for s in flown_original):
             return False
         flown_at = {s.thrust for s in flown_original}
-        return not any(self.step_fails(s) for s in predicted if s["label"] == "original" and s["thrust"] not in flown_at)
+        return not any(self.step_fails(s) for s in predicted if s.label == "original" and s.thrust not in flown_at)
 
-    def covers(self, own: Mapping[str, Any], scheduled: Mapping[str, Any]) -> bool:
+    def covers(self, own: PredictedStep, scheduled: PredictedStep) -> bool:
         """The schedule's predicted step at a speed flown with that speed's own design agrees with
         the own design's prediction (so the flight stands for the schedule there)."""
         return self.agree(own, scheduled) is None

@@ -373,9 +373,9 @@ def rehearse(config: RehearsalConfig, abort: AbortFlag | None = None) -> dict:
         summary["heading_steps"] = [{"thrust": s.thrust, "label": s.label,
                                      "max_overshoot_pct": finite_or_none(s.max_overshoot_pct),
                                      "iae_s": finite_or_none(s.iae_s), "oscillations": s.oscillations,
-                                     "step_deg": s.steps[0].get("step_deg") if s.steps else None,
+                                     "step_deg": s.steps[0].step_deg if s.steps else None,
                                      # time to stay within 5 % of the step, the slower of the step and its return
-                                     "settling_time_s": finite_or_none(_slowest(x["settling_time_s"]
+                                     "settling_time_s": finite_or_none(_slowest(x.figures.settling_time_s
                                                                                 for x in s.steps))}
                                     for s in campaign.step_results]
         summary["speed_loop"] = speed_loop_summary(campaign.speed)
@@ -419,7 +419,7 @@ def speed_loop_summary(tuning) -> dict | None:
     surge, design = tuning.surge, tuning.design
     steps = {label: {"max_overshoot_pct": finite_or_none(r.max_overshoot_pct),
                      "settling_time_s": finite_or_none(r.settling_time_s), "speeds": list(r.speeds),
-                     "steps": [{k: finite_or_none(v) for k, v in step.items()} for step in r.steps]}
+                     "steps": [{k: finite_or_none(v) for k, v in step.to_dict().items()} for step in r.steps]}
              for label, r in tuning.step_results.items()}
     return {"status": tuning.status.value, "reason": tuning.reason, "verdict": tuning.verdict, "kept": tuning.kept,
             "surge": None if surge is None else {"gain": surge.gain, "exponent": surge.exponent, "gamma": surge.gamma,

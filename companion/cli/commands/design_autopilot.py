@@ -19,6 +19,7 @@ from companion.numerics.cascade_gains import CascadeRules
 from companion.numerics.gains import CAMPAIGN_DAMPING, GainBounds
 from companion.numerics.identification import YawModel
 from companion.numerics.step_design import DesignChoice, DesignObjective, StepCase, design_by_prediction
+from companion.numerics.step_figures import StepFigures
 from companion.numerics.step_response import predict_step
 from companion.procedures.heading_design import family_for, step_case
 from companion.procedures.verified_design import CONTROLLERS, HeadingLimits
@@ -107,7 +108,8 @@ def run_for_autopilot(args, model: YawModel) -> int:
     steps = predicted_steps(choice, case, objective)
     result = {"autopilot": args.autopilot, "controller": controller, "speed": args.speed,
               "chosen": choice.chosen.name, "parameters": native, **{"design": choice.to_dict()},
-              "predicted_steps": steps}
+              "predicted_steps": {name: [step_row(size_deg, figures) for size_deg, figures in rows]
+                                  for name, rows in steps.items()}}
     if args.json:
         print_json(result)
         return 0
@@ -124,27 +126,35 @@ def run_for_autopilot(args, model: YawModel) -> int:
               f"{'yes' if score.feasible else 'no'}")
     print("predicted step  candidate     overshoot %  time to 5 % s  step error s")
     for name, rows in steps.items():
-        for row in rows:
-            settle = row["settling_time_s"]
-            print(f"  ±{row['step_deg']:<4.0f}         {name:<12} {row['overshoot_pct']:11.1f}  "
-                  f"{settle if math.isfinite(settle) else math.nan:13.2f}  {row['iae_s']:12.2f}")
+        for size_deg, figures in rows:
+            settle = figures.settling_time_s
+            print(f"  ±{size_deg:<4.0f}         {name:<12} {figures.overshoot_pct:11.1f}  "
+                  f"{settle if math.isfinite(settle) else math.nan:13.2f}  {figures.iae_s:12.2f}")
     return 0
 
 
-def predicted_steps(choice: DesignChoice, case: StepCase, objective: DesignObjective) -> dict[str, list[dict]]:
-    """Each candidate's predicted step of every size of ``objective`` on ``case`` (eq. A.1–A.5):
-    overshoot, time to within 5 % for good (``settling_time_s``, NaN if never) and step error."""
-    out: dict[str, list[dict]] = {}
+def step_row(size_deg: float, figures: StepFigures) -> dict:
+    """One predicted step as ``--json`` prints it: ``step_deg``, ``overshoot_pct``, ``settling_time_s``,
+    ``iae_s`` (NaN as the JSON printer writes it: null)."""
+    return {"step_deg": size_deg, "overshoot_pct": figures.overshoot_pct,
+            "settling_time_s": figures.settling_time_s, "iae_s": figures.iae_s}
+
+
+def predicted_steps(choice: DesignChoice, case: StepCase,
+                    objective: DesignObjective) -> dict[str, list[tuple[float, StepFigures]]]:
+    """Each candidate's predicted step of every size of ``objective`` on ``case`` (eq. A.1–A.5), by
+    candidate: the size (degrees) and the step's figures (overshoot, time to within 5 % for good,
+    ``settling_time_s``, NaN if never, and step error); all NaN for gains the autopilot refuses."""
+    out: dict[str, list[tuple[float, StepFigures]]] = {}
     for candidate in choice.candidates:
         rows = []
         for size in objective.step_sizes_rad:
             try:
-                metrics = predict_step(case.plant, case.controller, dict(candidate.gains[0]), size,
-                                       objective.duration_s, dt=objective.dt, **case.limits)
+                figures = predict_step(case.plant, case.controller, dict(candidate.gains[0]), size,
+                                       objective.duration_s, dt=objective.dt, **case.limits).figures
             except ValueError:  # gains the autopilot refuses to fly (PX4 without a wheel base)
-                metrics = {"overshoot_pct": math.nan, "settling_time_s": math.nan, "iae_s": math.nan}
-            rows.append({"step_deg": math.degrees(size), "overshoot_pct": metrics["overshoot_pct"],
-                         "settling_time_s": metrics["settling_time_s"], "iae_s": metrics["iae_s"]})
+                figures = StepFigures.unmeasured()
+            rows.append((math.degrees(size), figures))
         out[candidate.name] = rows
     return out
 
