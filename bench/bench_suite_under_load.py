@@ -22,11 +22,13 @@ ROOT = Path(__file__).resolve().parents[1]
 log = logging.getLogger("bench_suite_under_load")
 
 
-def run_suite(extra: list[str]) -> tuple[int, float, str]:
+def run_suite(extra: list[str], keep: Path | None = None) -> tuple[int, float, str]:
     """The README's test command (pytest -q, its configured two workers); (exit code, wall s, summary)."""
     started = time.monotonic()
     done = subprocess.run([sys.executable, "-m", "pytest", "-q", *extra], cwd=ROOT, capture_output=True, text=True)
     wall = time.monotonic() - started
+    if keep is not None:  # the whole output, for a failure's traceback
+        keep.write_text(done.stdout + done.stderr)
     lines = [line for line in done.stdout.splitlines() if line.strip()]
     summary = lines[-1] if lines else done.stderr[-500:]
     if done.returncode != 0:
@@ -41,14 +43,16 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--busy", type=int, default=2, help="CPU-bound processes beside the suite (default 2)")
     parser.add_argument("--idle", action="store_true", help="run the suite on the idle machine first")
+    parser.add_argument("--keep", type=Path, default=None,
+                        help="write each run's whole output to DIR/idle.txt and DIR/busy.txt")
     parser.add_argument("pytest_args", nargs="*", help="extra pytest arguments (default: none, the README's command)")
     args = parser.parse_args()
     if args.idle:
-        code, wall, summary = run_suite(args.pytest_args)
+        code, wall, summary = run_suite(args.pytest_args, args.keep / "idle.txt" if args.keep else None)
         log.info("idle: %s in %.0f s of wall time (exit %d)", summary, wall, code)
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]
     try:
-        code, wall, summary = run_suite(args.pytest_args)
+        code, wall, summary = run_suite(args.pytest_args, args.keep / "busy.txt" if args.keep else None)
     finally:
         for process in busy:
             process.kill()
