@@ -12,7 +12,9 @@ import pytest
 from companion.numerics.gains import CAMPAIGN_DAMPING
 from companion.records.store import Store
 
-pytestmark = pytest.mark.e2e
+# one worker runs the module: its rehearsal (a module fixture, about 14 s) is made once, not once per
+# worker that a test of it lands on
+pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("e2e-rehearse")]
 
 
 @pytest.fixture(scope="module")

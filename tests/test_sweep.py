@@ -236,6 +236,11 @@ def no_case_left(workdir: Path) -> None:
     assert str(workdir / "tmp") not in ps
 
 
+#: the tests of the local sweep run on one worker: its sweep (a module fixture, about 25 s) is made
+#: once, not once per worker that one of them lands on
+ONE_WORKER = pytest.mark.xdist_group("local-sweep")
+
+
 @pytest.fixture(scope="module")
 def local_sweep(tmp_path_factory) -> dict:
     """The 2 x 2 sweep on the local default cluster (2 workers), interrupted by SIGINT once its first
@@ -263,6 +268,7 @@ def local_sweep(tmp_path_factory) -> dict:
 
 
 @pytest.mark.e2e
+@ONE_WORKER
 def test_ctrl_c_keeps_every_finished_row_and_a_rerun_resumes(local_sweep):
     first, resumed = local_sweep["first"], local_sweep["resumed"]
     assert first["code"] in (130, 0), first["err"][-2000:]  # 0 only if every case had finished already
@@ -281,6 +287,7 @@ def test_ctrl_c_keeps_every_finished_row_and_a_rerun_resumes(local_sweep):
 
 
 @pytest.mark.e2e
+@ONE_WORKER
 def test_the_local_sweep_writes_rows_csv_and_report(local_sweep):
     rows, out = local_sweep["rows"], local_sweep["workdir"] / "out"
     assert len(rows) == 4
@@ -298,6 +305,7 @@ def test_the_local_sweep_writes_rows_csv_and_report(local_sweep):
 
 
 @pytest.mark.e2e
+@ONE_WORKER
 def test_a_row_equals_a_single_rehearse_of_its_case(local_sweep, tmp_path):
     cases = spec_from_dict({"seeds": "1..2", "currents": "0,0;0.05,-0.02", "axes": "yaw", "thrusts": [0.8],
                             "steps": False, "behaviors": "none"}).cases()
@@ -355,6 +363,7 @@ def dask_cluster(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.e2e
+@ONE_WORKER
 def test_a_real_dask_cluster_gives_the_same_rows_and_records_a_failing_case(local_sweep, dask_cluster, tmp_path):
     """Two of the local sweep's cases (one per worker, to keep the suite short; the README reports
     the whole 8 x 2 sweep compared the same way) and the same two on a preset that does not exist:
