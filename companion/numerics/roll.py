@@ -33,12 +33,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
-import control
 import numpy as np
 
 from .vehicle_data import actuator_limit, section_numbers
+
+if TYPE_CHECKING:
+    import control
+
+# ``control`` is imported where a transfer function is made, not with the module: it brings in
+# scipy.signal and matplotlib, about 1 s of every command's start-up that never needs it
 
 #: the seed's printed linear gain and controller (Table 4.1, 4.2)
 SEED_K = -0.61
@@ -133,7 +138,9 @@ class RollLinearModel:
     def damping_ratio(self) -> float:
         return self.a / (2.0 * math.sqrt(self.b))
 
-    def transfer_function(self) -> control.TransferFunction:
+    def transfer_function(self) -> "control.TransferFunction":
+        import control
+
         s = control.tf("s")
         return self.k / ((self.servo_lag * s + 1) * (s**2 + self.a * s + self.b))
 
@@ -213,6 +220,8 @@ def rate_feedback_gains(model: RollLinearModel, limit: float = math.radians(20.0
 
 def closed_loop_poles(model: RollLinearModel, gains: RollPIGains) -> np.ndarray:
     """Poles of the linear closed loop (for design checks and the report)."""
+    import control
+
     s = control.tf("s")
     plant = model.transfer_function()
     # α = −sign(k)·(kp + kd·s + ki/s)·φ = −C·φ  ⇒  negative feedback with C = sign(k)·(kp + kd·s + ki/s)
