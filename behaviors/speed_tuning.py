@@ -249,6 +249,9 @@ class SpeedTuning(Behaviour):
             self.design = design_speed_gains(self.surge, cruise, (min(speeds), max(speeds)), self.config.rules,
                                              self.context.get("accel_max", 1.0), original, speed_max=per_thrust)
             self._per_thrust = per_thrust
+            if self.design.keeps_original:  # eq. S.5r: nothing predicted better, nothing to write or fly
+                self.verdict = self.design.reason()
+                return
             predictable = "original" in self.design.predicted
             if not predictable and self.original:
                 self.original_flown_because = "the original gains are not complete enough to predict"
@@ -297,7 +300,17 @@ class SpeedTuning(Behaviour):
         if isinstance(step, SpeedStepTest):
             self.step_results[step.label] = step.result()
 
+    @property
+    def keeps_original(self) -> bool:
+        """The design found nothing predicted better than the vehicle's own speed gains (eq. S.5r):
+        no step is flown and nothing is written."""
+        return self.design is not None and self.design.keeps_original
+
     def initialise(self, telemetry: Telemetry) -> Sequence[Command]:
+        if self.keeps_original:
+            self.finish(Status.SUCCESS, self.verdict)
+            log.info("speed loop: %s", self.verdict)
+            return [StatusText("speed loop: own gains kept (none better)")]
         if self._sequence is None or self.surge is None:  # _prepare sets both, or neither
             self.finish(Status.FAILURE, f"speed loop not tuned: {self.error}")
             return [StatusText(f"speed loop not tuned: {self.error}"[:50], 4)]

@@ -577,6 +577,8 @@ class IdentificationCampaign(Behaviour):
             why = self.speed.verdict or self.speed.reason or ""
             if kept:
                 out["speed"] = LoopOutcome("written", "verified by its own speed steps")
+            elif self.speed.keeps_original:
+                out["speed"] = LoopOutcome("original kept", why)
             elif (self.speed.verdict or "").startswith("not faster than the original"):
                 out["speed"] = LoopOutcome("original kept", why)
             else:
