@@ -227,9 +227,13 @@ def speed_table(summaries) -> None:
         print(f"run {index + 1}: {loop['status']} ({loop.get('reason') or loop.get('verdict')})")
         if surge:
             print(f"  surge: {surge['describe']}, R² {fmt(surge.get('r2'), '.4f')}")
+        keeps = bool((design or {}).get("keeps_original"))
         if design:
             gains = design["gains"]
-            print(f"  design: CRUISE_SPEED {gains['cruise_speed']:.2f}, CRUISE_THROTTLE {100 * gains['cruise_thrust']:.1f},"
+            worst = design.get("worst_settling_s") or {}
+            print(f"  worst summed settling over the feed-forward error ±{100 * (design.get('feed_forward_error') or 0):.1f} % "
+                  f"(eq. S.5r): design {fmt(worst.get('design'))} s, original {fmt(worst.get('original'))} s")
+            print(f"  {'best design (not written)' if keeps else 'design'}: CRUISE_SPEED {gains['cruise_speed']:.2f}, CRUISE_THROTTLE {100 * gains['cruise_thrust']:.1f},"
                   f" ATC_SPEED_P {gains['speed_p']:.3f}, ATC_SPEED_I {gains['speed_i']:.3f} (original "
                   + ", ".join(f"{k} {v:.3g}" for k, v in (loop.get("original") or {}).items()) + ")")
         predicted = (design or {}).get("predicted") or {}
@@ -245,7 +249,8 @@ def speed_table(summaries) -> None:
             print("  original: predicted " + "; ".join(f"{fmt(predicted[k]['overshoot_pct'])} %, "
                                                       f"{fmt(predicted[k]['settling_time_s'])} s"
                                                       for k in ("original", "original_back"))
-                  + " (not flown: the design's flight agreed with its prediction)")
+                  + (" (not flown: no design predicted better, the vehicle's own gains stay)" if keeps
+                     else " (not flown: the design's flight agreed with its prediction)"))
         elif loop.get("original_flown_because"):
             print(f"  original flown: {loop['original_flown_because']}")
 

@@ -40,8 +40,20 @@ I 0.67) predicted 5 % and flew 10–15 % of overshoot; the defaults (P 0.1, I 0.
 predicted, 26 % flown. The flown steps overshoot 1–2 % more than predicted (the speed estimate's
 lag sits in the feedback path, which one lag on the throttle does not model).
 
+**Scored against the speed estimate's drift (eq. S.5r).** In flight the feed-forward misses: the
+speed the autopilot regulates is its own estimate, which drifts against the water speed, and the
+steady law has its own error. Each pair's settling time is the worst of its steps simulated with
+the vehicle needing ε less, as much and ε more throttle than the law says, the integrator starting
+without knowing it, where ε = ``SpeedRules.speed_drift`` (0.05 m/s) over the law's slope dU/dt. A
+pair that cannot remove that error within the record never settles. Measured on ArduRover SITL's
+skid boat: the floor integrator's design (P 0.24–0.34, I 0.02), predicted to settle in 3.6 s, flew
+both steps 0.027–0.030 m/s off their demand for the whole 15 s hold, and the original gains were
+flown and kept every time (100 s of steps).
+
 The same simulation predicts the vehicle's original gains, so the design and the defaults are
-compared before either is flown. Pure numerics.
+compared before either is flown: when no pair is predicted to settle at least ``min_gain_s``
+sooner than the original gains under that worst case, the design keeps the original gains
+(``SpeedDesign.keeps_original``) and nothing is written or flown. Pure numerics.
 """
 from __future__ import annotations
 
