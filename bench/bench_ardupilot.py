@@ -270,7 +270,8 @@ def motorboat(args) -> int:
     model = "vectored" if sub else "motorboat-skid" if args.frame == "skid" else "motorboat"
     files = (["sub.parm"] if sub else
              ["rover.parm", "motorboat.parm"] + (["rover-skid.parm"] if args.frame == "skid" else []))
-    outcomes = []
+    outcomes: list = []
+    totals: list[float] = []
     for repeat in range(args.repeats):
         with _run_folder(args.keep, repeat) as work:
             extra = Path(work) / "bench.parm"
@@ -340,7 +341,14 @@ def motorboat(args) -> int:
                                    f"{fmt(x['settling_time_s'])} s" for x in steps["steps"])
                 print(f"    {label:>8}: {detail}")
         print(f"  final gains: {result.get('final_gains')}")
+        phases = result.get("vehicle_time_by_phase") or {}
+        if phases:
+            total = sum(phases.values())
+            totals.append(total)
+            print(f"  vehicle time {total:.0f} s (" + ", ".join(f"{k} {v:.0f} s" for k, v in sorted(phases.items())) + ")")
     print(f"outcomes: {outcomes}")
+    if totals:
+        print(f"vehicle time: median {statistics.median(totals):.0f} s, {min(totals):.0f}–{max(totals):.0f} s")
     return 0
 
 
