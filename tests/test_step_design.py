@@ -2,6 +2,7 @@
 command line."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -9,6 +10,10 @@ import numpy as np
 import pytest
 
 from companion.cli.main import main as cli_main
+from companion.link.autopilots.ardurover import PROFILE as ROVER_PROFILE
+from companion.numerics.skid_step import SkidMixer
+from companion.numerics.step_response import predict_step
+from companion.procedures.verified_design import HeadingLimits, limits_case, skid_plant
 from companion.numerics.cascade_gains import CascadeRules
 from companion.numerics.quicktune import quicktune_feed_forward, quicktune_gains
 from companion.numerics.gains import GainBounds
@@ -140,7 +145,37 @@ def test_design_takes_the_vehicles_own_gains_and_keeps_them_when_nothing_is_bett
     assert code == 0 and "chosen: original" in text and "nothing better is predicted" in text
 
 
+def test_design_for_a_skid_boat_predicts_through_its_mixer_as_a_campaign_does(capsys):
+    """eq. A.2k from the command line: near full throttle the mixer leaves the steering little room, so
+    the same model and gains are predicted otherwise than for a rudder, and as the campaign's own
+    prediction for that drive (one steady level known: the throttle that holds the speed)."""
+    argv = ["design", "--autopilot", "ardurover", "--a22", "-1.1", "--b2", "1.25", "--speed", "1.5", "--json"]
+    outputs = {}
+    for throttle in (None, "0.9"):
+        assert cli_main(argv + (["--skid-throttle", throttle] if throttle else ["--scale-base", "0"])) == 0
+        outputs[throttle] = json.loads(capsys.readouterr().out)
+    rudder, skid = outputs[None], outputs["0.9"]
+    assert skid["skid_throttle"] == 0.9 and rudder["skid_throttle"] is None
+    own = "original"
+    assert skid["design"]["candidates"][own]["worst_overshoot_pct"] != pytest.approx(
+        rudder["design"]["candidates"][own]["worst_overshoot_pct"], abs=1.0)  # the mixer binds: another step
+    # the campaign's own prediction for that drive (its skid plant from one steady level, the
+    # profile's shipped gains and limits) gives the same step for the vehicle's original gains
+    profile = ROVER_PROFILE
+    shipped = {n: profile.shipped_gains[native] for n, native in profile.params.items() if native in profile.shipped_gains}
+    plant = skid_plant(SkidMixer(), [(0.9, 1.5)], None, [1.5], [-1.1], [1.25], "u", shipped)
+    limits = HeadingLimits.from_vehicle(shipped, full_scale=profile.angle_full_scale_rad,
+                                        rudder_rate=profile.actuator_rate_rad_s, output_scale_base=None)
+    case = limits_case("cascade", YawModel(-1.1, 1.25, 0.0), 1.5, dataclasses.replace(limits, skid=plant))
+    gains = skid["design"]["candidates"][own]["gains"][0]
+    campaign = predict_step(case.plant, case.controller, gains, math.radians(40.0), 25.0, dt=0.02, skid=case.skid,
+                            **case.limits).figures
+    assert skid["predicted_steps"][own][1]["overshoot_pct"] == pytest.approx(campaign.overshoot_pct, abs=1e-9)
+
+
 @pytest.mark.parametrize("argv, words", [
+    (["--autopilot", "ardusub", "--speed", "1", "--skid-throttle", "0.5"], "twin-thruster"),
+    (["--autopilot", "ardurover", "--speed", "1", "--skid-throttle", "1.5"], "must be in (0, 1]"),
     (["--autopilot", "px4-rover", "--speed", "0"], "needs a speed > 0"),
     (["--autopilot", "ardurover"], "needs --speed"),
     (["--autopilot", "ardurover", "--speed", "2", "--original", "HDG_P=1"], "not a heading parameter"),

@@ -220,8 +220,7 @@ class CampaignConfig:
         if actuation is not None and config.speed_law is None:
             config = replace(config, speed_law="u" if actuation.skid else "u2")
         if actuation is not None and actuation.skid and config.skid_mixer is None:
-            config = replace(config, skid_mixer=SkidMixer(getattr(actuation, "thrust_asymmetry", 1.0),
-                                                          getattr(actuation, "steering_throttle_mix", 0.5)))
+            config = replace(config, skid_mixer=SkidMixer(actuation.thrust_asymmetry, actuation.steering_throttle_mix))
         # a modelled servo deflection is continuous (first-order hold); a raw loop output is held (zero-order)
         hold = "foh" if profile.actuator_rate_rad_s else profile.actuator_hold
         if hold != "foh":

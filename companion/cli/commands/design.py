@@ -59,6 +59,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--scale-base", type=float, default=None,
                         help="ArduRover: the speed above which the steering output is scaled down "
                              "(MOT_SPD_SCA_BASE, m/s; default 1 for a rudder); 0: not scaled (a skid boat)")
+    parser.add_argument("--skid-throttle", type=float, default=None, metavar="T",
+                        help="--autopilot ardurover with twin thrusters: the throttle (0..1) that holds --speed; "
+                             "the steps are then predicted through ArduRover's skid mixer at its defaults "
+                             "(MOT_THST_ASYM 1, MOT_STR_THR_MIX 0.5), the thrust the steering leaves and the "
+                             "speed it costs (eq. A.2k), with no output speed scaling")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(func=run)
     return parser

@@ -5,6 +5,8 @@ scale, gain ranges and the gains and limits a vehicle has as shipped (``shipped_
 ``--original NAME=VALUE,...`` (native names) replaces one by one. The design is
 ``companion.procedures.heading_design``'s, on one case: the model given, at the speed given. Every
 candidate's predicted ±20° and ±40° steps are printed (overshoot, time to within 5 %, step error).
+``--skid-throttle T`` (ArduRover with twin thrusters): the steps go through the skid mixer, the thrust
+the steering leaves and the speed it costs (eq. A.2k), as a campaign on such a boat predicts them.
 """
 from __future__ import annotations
 
@@ -18,11 +20,12 @@ from companion.link.profile import AutopilotProfile
 from companion.numerics.cascade_gains import CascadeRules
 from companion.numerics.gains import CAMPAIGN_DAMPING, GainBounds
 from companion.numerics.identification import YawModel
+from companion.numerics.skid_step import SkidMixer
 from companion.numerics.step_design import DesignChoice, DesignObjective, StepCase, design_by_prediction
 from companion.numerics.step_figures import StepFigures
 from companion.numerics.step_response import predict_step
 from companion.procedures.heading_design import family_for, step_case
-from companion.procedures.verified_design import CONTROLLERS, HeadingLimits
+from companion.procedures.verified_design import CONTROLLERS, HeadingLimits, skid_plant
 
 #: the --autopilot choices: every registered autopilot by its profile's name, our simulator's as
 #: "builtin" (as ``rehearse --autopilot`` names it)
@@ -82,15 +85,30 @@ def run_for_autopilot(args, model: YawModel) -> int:
         print(f"companion design: error: {exc}", file=sys.stderr)
         return 2
     controller = CONTROLLERS[kind_name]
-    scaled = controller == "cascade" and "steering_scale_speed" in params
+    skid_throttle = args.skid_throttle
+    if skid_throttle is not None and not (controller == "cascade" and "steering_scale_speed" in params):
+        print(f"companion design: error: --skid-throttle is for ArduRover's twin-thruster boats, not {args.autopilot}",
+              file=sys.stderr)
+        return 2
+    if skid_throttle is not None and not 0.0 < skid_throttle <= 1.0:
+        print(f"companion design: error: --skid-throttle must be in (0, 1], not {skid_throttle:g}", file=sys.stderr)
+        return 2
+    scaled = controller == "cascade" and "steering_scale_speed" in params and skid_throttle is None
     base = args.scale_base if args.scale_base is not None else found.get("steering_scale_speed") if scaled else None
-    base = base if base and base > 0 else None
+    base = base if base and base > 0 and skid_throttle is None else None
     rules = CascadeRules(full_scale=profile.angle_full_scale_rad, output_scale_base=base, **profile.gain_ranges)
     bounds = GainBounds(damping=CAMPAIGN_DAMPING)
     if controller == "pi":
         found.setdefault("rudder_max", args.delta_max)
     limits = HeadingLimits.from_vehicle(found, full_scale=profile.angle_full_scale_rad,
                                         rudder_rate=profile.actuator_rate_rad_s, output_scale_base=base)
+    if skid_throttle is not None:  # eq. A.2k: one steady level known, b2 ∝ u (a skid pair's law, eq. S.3)
+        skid = skid_plant(SkidMixer(), [(skid_throttle, args.speed)], None, [args.speed], [model.a22], [model.b2],
+                          "u", found)
+        if skid is None:
+            print("companion design: error: no skid drive can be made of --skid-throttle and --speed", file=sys.stderr)
+            return 2
+        limits = replace(limits, skid=skid)
     objective = DesignObjective()
     if profile.prediction_margin_pct is not None:
         objective = replace(objective, margin_pct=profile.prediction_margin_pct)
@@ -107,13 +125,15 @@ def run_for_autopilot(args, model: YawModel) -> int:
     native = {params.get(k, k): v for k, v in chosen.items()}
     steps = predicted_steps(choice, case, objective)
     result = {"autopilot": args.autopilot, "controller": controller, "speed": args.speed,
+              "skid_throttle": skid_throttle,
               "chosen": choice.chosen.name, "parameters": native, **{"design": choice.to_dict()},
               "predicted_steps": {name: [step_row(size_deg, figures) for size_deg, figures in rows]
                                   for name, rows in steps.items()}}
     if args.json:
         print_json(result)
         return 0
-    print(f"{args.autopilot}: {controller} heading controller at {args.speed:g} m/s; "
+    through = f", through the skid mixer at throttle {skid_throttle:g} (eq. A.2k)" if skid_throttle is not None else ""
+    print(f"{args.autopilot}: {controller} heading controller at {args.speed:g} m/s{through}; "
           f"design target: overshoot ≤ {choice.target_overshoot_pct:.1f} % on ±20° and ±40° steps")
     print(f"chosen: {choice.chosen.name}" + (" (the vehicle's own gains: nothing better is predicted)"
                                             if choice.keeps_original else ""))
@@ -151,7 +171,7 @@ def predicted_steps(choice: DesignChoice, case: StepCase,
         for size in objective.step_sizes_rad:
             try:
                 figures = predict_step(case.plant, case.controller, dict(candidate.gains[0]), size,
-                                       objective.duration_s, dt=objective.dt, **case.limits).figures
+                                       objective.duration_s, dt=objective.dt, skid=case.skid, **case.limits).figures
             except ValueError:  # gains the autopilot refuses to fly (PX4 without a wheel base)
                 figures = StepFigures.unmeasured()
             rows.append((math.degrees(size), figures))
