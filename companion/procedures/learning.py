@@ -7,6 +7,9 @@ gains, its writes through the link and its records in the store.
   ArduPilot's cascade) with the limits read from the vehicle, the original gains a candidate. The
   schedule kind's fit over the validated bands gives the gains at a speed (one band: the same gains
   at every speed); the prediction for any gains at a speed is the step on the schedule's model there.
+  On a skid-steered boat that step goes through its mixer, the thrust the steering leaves and the
+  speed it costs (eq. A.2k), from the throttle the mission holds on its straights
+  (:class:`StraightRunning`) and the speed loop's gains as read, as a campaign predicts it.
 * **Which gains, verified how**: the heading kind's scheduled gains, never its trims. On ArduRover in
   AUTO the navigation controller asks for a turn rate, so the rate loop's FF/P/I carry the turns: they
   are verified by how the rate loop tracks the turn rates the navigation asks for (PID_TUNING, the
@@ -38,6 +41,7 @@ import numpy as np
 from behaviors.base import Footprint
 from behaviors.gain_scheduling import ScheduleKind
 from behaviors.mission_learning import DesignOutcome, LearningConfig, LearningResult, MissionLearner, Phase
+from companion.link.errors import ParamError
 from companion.link.port import VehiclePort
 from companion.interface import Command, SetParameters
 from companion.numerics.identification import YawModel
@@ -49,7 +53,7 @@ from companion.procedures.campaign import CampaignConfig
 from companion.procedures.heading_design import choose_heading_design, optimisable, step_case, with_design
 from companion.procedures.restore import RestorePoint
 from companion.procedures.trail import TrailRecorder, vehicle_identity
-from companion.procedures.verified_design import CONTROLLERS, LIMIT_PARAMETERS, HeadingLimits
+from companion.procedures.verified_design import CONTROLLERS, LIMIT_PARAMETERS, HeadingLimits, skid_plant
 from companion.records.store import Store
 
 log = logging.getLogger(__name__)
@@ -93,12 +97,14 @@ class ScheduledDesign:
 
     def predict(self, gains: dict[str, float], speed: float, step: float) -> tuple[float, float]:
         case = self._case(speed)
-        figures = predict_step(case.plant, case.controller, dict(gains), step, PREDICTED_S, **case.limits).figures
+        figures = predict_step(case.plant, case.controller, dict(gains), step, PREDICTED_S, skid=case.skid,
+                               **case.limits).figures
         return figures.iae_s, figures.overshoot_pct
 
     def replay(self, gains: dict[str, float], speed: float, segment: FlownSegment) -> np.ndarray:
         """The turn rates the rate loop with ``gains`` achieves on the model at the segment's speed,
-        asked for the segment's turn rates."""
+        asked for the segment's turn rates (the rate loop alone: on a skid boat without its mixer,
+        which eq. A.2k's steps carry but this replay does not)."""
         case = self._case(speed)
         return simulate_rate_tracking(case.plant, dict(gains), segment.times, segment.desired,
                                       float(segment.achieved[0]), rudder0=segment.rudder0, **case.limits)
@@ -109,17 +115,60 @@ class ScheduledDesign:
         return abs(model.b2 * self.limits.rudder_max / model.a22) if model.a22 != 0.0 else math.inf
 
 
+class StraightRunning:
+    """The throttle and speed the mission holds on its straights, by speed bin: a skid-steered boat's
+    steady law for eq. A.2k, as a campaign takes it from its settles (``behaviors.speed_tuning``)."""
+
+    #: straight: |yaw rate| below this (rad/s), as the campaign's surge record
+    STRAIGHT_RATE = math.radians(3.0)
+    BIN_M_S = 0.25
+    MIN_SAMPLES = 25  # a second of snapshots at 25 Hz
+
+    def __init__(self) -> None:
+        self._sums: dict[int, list[float]] = {}  # bin → [n, Σ throttle, Σ speed]
+
+    def add(self, telemetry) -> None:
+        if not (telemetry.finite("yaw_rate") and telemetry.finite("thrust_ratio") and telemetry.finite("speed_water")):
+            return
+        if abs(telemetry.yaw_rate) >= self.STRAIGHT_RATE or telemetry.thrust_ratio <= 0.0 or telemetry.speed_water <= 0.0:
+            return
+        sums = self._sums.setdefault(int(round(telemetry.speed_water / self.BIN_M_S)), [0.0, 0.0, 0.0])
+        sums[0] += 1.0
+        sums[1] += telemetry.thrust_ratio
+        sums[2] += telemetry.speed_water
+
+    def levels(self) -> list[tuple[float, float]]:
+        """(mean throttle, mean speed) of each bin with at least a second of straight running."""
+        return [(t / n, u / n) for n, t, u in (self._sums[k] for k in sorted(self._sums)) if n >= self.MIN_SAMPLES]
+
+
 class HeadingDesigner:
-    """eq. D.1 over the validated bands (module docstring)."""
+    """eq. D.1 over the validated bands (module docstring); on a skid-steered boat (``config.skid_mixer``)
+    every step is predicted through its mixer, thrust and speed (eq. A.2k), from the straights' steady
+    throttle (``straights``) and the speed loop as found (``speed_gains``), as a campaign predicts it."""
 
     def __init__(self, config: CampaignConfig, kind: ScheduleKind, original: dict[str, float],
-                 limits: HeadingLimits) -> None:
+                 limits: HeadingLimits, straights: StraightRunning | None = None,
+                 speed_gains: dict[str, float] | None = None) -> None:
         self.config, self.kind, self.original, self.limits = config, kind, original, limits
+        self.straights, self.speed_gains = straights, dict(speed_gains or {})
+
+    def limits_for(self, validated: Sequence[tuple[float, YawModel]]) -> HeadingLimits:
+        """The limits the predictions use: a skid boat's carry its drive (eq. A.2k) once a straight's
+        throttle is known; any other's, as read."""
+        mixer = self.config.skid_mixer
+        if mixer is None or self.straights is None:
+            return self.limits
+        plant = skid_plant(mixer, self.straights.levels(), None, [u for u, _ in validated],
+                           [m.a22 for _, m in validated], [m.b2 for _, m in validated], self.config.speed_law or "u",
+                           self.speed_gains)
+        return replace(self.limits, skid=plant) if plant is not None else self.limits
 
     def __call__(self, validated: Sequence[tuple[float, YawModel]]) -> DesignOutcome:
         attempts = [_BandModel(speed, model) for speed, model in validated]
+        limits = self.limits_for(validated)
         try:
-            choice = choose_heading_design(self.kind, self.config.cascade, self.config.bounds, attempts, self.limits,
+            choice = choose_heading_design(self.kind, self.config.cascade, self.config.bounds, attempts, limits,
                                            self.config.objective, self.original)
         except ValueError as exc:
             return DesignOutcome(None, f"no design: {exc}")
@@ -134,7 +183,7 @@ class HeadingDesigner:
         best = choice.choice.chosen
         summary = (f"{best.name}: predicted step error {best.score.iae_s:.2f} s, overshoot "
                    f"{best.score.worst_overshoot_pct:.1f} %")
-        return DesignOutcome(ScheduledDesign(kind, schedule, self.limits, summary), choice.choice.reason())
+        return DesignOutcome(ScheduledDesign(kind, schedule, limits, summary), choice.choice.reason())
 
 
 def heading_kind_for(config: CampaignConfig) -> ScheduleKind | None:
@@ -167,6 +216,7 @@ class LearningSession:
         self.result: LearningResult | None = None
         self._foreign_seen: set[str] = set()
         self.restore_problems: list[str] = []  # what the session's end could not put back
+        self.straights: StraightRunning | None = None  # a skid boat's steady throttle (eq. A.2k)
 
     def start(self) -> str | None:
         """Read the original gains and open the records; the reason when learning cannot run."""
@@ -198,7 +248,12 @@ class LearningSession:
             config = replace(config, verdict=replace(config.verdict, overshoot_margin_pct=float(margin)))
         # the whole design is written (what its predictions are of); a turn-rate verification flies
         # the rate loop's part, the angle P acts where a heading is held (module docstring)
-        self.learner = MissionLearner(HeadingDesigner(self.campaign, kind, original, limits), original, config)
+        speed_gains: dict[str, float] = {}
+        if self.campaign.skid_mixer is not None:  # eq. A.2k: the steps go through the mixer and the speed loop
+            self.straights = StraightRunning()
+            speed_gains = self._speed_gains(profile)
+        designer = HeadingDesigner(self.campaign, kind, original, limits, self.straights, speed_gains)
+        self.learner = MissionLearner(designer, original, config)
         self.campaign_id = self.store.start_campaign(self.vehicle_id, "learning", {
             "original": original, "modes": list(config.modes), "heading_kind": kind.name})
         self.trail_id = self.store.save_restore_point(self.campaign_id, self.restore.as_json(), vehicle_identity(self.link))
@@ -208,6 +263,16 @@ class LearningSession:
         self.link.status_text(f"LEARN: on, original {kind.name} gains recorded"[:50])
         log.info("learning on: original gains %s, limits %s", original, limits)
         return None
+
+    def _speed_gains(self, profile) -> dict[str, float]:
+        """The speed loop's gains as found (read only: learning never writes them), for eq. A.2k's
+        speed hold; empty when the vehicle does not give them (the throttle is then taken as held)."""
+        names = [name for name in ("speed_p", "speed_i") if name in profile.params]
+        try:
+            return self.link.get_params(names) if len(names) == 2 else {}
+        except ParamError as exc:
+            log.info("learning: the speed loop's gains not read (%s); a skid boat's throttle is taken as held", exc)
+            return {}
 
     def status(self) -> dict:
         """What the status page shows: the phase and why, the bands, the writes, the verdict."""
@@ -238,6 +303,8 @@ class LearningSession:
             if changed:
                 natives = ", ".join(f"{c.name} {c.value:g}" for c in changed.values())
                 self._send(self.learner.overridden(tuple(changed), f"set by someone else: {natives}"))
+            if self.straights is not None:
+                self.straights.add(telemetry)
             self._send(self.learner.tick(telemetry))
             self._drain()
         except Exception as exc:  # noqa: BLE001 - the resident loop must outlive a failed write
