@@ -165,7 +165,7 @@ def identify_log(record: SteeringRecord, config: LogIdentificationConfig = LogId
     """Segments, per-segment identification and cross-validation, and the gain designs (module docstring).
 
     ``profile`` resolves the campaign configuration (estimator holds, the heading schedule kind)."""
-    if profile is not None and getattr(record, "actuation", None) is not None:
+    if profile is not None and record.actuation is not None:
         profile = replace(profile, actuation=record.actuation)  # the log's own: its speed law (eq. S.3)
     campaign = config.campaign.resolved_for(profile) if profile is not None else config.campaign
     config = replace(config, campaign=campaign)

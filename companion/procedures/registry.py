@@ -15,6 +15,7 @@ from typing import Any, Callable, Mapping, Protocol
 from pymavlink.dialects.v20.common import MAV_CMD_USER_1, MAV_CMD_USER_2, MAV_CMD_USER_3, MAV_CMD_USER_4, MAV_CMD_USER_5
 
 from companion.interface import Behavior
+from companion.link.profile import AutopilotProfile
 from companion.procedures.min_speed import (MIN_SPEED_COLUMNS, MinSpeedProcedure, MinSpeedProcedureConfig,
                                             analytic_minimum_speed, min_speed_columns, min_speed_summary,
                                             read_depth_gains)
@@ -69,7 +70,7 @@ class ProcedureSpec:
     build: Callable[[object, ProcedureContext], Procedure]
     summary: Callable[[dict], dict]
     default_config: Callable[[], Any]
-    applies: Callable[[object], str | None] = lambda profile: None
+    applies: Callable[[AutopilotProfile | None], str | None] = lambda profile: None
     report: ReportSection | None = None
     sweep_columns: tuple[str, ...] = ()
     sweep_row: Callable[[dict], dict] = lambda section: {}
@@ -122,16 +123,16 @@ def _plot_steady_state(result: dict, path: Path) -> str | None:
     return plot_steady_state(result, path)
 
 
-def _needs_rolling_mass(profile) -> str | None:
-    if profile is not None and getattr(profile, "mass_servo", None) is None:
+def _needs_rolling_mass(profile: AutopilotProfile | None) -> str | None:
+    if profile is not None and profile.mass_servo is None:
         return f"roll stabilisation needs a rolling mass on a spare servo output; the {profile.name} profile has none"
     return None
 
 
-def _needs_fin_depth_loop(profile) -> str | None:
+def _needs_fin_depth_loop(profile: AutopilotProfile | None) -> str | None:
     if profile is None:
         return None
-    if "elevator" not in profile.servo_outputs or not getattr(profile, "depth_setpoint", True):
+    if "elevator" not in profile.servo_outputs or not profile.depth_setpoint:
         return (f"minimum-speed seeking needs a depth loop flown by an elevator with a thrust set-point; "
                 f"the {profile.name} profile has none (a boat, or an ROV holding depth with thrusters)")
     return None

@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Protocol, Sequence
 
-from behaviors.base import Status, footprint_of
+from behaviors.base import Behaviour, Status, footprint_of
 from companion.interface import (Behavior, Command, NamedValue, OverrideActuator, ReleaseActuator, SetDepth,
                                  SetHeading, SetMode, SetParameters, SetRollingMass, SetThrust, StatusText, Telemetry)
 from companion.errors import UserError as _UserError
@@ -217,8 +217,9 @@ def _run_guarded(behavior, link, limits, abort_requested, on_step, restore, rest
     if not rebooted and restore is not None:
         reason = named_reboot(reason, link, restore.boot)
     status = Outcome.ABORTED if reason is not None else Outcome.COMPLETED
-    if reason is None and getattr(behavior, "status", None) is Status.FAILURE:
-        status, reason = Outcome.FAILED, getattr(behavior, "reason", None) or "the procedure did not reach its goal"
+    # a registered behaviour need only be a companion.interface.Behavior: one built on Behaviour says how it ended
+    if reason is None and isinstance(behavior, Behaviour) and behavior.status is Status.FAILURE:
+        status, reason = Outcome.FAILED, behavior.reason or "the procedure did not reach its goal"
     return RunOutcome(
         status=status,
         reason=reason,
