@@ -49,6 +49,7 @@ def _largest_gaps(summary: dict) -> dict[float, float]:
 
 def _identification(args, campaign) -> None:
     errors_a22, errors_b2, r2s, steps, vehicle_s, walls, outcomes = [], [], [], {}, [], [], []
+    phases: list[dict] = []
     versus: list[tuple[float, float, float, float, float]] = []  # thrust, flown/predicted overshoot and IAE
     originals: dict[float, list[dict]] = {}  # PX4's gains as found, predicted at each identified speed
     print(f"{args.autopilot} SITL + preset {PRESETS[args.autopilot]}, thrusts {campaign.thrusts}, {args.repeats} "
@@ -75,6 +76,7 @@ def _identification(args, campaign) -> None:
             if row["label"] == "original":
                 originals.setdefault(row["thrust"], []).append(row)
         vehicle_s.append(summary.get("vehicle_time_s") or 0.0)
+        phases.append(summary.get("vehicle_time_by_phase") or {})
         for run in summary.get("runs", []):
             ea = 100.0 * (run["a22"] / run["true_a22"] - 1.0)
             eb = 100.0 * (run["b2"] / run["true_b2"] - 1.0)
@@ -121,7 +123,10 @@ def _identification(args, campaign) -> None:
         print("flown minus predicted, the design's verification steps (eq. A.3's margin):")
         print(f"  overshoot points: {', '.join(f'{f - p:+.1f}' for _t, f, p, _fi, _pi in versus)}")
         print(f"  IAE %:            {', '.join(f'{100.0 * (fi / pi - 1.0):+.1f}' for *_x, fi, pi in versus)}")
-    print(f"vehicle time per campaign median {med(vehicle_s):.0f} s; wall time {med(walls):.0f} s at {args.speedup:g}x")
+    names = sorted({name for by_phase in phases for name in by_phase})
+    by_phase = ", ".join(f"{name} {med([p.get(name, 0.0) for p in phases]):.0f} s" for name in names)
+    print(f"vehicle time per campaign median {med(vehicle_s):.0f} s ({min(vehicle_s):.0f}–{max(vehicle_s):.0f} s; "
+          f"median by phase: {by_phase}); wall time {med(walls):.0f} s at {args.speedup:g}x")
 
 
 def _aborts(args) -> None:
