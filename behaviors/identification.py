@@ -30,6 +30,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import asdict, dataclass, field, replace
+from enum import Enum
 from typing import Callable, Sequence
 
 from behaviors.base import Behaviour, Footprint, Status
@@ -145,6 +146,14 @@ def doublet(t_rel: float, start_s: float, period_s: float, amplitude: float) -> 
     return amplitude if t_rel < start_s + period_s / 2 else -amplitude
 
 
+class Rejection(Enum):
+    """Why an attempt whose fit may have passed was not used: the link lost too much of its records,
+    or the estimate is no model (:func:`no_model_reason`)."""
+
+    LINK = "link"
+    NOT_A_MODEL = "not a model"
+
+
 def no_model_reason(model: YawEstimate | PitchModel) -> str | None:
     """Why an attempt holding ``model`` cannot be accepted whatever its R²: a yaw estimate that is no
     model (a22 ≥ 0, b2 ≤ 0 or not finite, eq. 3.5–3.9); None otherwise."""
@@ -180,11 +189,16 @@ class IdentificationAttempt:
     # attempt was not used although its fit may have passed (a record the link lost too much of)
     sampling: dict = field(default_factory=dict)
     rejected_for: str | None = None
+    #: what ``rejected_for`` is about (None: not rejected): the link, or an estimate that is no model
+    rejection: Rejection | None = None
     # where the model came from (eq. 3.38p): the online estimate, or the bounded-pole refit and why
     model_source: str = ONLINE
     model_note: str = ""
 
     def __post_init__(self) -> None:
+        if (self.rejected_for is None) != (self.rejection is None):
+            raise ValueError(f"{self.axis} attempt {self.attempt}: a rejection needs both its reason and its kind, "
+                             f"not {self.rejected_for!r} and {self.rejection!r}")
         if isinstance(self.model, YawEstimate) and self.model.is_model:
             self.model = self.model.model()
         if self.accepted and (reason := no_model_reason(self.model)) is not None:
@@ -194,7 +208,7 @@ class IdentificationAttempt:
     def spoiled_by_link(self) -> bool:
         """Not used because the link lost too much of its records (``rejected_for`` says how), as
         opposed to a fit that passed with no model (``rejected_for`` is then :func:`no_model_reason`)."""
-        return self.rejected_for is not None and self.rejected_for != no_model_reason(self.model)
+        return self.rejection is Rejection.LINK
 
     def summary(self) -> dict:
         """The figures without the series and the covariance (JSON summaries, progress lines)."""
@@ -547,17 +561,18 @@ class IdentificationManoeuvre(Behaviour):
         # a fit that reproduces the fresh record but is no model (unstable, inverted) is not accepted
         not_model = no_model_reason(model) if passed and spoiled is None else None
         rejected_for = spoiled or not_model
+        rejection = Rejection.LINK if spoiled else Rejection.NOT_A_MODEL if not_model else None
         accepted = passed and rejected_for is None
         speed = sum(self._speeds) / len(self._speeds) if self._speeds else math.nan
         self.attempts.append(IdentificationAttempt(
             attempt=self.attempt, axis=self.config.axis, thrust=self.thrust, speed=speed, model=model, r2=r2,
             accepted=accepted, converged=bool(self._attempt_identifier().converged), converged_s=self._converged_s(),
-            criterion_met_from_s=getattr(self._identifier, "criterion_met_from_s", None),
+            criterion_met_from_s=self._attempt_identifier().criterion_met_from_s,
             training_s=self._training_time_s, samples=len(self._training.time),
             training=self._series(self._training, history=True),
             validation=self._series(self._validation, model=model),
             sampling={name: q.as_json() for name, q in quality.items()}, rejected_for=rejected_for,
-            model_source=choice.source, model_note=choice.note))
+            rejection=rejection, model_source=choice.source, model_note=choice.note))
         self._validation = _Record()
         verdict = "accepted" if accepted else "rejected"
         commands: list[Command] = [self._status(f"validation R2 {r2:.3f}: {verdict}")]

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import behaviors.identification as identification
-from behaviors.identification import IdentificationAttempt, IdentificationManoeuvre, ManoeuvreConfig
+from behaviors.identification import IdentificationAttempt, IdentificationManoeuvre, ManoeuvreConfig, Rejection
 from companion.cli.main import main as cli_main
 from companion.numerics.bounded_pole import ONLINE, YawModelChoice
 from companion.numerics.identification import YawEstimate, YawIdentifier, YawModel
@@ -84,7 +84,13 @@ def test_an_attempt_is_accepted_only_with_a_model():
     # an estimate that is a model is held as one, so it is stored under the tag it always had
     kept = _attempt(YawEstimate(-1.05, 0.86, 0.01), accepted=True)
     assert type(kept.model) is YawModel and to_json(kept.model)["type"] == "YawModel"
-    assert _attempt(YawModel(-1.05, 0.86, 0.01), accepted=False, rejected_for="training record: 30 % lost").spoiled_by_link
+    assert _attempt(YawModel(-1.05, 0.86, 0.01), accepted=False, rejected_for="training record: 30 % lost",
+                    rejection=Rejection.LINK).spoiled_by_link
+    no_model = _attempt(YawEstimate(0.6, 1.0, 0.0), accepted=False, rejected_for="not a model",
+                        rejection=Rejection.NOT_A_MODEL)
+    assert not no_model.spoiled_by_link
+    with pytest.raises(ValueError, match="a rejection needs both its reason and its kind"):
+        _attempt(YawModel(-1.05, 0.86, 0.01), accepted=False, rejected_for="training record: 30 % lost")
 
 
 def test_an_unstable_estimate_that_passes_validation_is_rejected_with_its_reason(monkeypatch):

@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from behaviors.gain_scheduling import GainDesign
-from behaviors.identification import IdentificationAttempt, ManoeuvreConfig, no_model_reason
+from behaviors.identification import IdentificationAttempt, ManoeuvreConfig, Rejection, no_model_reason
 from companion.numerics.identification import ConvergenceRule, YawEstimate, YawIdentifier
 from companion.numerics.segments import Segment, SegmentRules, find_segments
 from companion.numerics.svf import DEFAULT_BANDWIDTH
@@ -201,7 +201,7 @@ def identify_log(record: SteeringRecord, config: LogIdentificationConfig = LogId
             training={"time": record.t[a:b].tolist(), "signal": record.heading[a:b].tolist(),
                       "actuator": record.rudder[a:b].tolist(),
                       "history": {k: [float(x) for x in v] for k, v in identifier.history_table.items()}},
-            validation=validation, rejected_for=not_model)
+            validation=validation, rejected_for=not_model, rejection=None if not_model is None else Rejection.NOT_A_MODEL)
     for kind in campaign.kinds():
         if kind.axis != "yaw":
             continue
