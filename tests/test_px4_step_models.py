@@ -16,10 +16,10 @@ from companion.link.autopilots import px4_rover, px4_uuv
 from companion.numerics.cascade_gains import CascadeRules
 from companion.numerics.identification import YawModel
 from companion.numerics.px4_gains import design_ackermann_gains, design_uuv_gains
-from companion.numerics.px4_step import AckermannYawControl, UuvYawControl, fly
+from companion.numerics.px4_step import AckermannYawControl, UuvAllocation, UuvYawControl, fly
 from companion.numerics.step_design import (DesignObjective, design_by_prediction, px4_rover_case, px4_rover_family,
                                             px4_uuv_case, px4_uuv_family)
-from companion.numerics.step_response import RudderPlant, simulate_step
+from companion.numerics.step_response import RudderPlant, simulate_step, step_metrics
 from companion.procedures.campaign import CampaignConfig
 from companion.procedures.heading_design import choose_heading_design, optimisable, with_design
 from companion.procedures.verified_design import CONTROLLERS, LIMIT_PARAMETERS, HeadingLimits, predicted_step
@@ -251,3 +251,54 @@ def test_design_for_px4_prints_its_parameters_and_every_candidates_predicted_ste
     assert cli_main(argv) == 0
     text = capsys.readouterr().out
     assert all(name in text for name in names) and "time to 5 %" in text and "no step model" not in text
+
+
+# ---------------------------------------------------------------------------- the UUV's allocation (eq. A.5a)
+@pytest.mark.parametrize("forward, demand, made", [
+    (0.45, 0.3, 0.3),  # room on both sides: the torque as asked
+    (0.65, 0.5, 0.425),  # within the yaw margin: not desaturated, the top thrusters clipped at 1
+    (0.65, 1.0, 0.5),  # reduced to 1.3 − 0.65, then clipped: (1 − 0)/2
+    (0.45, 1.0, 0.7),  # (1 − (−0.4))/2
+    (0.45, -1.0, -0.7),  # the other way alike
+    (0.0, 1.0, 1.0),  # at rest: the whole range
+])
+def test_the_uuv_allocation_leaves_the_yaw_the_thrusters_room_beside_the_surge_thrust(forward, demand, made):
+    assert UuvAllocation(forward).torque(demand) == pytest.approx(made, abs=1e-9)
+
+
+def test_a_uuv_step_at_high_surge_thrust_is_predicted_slower_through_the_allocation():
+    """PX4 SITL flew the UUV's verification steps 13–77 % slower than eq. A.5 predicted, most at the
+    highest thrust: with the allocation, a saturating step at thrust 0.65 is 40 % or more slower, a
+    small one not at all."""
+    plant = RudderPlant(-1.04, 0.745, 0.0, 0.35)
+    gains = {"heading_angle_p": 40.0, "heading_rate_d": 20.0}
+    def iae(step_deg: float, forward: float) -> float:
+        times, heading, _ = simulate_step(plant, "px4_uuv", gains, math.radians(step_deg), 25.0, full_scale=0.35,
+                                          forward_thrust=forward, dt=0.02)
+        return step_metrics(times, heading, 0.0, math.radians(step_deg), smooth=False).iae_s
+    assert iae(20.0, 0.65) > 1.4 * iae(20.0, math.nan)
+    assert iae(20.0, 0.45) < iae(20.0, 0.65)
+    assert iae(0.5, 0.45) == pytest.approx(iae(0.5, math.nan), rel=1e-9)  # small: inside the room
+
+
+def test_the_campaigns_uuv_limits_carry_the_surge_thrust_of_each_speed():
+    limits = HeadingLimits(rudder_max=0.35, full_scale=0.35, forward_thrust=((1.25, 0.65), (0.72, 0.45)))
+    assert limits.thrust_at(1.0) == pytest.approx(0.45 + 0.2 * (1.0 - 0.72) / (1.25 - 0.72))
+    assert limits.thrust_at(2.0) == 0.65 and math.isnan(HeadingLimits(rudder_max=0.35).thrust_at(1.0))
+    with pytest.raises(ValueError, match="forward_thrust"):
+        HeadingLimits(rudder_max=0.35, forward_thrust=((1.0, 1.5),))
+
+
+def test_design_for_the_uuv_takes_its_surge_thrust_from_the_command_line(capsys):
+    argv = ["design", "--autopilot", "px4-uuv", "--a22", "-1.04", "--b2", "0.745", "--speed", "1.25",
+            "--original", "UUV_TORQUE_SAT=1", "--json"]
+    outputs = []
+    for extra in ([], ["--forward-thrust", "0.65"]):
+        assert cli_main(argv + extra) == 0
+        outputs.append(json.loads(capsys.readouterr().out))
+    free, allocated = (out["design"]["candidates"]["original"]["iae_s"] for out in outputs)
+    assert allocated > 1.3 * free  # the thrusters' room beside the surge thrust (eq. A.5a)
+    assert outputs[1]["forward_thrust"] == 0.65
+    assert cli_main(["design", "--autopilot", "ardurover", "--a22", "-1", "--b2", "1", "--speed", "1",
+                     "--forward-thrust", "0.5"]) == 2
+    assert "for PX4's UUV" in capsys.readouterr().err

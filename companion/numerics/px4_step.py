@@ -31,6 +31,16 @@ Transcribed from upstream PX4-Autopilot (read at commit ``bb59c637cd74e04c000a0b
   ±UUV_TORQUE_SAT (``constrain_actuator_commands``). In OFFBOARD with SET_ATTITUDE_TARGET's body
   rates ignored (the companion's set-point) no rate set-point is published, so r_d = 0. The torque is
   an equivalent rudder δ = τ·δfs. There is no integrator.
+* **UUV allocation** (eq. A.5a), ``src/lib/control_allocation/control_allocation/
+  ControlAllocationSequentialDesaturation.cpp`` (``mixAirmodeDisabled``, MC_AIRMODE 0, the
+  HippoCampus' default) with the airframe's four reversible thrusters (CA_R_REV 255, outputs ±1):
+  the surge thrust f is mixed first, each thruster at f; the yaw torque τ is added (±τ, the yaw
+  column normalised to 1) and reduced by ``desaturateActuators`` until the outputs lie within
+  [−1, 1 + 2·MINIMUM_YAW_MARGIN] (0.15: some yaw at full thrust), in two passes (the second at half
+  gain); the outputs are then clipped to ±1. The torque that acts is half the difference of the two
+  sides: τ itself while f + |τ| ≤ 1, down to 0.5 at f = 0.65 and 0.7 at f = 0.45 for a saturated
+  demand, where eq. A.5 alone would act with UUV_TORQUE_SAT (1.0) — the flown steps' step error was
+  13–77 % above A.5's prediction.
 
 A controller is a small stateful object (:class:`AckermannYawControl`, :class:`UuvYawControl`):
 ``start(rudder)`` puts it on course holding ``rudder`` steadily (the heading, relative to the
@@ -198,15 +208,49 @@ class AckermannYawControl:
 
 
 @dataclass
+class UuvAllocation:
+    """PX4's allocation of a UUV's yaw torque beside its surge thrust ``forward`` (eq. A.5a, module
+    docstring): thrusters within [``output_min``, ``output_max``], the yaw's margin above the top."""
+
+    forward: float
+    output_min: float = -1.0  # CA_R_REV: reversible thrusters
+    output_max: float = 1.0
+    yaw_margin: float = 0.15  # ControlAllocationSequentialDesaturation::MINIMUM_YAW_MARGIN
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.forward) and self.output_min <= self.forward <= self.output_max):
+            raise ValueError(f"UuvAllocation.forward must be a thrust within [{self.output_min:g}, "
+                             f"{self.output_max:g}], not {self.forward!r}")
+        _non_negative(self, "yaw_margin")
+
+    def torque(self, demand: float) -> float:
+        """The yaw torque the thrusters make for ``demand`` (±1, after UUV_TORQUE_SAT)."""
+        size = abs(demand)
+        high, low = self.forward + size, self.forward - size  # the two sides of the yaw column
+        top = self.output_max + (self.output_max - self.output_min) * self.yaw_margin
+        for share in (1.0, 0.5):  # desaturateActuators: a full pass, then half the gain left
+            gains = [top - high] if high > top else []
+            if low < self.output_min:
+                gains.append(low - self.output_min)  # the yaw vector is −1 on this side
+            gain = share * (min(gains + [0.0]) + max(gains + [0.0]))
+            high, low = high + gain, low - gain
+        high = min(max(high, self.output_min), self.output_max)
+        low = min(max(low, self.output_min), self.output_max)
+        return math.copysign(0.5 * (high - low), demand)
+
+
+@dataclass(frozen=True)
 class UuvYawControl:
     """PX4's UUV yaw control (eq. A.5; module docstring): ``yaw_p``, ``yaw_d`` (UUV_YAW_P/D, torque
     per rad and per rad/s), ``torque_max`` (UUV_TORQUE_SAT, 0–1) and ``full_scale`` (rad of
-    equivalent rudder at torque 1)."""
+    equivalent rudder at torque 1); with ``allocation`` the torque the thrusters make beside the
+    surge thrust (eq. A.5a)."""
 
     yaw_p: float
     yaw_d: float
     full_scale: float
     torque_max: float = 1.0
+    allocation: UuvAllocation | None = None
 
     def __post_init__(self) -> None:
         _non_negative(self, "yaw_p", "yaw_d", "torque_max")
@@ -215,11 +259,14 @@ class UuvYawControl:
             raise ValueError(f"UuvYawControl.torque_max is UUV_TORQUE_SAT, 0–1, not {self.torque_max!r}")
 
     @classmethod
-    def from_gains(cls, gains: Mapping[str, float], *, full_scale: float, torque_max: float = 1.0) -> "UuvYawControl":
+    def from_gains(cls, gains: Mapping[str, float], *, full_scale: float, torque_max: float = 1.0,
+                   forward_thrust: float = math.nan) -> "UuvYawControl":
         """From the neutral names of ``companion.link.autopilots.px4_uuv`` (``heading_angle_p``,
-        ``heading_rate_d``)."""
+        ``heading_rate_d``); a finite ``forward_thrust`` (the surge thrust, 0–1) allocates the torque
+        beside it (eq. A.5a)."""
+        allocation = UuvAllocation(forward_thrust) if math.isfinite(forward_thrust) else None
         return cls(yaw_p=gains.get("heading_angle_p", 0.0), yaw_d=gains.get("heading_rate_d", 0.0),
-                   full_scale=full_scale, torque_max=torque_max)
+                   full_scale=full_scale, torque_max=torque_max, allocation=allocation)
 
     def start(self, rudder: float) -> float:
         """No integrator: a steady ``rudder`` needs the heading error −UUV_YAW_P·sin(ψ − ψd) = δ/δfs;
@@ -230,8 +277,10 @@ class UuvYawControl:
         return -math.asin(torque / self.yaw_p)
 
     def update(self, setpoint: float, heading: float, yaw_rate: float, dt: float) -> float:
-        torque = -self.yaw_p * math.sin(heading - setpoint) - self.yaw_d * yaw_rate
-        return _limit(torque, self.torque_max) * self.full_scale
+        torque = _limit(-self.yaw_p * math.sin(heading - setpoint) - self.yaw_d * yaw_rate, self.torque_max)
+        if self.allocation is not None:
+            torque = self.allocation.torque(torque)
+        return torque * self.full_scale
 
 
 @dataclass(frozen=True)
@@ -274,7 +323,8 @@ def fly(plant: YawPlant, controller: HeadingController, step: float, duration_s:
 
 def px4_controller(name: str, gains: Mapping[str, float], *, full_scale: float, speed: float = math.nan,
                    rate_max: float = math.inf, rate_accel_max: float = math.inf, steering_rate: float = math.inf,
-                   rate_threshold: float = 0.0, torque_max: float = 1.0) -> HeadingController:
+                   rate_threshold: float = 0.0, torque_max: float = 1.0,
+                   forward_thrust: float = math.nan) -> HeadingController:
     """The controller ``name`` ("px4_rover", eq. A.4, or "px4_uuv", eq. A.5) with ``gains`` (neutral
     names) and the vehicle's limits; ``full_scale`` is RA_MAX_STR_ANG on the rover, the equivalent
     rudder of full torque on the UUV, and ``speed`` the rover's speed estimate û."""
@@ -283,7 +333,8 @@ def px4_controller(name: str, gains: Mapping[str, float], *, full_scale: float, 
                                               rate_max=rate_max, accel_max=rate_accel_max,
                                               steering_rate=steering_rate, rate_threshold=rate_threshold)
     if name == "px4_uuv":
-        return UuvYawControl.from_gains(gains, full_scale=full_scale, torque_max=torque_max)
+        return UuvYawControl.from_gains(gains, full_scale=full_scale, torque_max=torque_max,
+                                        forward_thrust=forward_thrust)
     raise ValueError(f"unknown PX4 heading controller {name!r} (px4_rover, px4_uuv)")
 
 

@@ -399,11 +399,13 @@ def px4_rover_case(model: YawModel, speed: float, *, steering_max: float, rudder
 
 
 def px4_uuv_case(model: YawModel, speed: float, *, full_scale: float, torque_max: float = 1.0,
-                 rudder_rate: float = math.inf) -> StepCase:
+                 rudder_rate: float = math.inf, forward_thrust: float = math.nan) -> StepCase:
     """A case under PX4's UUV yaw control (eq. A.5) at ``speed``: ``full_scale`` the equivalent rudder
-    of full yaw torque, ``torque_max`` UUV_TORQUE_SAT."""
+    of full yaw torque, ``torque_max`` UUV_TORQUE_SAT; ``forward_thrust`` the surge thrust there, whose
+    allocation leaves the yaw less room (eq. A.5a; NaN: unknown, not modelled)."""
     plant = RudderPlant(model.a22, model.b2, model.delta0, full_scale, rudder_rate)
-    return StepCase(speed, model, plant, "px4_uuv", {"full_scale": full_scale, "torque_max": torque_max})
+    return StepCase(speed, model, plant, "px4_uuv", {"full_scale": full_scale, "torque_max": torque_max,
+                                                      "forward_thrust": forward_thrust})
 
 
 def pi_case(model: YawModel, speed: float, *, rudder_max: float, rudder_rate: float, imax: float) -> StepCase:

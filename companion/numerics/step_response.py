@@ -115,7 +115,8 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
                   *, full_scale: float = 0.5236, rate_max: float = math.inf, imax: float = 0.15,
                   rate_accel_max: float = math.inf, output_scale: float = 1.0, rate_imax: float = 1.0,
                   speed: float = math.nan, steering_rate: float = math.inf, rate_threshold: float = 0.0,
-                  torque_max: float = 1.0, input_tc: float = 0.0, yaw_slew_max: float = math.inf,
+                  torque_max: float = 1.0, forward_thrust: float = math.nan, input_tc: float = 0.0,
+                  yaw_slew_max: float = math.inf,
                   skid: SkidDrive | None = None, speed_trace: list[float] | None = None,
                   rudder_trace: list[float] | None = None, dt: float = 0.01) -> tuple[np.ndarray, np.ndarray, float]:
     """Heading over time after a step of ``step`` rad from 0 (module docstring); also the largest
@@ -130,7 +131,8 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
     ``companion.numerics.attitude_shaping``: ATC_INPUT_TC, the yaw slew ``yaw_slew_max``).
     ``"px4_rover"`` / ``"px4_uuv"`` (eq. A.4 / A.5, ``companion.numerics.px4_step.px4_controller``)
     take ``full_scale``, ``rate_max``, ``rate_accel_max``, ``speed`` (PX4's speed estimate),
-    ``steering_rate``, ``rate_threshold`` and ``torque_max``.
+    ``steering_rate``, ``rate_threshold`` and ``torque_max``; the UUV's ``forward_thrust`` (its surge
+    thrust, 0–1; NaN: not known) allocates the yaw torque beside it (eq. A.5a).
 
     ``skid`` (a skid-steered boat only, ``"pi"`` or ``"cascade"``): the controller's output is a
     steering demand δ/``full_scale`` that the skid mixer scales with the throttle of the speed loop,
@@ -144,7 +146,7 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
     if controller in PX4_CONTROLLERS:
         loop = px4_controller(controller, gains, full_scale=full_scale, speed=speed, rate_max=rate_max,
                               rate_accel_max=rate_accel_max, steering_rate=steering_rate,
-                              rate_threshold=rate_threshold, torque_max=torque_max)
+                              rate_threshold=rate_threshold, torque_max=torque_max, forward_thrust=forward_thrust)
         trace = fly(plant, loop, step, duration_s, dt)
         if rudder_trace is not None:
             rudder_trace.extend(float(v) for v in trace.rudder)

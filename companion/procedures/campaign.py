@@ -327,7 +327,13 @@ class IdentificationCampaign(Behaviour):
                                             output_scale_base=self.config.cascade.output_scale_base
                                             if self._yaw_kind().name == "cascade" else None)
         skid = self._skid_plant()
-        return replace(limits, skid=skid) if skid is not None else limits
+        if skid is not None:
+            limits = replace(limits, skid=skid)
+        if CONTROLLERS.get(self._yaw_kind().name) == "px4_uuv":  # eq. A.5a: the surge thrust at each speed
+            limits = replace(limits, forward_thrust=tuple(
+                (a.speed, a.thrust) for a in self.accepted
+                if a.axis == "yaw" and a.thrust is not None and math.isfinite(a.speed)))
+        return limits
 
     def _skid_plant(self) -> SkidPlant | None:
         """Eq. A.2k's knowledge of a skid-steered boat (None for any other): the surge model fitted on
@@ -360,8 +366,8 @@ class IdentificationCampaign(Behaviour):
         if self.verifier is None:
             self.verifier = CampaignVerification(self._yaw_kind(), self.config.verification, self.config.keep,
                                                  self._limits())
-        elif self.config.skid_mixer is not None:
-            self.verifier.limits = self._limits()
+        elif self.config.skid_mixer is not None or CONTROLLERS.get(self._yaw_kind().name) == "px4_uuv":
+            self.verifier.limits = self._limits()  # what has been measured since: eq. A.2k, A.5a
         return self.verifier
 
     def _score_heading_design(self) -> HeadingDesign | None:

@@ -84,10 +84,24 @@ class HeadingLimits:
     yaw_slew_max: float = math.inf  # ArduSub: ATC_SLEW_YAW, rad/s
     #: a skid-steered boat's mixer, thrust and speed (eq. A.2k; the campaign's :func:`skid_plant`), None otherwise
     skid: SkidPlant | None = None
+    #: PX4 UUV: the surge thrust (0–1) flown at each speed, (speed, thrust) pairs, which the yaw
+    #: torque is allocated beside (eq. A.5a); empty: not known
+    forward_thrust: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.skid is not None and not isinstance(self.skid, SkidPlant):
             raise ValueError(f"HeadingLimits.skid must be a SkidPlant or None, not {self.skid!r}")
+        for speed, thrust in self.forward_thrust:
+            if not (math.isfinite(speed) and math.isfinite(thrust) and 0.0 <= thrust <= 1.0):
+                raise ValueError(f"HeadingLimits.forward_thrust: a (speed, thrust 0..1) pair, not {(speed, thrust)!r}")
+
+    def thrust_at(self, speed: float) -> float:
+        """The surge thrust at ``speed``, linear between the pairs flown and held beyond them (NaN:
+        none known, or no speed)."""
+        if not self.forward_thrust or not math.isfinite(speed):
+            return math.nan
+        pairs = sorted(self.forward_thrust)
+        return float(np.interp(speed, [u for u, _ in pairs], [t for _, t in pairs]))
 
     @classmethod
     def from_vehicle(cls, values: dict[str, float], *, full_scale: float, rudder_rate: float | None,
@@ -146,7 +160,7 @@ def _case(controller: str, model, speed: float | None, at: float, limits: Headin
                               rate_accel_max=limits.rate_accel_max, rate_threshold=limits.rate_threshold)
     if controller == "px4_uuv":
         return px4_uuv_case(model, at, full_scale=limits.full_scale, torque_max=limits.torque_max,
-                            rudder_rate=limits.rudder_rate)
+                            rudder_rate=limits.rudder_rate, forward_thrust=limits.thrust_at(at))
     return pi_case(model, at, rudder_max=limits.rudder_max, rudder_rate=limits.rudder_rate, imax=limits.imax)
 
 

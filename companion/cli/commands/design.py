@@ -64,6 +64,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                              "the steps are then predicted through ArduRover's skid mixer at its defaults "
                              "(MOT_THST_ASYM 1, MOT_STR_THR_MIX 0.5), the thrust the steering leaves and the "
                              "speed it costs (eq. A.2k), with no output speed scaling")
+    parser.add_argument("--forward-thrust", type=float, default=None, metavar="F",
+                        help="--autopilot px4-uuv: the surge thrust (0..1) flown at --speed; the yaw torque is "
+                             "then allocated beside it as PX4's thrusters allow (eq. A.5a)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(func=run)
     return parser

@@ -6,7 +6,8 @@ scale, gain ranges and the gains and limits a vehicle has as shipped (``shipped_
 ``companion.procedures.heading_design``'s, on one case: the model given, at the speed given. Every
 candidate's predicted ±20° and ±40° steps are printed (overshoot, time to within 5 %, step error).
 ``--skid-throttle T`` (ArduRover with twin thrusters): the steps go through the skid mixer, the thrust
-the steering leaves and the speed it costs (eq. A.2k), as a campaign on such a boat predicts them.
+the steering leaves and the speed it costs (eq. A.2k), as a campaign on such a boat predicts them; ``--forward-thrust F``
+(PX4's UUV): the yaw torque is allocated beside that surge thrust (eq. A.5a).
 """
 from __future__ import annotations
 
@@ -90,6 +91,13 @@ def run_for_autopilot(args, model: YawModel) -> int:
         print(f"companion design: error: --skid-throttle is for ArduRover's twin-thruster boats, not {args.autopilot}",
               file=sys.stderr)
         return 2
+    forward = args.forward_thrust
+    if forward is not None and controller != "px4_uuv":
+        print(f"companion design: error: --forward-thrust is for PX4's UUV, not {args.autopilot}", file=sys.stderr)
+        return 2
+    if forward is not None and not 0.0 <= forward <= 1.0:
+        print(f"companion design: error: --forward-thrust must be in [0, 1], not {forward:g}", file=sys.stderr)
+        return 2
     if skid_throttle is not None and not 0.0 < skid_throttle <= 1.0:
         print(f"companion design: error: --skid-throttle must be in (0, 1], not {skid_throttle:g}", file=sys.stderr)
         return 2
@@ -102,6 +110,8 @@ def run_for_autopilot(args, model: YawModel) -> int:
         found.setdefault("rudder_max", args.delta_max)
     limits = HeadingLimits.from_vehicle(found, full_scale=profile.angle_full_scale_rad,
                                         rudder_rate=profile.actuator_rate_rad_s, output_scale_base=base)
+    if forward is not None and args.speed is not None:  # eq. A.5a: the torque allocated beside it
+        limits = replace(limits, forward_thrust=((args.speed, forward),))
     if skid_throttle is not None:  # eq. A.2k: one steady level known, b2 ∝ u (a skid pair's law, eq. S.3)
         skid = skid_plant(SkidMixer(), [(skid_throttle, args.speed)], None, [args.speed], [model.a22], [model.b2],
                           "u", found)
@@ -125,14 +135,15 @@ def run_for_autopilot(args, model: YawModel) -> int:
     native = {params.get(k, k): v for k, v in chosen.items()}
     steps = predicted_steps(choice, case, objective)
     result = {"autopilot": args.autopilot, "controller": controller, "speed": args.speed,
-              "skid_throttle": skid_throttle,
+              "skid_throttle": skid_throttle, "forward_thrust": forward,
               "chosen": choice.chosen.name, "parameters": native, **{"design": choice.to_dict()},
               "predicted_steps": {name: [step_row(size_deg, figures) for size_deg, figures in rows]
                                   for name, rows in steps.items()}}
     if args.json:
         print_json(result)
         return 0
-    through = f", through the skid mixer at throttle {skid_throttle:g} (eq. A.2k)" if skid_throttle is not None else ""
+    through = f", through the skid mixer at throttle {skid_throttle:g} (eq. A.2k)" if skid_throttle is not None else \
+        f", the yaw allocated beside a surge thrust of {forward:g} (eq. A.5a)" if forward is not None else ""
     print(f"{args.autopilot}: {controller} heading controller at {args.speed:g} m/s{through}; "
           f"design target: overshoot ≤ {choice.target_overshoot_pct:.1f} % on ±20° and ±40° steps")
     print(f"chosen: {choice.chosen.name}" + (" (the vehicle's own gains: nothing better is predicted)"
