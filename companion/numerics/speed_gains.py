@@ -269,12 +269,12 @@ def design_speed_gains(model: SurgeModel, cruise_speed: float, speed_range: tupl
     # among the pairs that settle as soon (within the tie), the strongest integrator: the settling
     # time is nearly flat in I, and a weak one chosen by a hundredth of a second could not unwind what a
     # transient left in it (flown: I 0.02 held the speed 0.26 m/s short for 30 s; I 0.26 did not)
-    score, j = max(((score, j) for score, j in feasible if score <= fastest + rules.settle_tie_s
-                    or not math.isfinite(fastest)),
-                   key=lambda item: (grid_i[item[1]], -item[0]))
-    if not math.isfinite(fastest):  # none settles under every error: the soonest at the model's own
-        score, j = min(((_settled(scores[0][j]) + _settled(scores[1][j]), j) for _, j in feasible),
-                       key=lambda item: (item[0], -grid_i[item[1]]))
+    if math.isfinite(fastest):
+        score, j = max(((score, j) for score, j in feasible if score <= fastest + rules.settle_tie_s),
+                       key=lambda item: (grid_i[item[1]], -item[0]))
+    else:  # none settles under every error: the soonest on the model's own (its worst stays inf)
+        _, j = min(((_settled(scores[0][j]) + _settled(scores[1][j]), j) for _, j in feasible),
+                   key=lambda item: (item[0], -grid_i[item[1]]))
         score = math.inf
     gains = SpeedLoopGains(cruise_speed=speed, cruise_throttle=throttle, p=float(grid_p[j]), i=float(grid_i[j]))
     design = SpeedDesign(surge=model, gains=gains, design_speed=speed, time_constant_s=tau, throttle_gain=gain,
