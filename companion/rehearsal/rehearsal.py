@@ -429,7 +429,12 @@ def speed_loop_summary(tuning) -> dict | None:
             "design": None if design is None else {"gains": design.gains.params(), "speed": design.design_speed,
                                                    "time_constant_s": design.time_constant_s,
                                                    "step": list(design.step), "predicted": design.predicted,
-                                                   "clamped": list(design.clamped)},
+                                                   "clamped": list(design.clamped),
+                                                   # eq. S.5r: the worst settling over the drift, and the choice
+                                                   "worst_settling_s": {k: finite_or_none(v) for k, v in
+                                                                        design.worst_settling_s.items()},
+                                                   "feed_forward_error": design.feed_forward_error,
+                                                   "keeps_original": design.keeps_original},
             "original": tuning.original, "steps": steps,
             # what the design was compared with: the original gains' steps flown, or predicted
             "original_compared": "flown" if "original" in tuning.step_results else
