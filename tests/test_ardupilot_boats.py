@@ -1,8 +1,9 @@
 """Boats as people own them, on the real ArduRover firmware: our 3-DOF hull (not first order) with a
 stern rudder and with twin thrusters (skid steering: SERVO1/3_FUNCTION 73/74), behind ArduPilot SITL's
 JSON backend. The companion reads the actuation at connect, identifies, designs the heading gains
-with the speed law the actuation and the models support, tunes the speed loop from the settles,
-verifies both by steps and keeps them; an abort of a skid boat's campaign leaves it as found.
+with the speed law the actuation and the models support, verifies them by steps and keeps them; the
+speed loop's design from the settles is scored against the speed estimate's drift and, on these
+hulls, keeps the vehicle's own speed gains; an abort of a skid boat's campaign leaves it as found.
 
 Skipped unless ``ARDUPILOT_SITL_BIN`` names the folder with the ``ardurover`` SITL binary. Each
 campaign takes about a minute and a half of wall time at 20x.
@@ -84,16 +85,18 @@ def test_a_3dof_boat_is_identified_tuned_verified_and_keeps_its_gains(boat, tmp_
         assert scheduled.iae_s < steps[(thrust, "original")].iae_s
         if skid:
             assert scheduled.iae_s < steps[(thrust, "quicktune")].iae_s
-    # the speed loop: tuned from the settles, verified by its own steps, kept
+    # the speed loop: the surge model from the settles; on these hulls (a surge lag of 0.4 s) no design
+    # within 5 % overshoot removes the speed estimate's drift within a step (eq. S.5r), so the vehicle's
+    # own speed gains stay: nothing flown, nothing written, the loop says why
     speed = campaign.speed
-    assert speed.verdict is None and speed.kept is not None, speed.reason
-    flown = speed.step_results
-    assert flown["design"].max_overshoot_pct <= 10.0
-    assert flown["design"].settling_time_s < flown["original"].settling_time_s
     assert speed.surge.r2 > 0.95
+    assert speed.keeps_original and speed.kept is None and not speed.step_results, speed.verdict
+    assert campaign.loop_outcomes()["speed"].outcome == "original kept"
+    assert "no speed design is predicted better" in campaign.loop_outcomes()["speed"].why
     kept = link.get_params(campaign.final_gains)
     assert kept == pytest.approx(campaign.final_gains, rel=1e-5)
-    assert set(SPEED_GAINS) <= set(kept)
+    assert not set(SPEED_GAINS) & set(kept)
+    assert link.get_params(SPEED_GAINS) == pytest.approx({k: found[0][k] for k in SPEED_GAINS}, rel=1e-5)
     assert link.mode == found[1] and not link.overrides.active
     link.set_params({k: v for k, v in found[0].items() if k in kept})  # the defaults back for the next test
 
