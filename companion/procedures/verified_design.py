@@ -43,6 +43,7 @@ from companion.checks import require_non_negative, require_positive
 from companion.link.autopilots import registered_profiles
 from companion.numerics.skid_step import SkidMixer, SkidPlant, SpeedHold
 from companion.numerics.speed_law import choose_speed_law
+from companion.numerics.rate_loop import ARDUROVER_RATE_LOOP, RateLoopForm
 from companion.numerics.step_design import StepCase, cascade_case, pi_case, px4_rover_case, px4_uuv_case
 from companion.numerics.step_figures import PredictedStep, StepFigures
 from companion.numerics.step_response import predict_step
@@ -84,14 +85,19 @@ class HeadingLimits:
     yaw_slew_max: float = math.inf  # ArduSub: ATC_SLEW_YAW, rad/s
     #: a skid-steered boat's mixer, thrust and speed (eq. A.2k; the campaign's :func:`skid_plant`), None otherwise
     skid: SkidPlant | None = None
+    #: the rate loop's form (eq. A.2r), for the turn-rate verification's replay (learning during missions)
+    rate_loop: RateLoopForm = ARDUROVER_RATE_LOOP
 
     def __post_init__(self) -> None:
         if self.skid is not None and not isinstance(self.skid, SkidPlant):
             raise ValueError(f"HeadingLimits.skid must be a SkidPlant or None, not {self.skid!r}")
+        if not isinstance(self.rate_loop, RateLoopForm):
+            raise ValueError(f"HeadingLimits.rate_loop must be a RateLoopForm, not {self.rate_loop!r}")
 
     @classmethod
     def from_vehicle(cls, values: dict[str, float], *, full_scale: float, rudder_rate: float | None,
-                     output_scale_base: float | None = None) -> "HeadingLimits":
+                     output_scale_base: float | None = None,
+                     rate_loop: RateLoopForm = ARDUROVER_RATE_LOOP) -> "HeadingLimits":
         """From the parameters read with the original gains (:data:`LIMIT_PARAMETERS`; ArduPilot's
         and PX4's turn limits and PX4's steering slew in degrees) and the profile's rudder full scale
         and servo rate; what the vehicle does not say takes the profile's. ``output_scale_base``: the
@@ -116,7 +122,8 @@ class HeadingLimits:
                    rate_threshold=math.radians(threshold) if threshold and threshold > 0 else 0.0,
                    torque_max=min(max(torque, 0.0), 1.0) if math.isfinite(torque) else 1.0,
                    input_tc=tc if math.isfinite(tc) and tc > 0 else 0.0,
-                   yaw_slew_max=math.radians(slew) if math.isfinite(slew) and slew > 0 else math.inf)
+                   yaw_slew_max=math.radians(slew) if math.isfinite(slew) and slew > 0 else math.inf,
+                   rate_loop=rate_loop)
 
 
 def limits_case(controller: str, model, speed: float | None, limits: HeadingLimits) -> StepCase:
