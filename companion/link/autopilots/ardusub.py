@@ -127,8 +127,12 @@ PROFILE = AutopilotProfile(
     thrust_meaning="the pilot's forward stick (RC 5, held by an override; 1 = full ahead)",
 )
 
-#: the base streams, GLOBAL_POSITION_INT (depth) and HOME_POSITION (the surface, see Strategy.depth)
-STREAMS = {30: 50.0, 36: 50.0, 32: 10.0, 33: 10.0, 74: 10.0, 242: 0.5}
+#: the base streams, GLOBAL_POSITION_INT (depth) and HOME_POSITION (the surface, see Strategy.depth),
+#: and PID_TUNING (the yaw rate loop, once GCS_PID_MASK asks for it) at 25 Hz for learning during
+#: missions: at the port's default EXTRA1 rate the verification missed a 1.4 Hz yaw limit cycle of
+#: learned gains on SITL's ROV (±18 °/s, 10.5 °/s RMS of tracking error in its log; a lane's segment
+#: read 1.9 °/s) and kept them (measured)
+STREAMS = {30: 50.0, 36: 50.0, 32: 10.0, 33: 10.0, 74: 10.0, 242: 0.5, 194: 25.0}
 
 ACRO_YAW_P_DEFAULT = 3.375  # ArduSub's ACRO_YAW_P define: MANUAL's yaw scale is ACRO_YAW_P / this
 RELEASE_AFTER_S = 0.25  # a centred stick is held this long (vehicle time) before it is released
