@@ -17,6 +17,14 @@ for each lane (its middle half) flown after the write: cross-track RMS and turn-
 baseline. Never pass/fail.
 
     python bench/bench_learning_ardurover.py --hulls boat,boat-3dof --repeats 3
+
+``--autopilot ardusub``: ArduSub SITL flying its own vectored ROV as it ships (``sub.parm``;
+:class:`harness.sub_sitl.SubSitl`: our AUV physics cannot fly ArduSub's AUTO), the same survey
+5 m deep at ArduSub's WPNAV_SPEED (1 m/s), the yaw rate loop's PID_TUNING (GCS_PID_MASK 4) and the
+cross-track measured from the positions against each lane's line (ArduSub sends none). The seed
+only numbers the repeat (SITL's own vehicle has no seed).
+
+    python bench/bench_learning_ardurover.py --autopilot ardusub --repeats 3
 """
 from __future__ import annotations
 
@@ -34,23 +42,33 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from companion.rehearsal.launcher import SimulatorProcess  # noqa: E402
 from companion.records.store import Store  # noqa: E402
-from harness.rover_mission import ROVER_AUTO, MissionGroundStation, lawnmower  # noqa: E402
+from harness.rover_mission import ROVER, SUB, MissionGroundStation, lawnmower  # noqa: E402
+from harness.sub_sitl import SubSitl  # noqa: E402
 
 SITL_SERIAL1_OFFSET = 2  # SITL's serial1 (tcp:2) is its serial0 port + 2, MAVLink 2
 
 
-def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder: Path) -> dict:
+def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder: Path, sub: bool = False) -> dict:
     tag = f"{hull}-{seed}-{'learn' if learn else 'base'}"
-    sim = SimulatorProcess(preset=hull, speedup=speedup, seed=seed, lockstep=False, autopilot="ardurover",
-                           ardupilot_bin=bin_dir, log_path=folder / f"sim-{tag}.log")
-    sim.start()
+    if sub:  # SITL's own ROV (harness.sub_sitl): its serial1 is the ground station's
+        sim = SubSitl(bin_dir, speedup, workdir=folder / f"sitl-{tag}").start()
+        sim.wait_listening()
+        endpoint, station_endpoint = sim.endpoint, sim.station_endpoint
+        vehicle, params = SUB, {"GCS_PID_MASK": float(SUB.pid_mask)}
+    else:
+        sim = SimulatorProcess(preset=hull, speedup=speedup, seed=seed, lockstep=False, autopilot="ardurover",
+                               ardupilot_bin=bin_dir, log_path=folder / f"sim-{tag}.log")
+        sim.start()
+        endpoint, station_endpoint = sim.endpoint, f"tcp:127.0.0.1:{sim.port + SITL_SERIAL1_OFFSET}"
+        vehicle, params = ROVER, {"WP_SPEED": 2.0, "GCS_PID_MASK": float(ROVER.pid_mask)}
     store = folder / f"store-{tag}.sqlite"
-    command = [sys.executable, "-m", "companion", "-v", "run", "--connect", sim.endpoint, "--no-health",
-               "--store", str(store), "--max-vehicle-time", "1500"] + (["--learn"] if learn else ["--no-scheduling"])
+    command = [sys.executable, "-m", "companion", "-v", "run", "--connect", endpoint, "--no-health",
+               "--store", str(store), "--max-vehicle-time", "3000" if sub else "1500"] + (
+                   ["--learn"] if learn else ["--no-scheduling"])
+    points = lawnmower()
     with open(folder / f"companion-{tag}.log", "w") as output:
         companion = subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT)
-        station = MissionGroundStation(f"tcp:127.0.0.1:{sim.port + SITL_SERIAL1_OFFSET}", lawnmower(),
-                                       {"WP_SPEED": 2.0, "GCS_PID_MASK": 1})
+        station = MissionGroundStation(station_endpoint, points, params, vehicle=vehicle)
         try:
             station.start_when_open()
             station.wait_done(companion, 3000.0 / speedup)
@@ -60,10 +78,11 @@ def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder:
             station.stop()
             sim.stop()
     track = station.track
-    auto_at = next((t for t, mode in track.modes if mode == ROVER_AUTO), math.nan)
+    auto = vehicle.auto_mode
+    auto_at = next((t for t, mode in track.modes if mode == auto), math.nan)
     out = {"hull": hull, "seed": seed, "learn": learn, "mission_s": station.done_at_s - auto_at, "auto_at_s": auto_at,
-           "left_auto": any(mode != ROVER_AUTO for t, mode in track.modes if t > auto_at), "legs": track.legs(),
-           "companion_exit": companion.returncode}
+           "left_auto": any(mode != auto for t, mode in track.modes if t > auto_at),
+           "legs": track.legs(points=points if sub else None), "companion_exit": companion.returncode}
     with Store(store) as records:
         campaign = next((c for c in records.campaigns() if c["kind"] == "learning"), None)
         results = records.behavior_results(campaign["id"], "learning") if campaign else []
@@ -75,7 +94,8 @@ def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder:
         out.update(phase=result["phase"], reason=result["reason"], design_s=design - auto_at,
                    verified_s=verdict_at - auto_at if verdict_at is not None else math.nan,
                    reverts=sum(1 for w in writes if w["why"] == "revert"), verdict=result["verdict"],
-                   written=writes[0]["gains"] if writes else None, write_at=design)
+                   written=writes[0]["gains"] if writes else None, write_at=design,
+                   original=campaign["config"].get("original") if campaign.get("config") else None)
     return out
 
 
@@ -98,7 +118,9 @@ def compare(learned: dict, baseline: dict) -> list[dict]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--hulls", default="boat,boat-3dof")
+    parser.add_argument("--autopilot", choices=("ardurover", "ardusub"), default="ardurover",
+                        help="ardusub: SITL's own vectored ROV (--hulls is then only its label)")
+    parser.add_argument("--hulls", default=None, help="ArduRover: our presets (default boat,boat-3dof)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--speedup", type=float, default=10.0)
     parser.add_argument("--ardupilot-bin", default=os.environ.get("ARDUPILOT_SITL_BIN"))
@@ -114,10 +136,12 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench-learning-") as name:
         folder = Path(args.keep or name)
         folder.mkdir(parents=True, exist_ok=True)
-        for hull in args.hulls.split(","):
+        sub = args.autopilot == "ardusub"
+        hulls = args.hulls or ("sitl-rov" if sub else "boat,boat-3dof")
+        for hull in hulls.split(","):
             for seed in range(1, args.repeats + 1):
-                learned = fly(hull, seed, True, args.speedup, args.ardupilot_bin, folder)
-                baseline = (fly(hull, seed, False, args.speedup, args.ardupilot_bin, folder) if args.baseline
+                learned = fly(hull, seed, True, args.speedup, args.ardupilot_bin, folder, sub)
+                baseline = (fly(hull, seed, False, args.speedup, args.ardupilot_bin, folder, sub) if args.baseline
                             else {**learned, "legs": [], "mission_s": math.nan, "left_auto": False})
                 rows.append({"learned": learned, "baseline": baseline, "lanes": compare(learned, baseline)})
                 print(summary(rows[-1]), flush=True)
@@ -139,7 +163,10 @@ def summary(row: dict) -> str:
     tr_l = mean([lane["learned"]["turn_rate_error_rms_deg_s"] for lane in lanes])
     tr_b = mean([lane["baseline"]["turn_rate_error_rms_deg_s"] for lane in lanes if lane["baseline"]])
     verdict = lrn.get("verdict") or {}
-    return (f"{lrn['hull']:10} seed {lrn['seed']}: {lrn.get('phase', '-'):9} write {lrn.get('design_s', math.nan):6.1f} s "
+    original, written = lrn.get("original") or {}, lrn.get("written") or {}
+    changed = ", ".join(f"{name} {original.get(name, math.nan):.3g}→{value:.3g}" for name, value in written.items()
+                        if not math.isclose(value, original.get(name, math.nan), rel_tol=1e-3)) or "none"
+    return (f"gains changed: {changed}\n" + f"{lrn['hull']:10} seed {lrn['seed']}: {lrn.get('phase', '-'):9} write {lrn.get('design_s', math.nan):6.1f} s "
             f"verified {lrn.get('verified_s', math.nan):6.1f} s after AUTO, reverts {lrn.get('reverts', 0)}, "
             f"left AUTO {lrn['left_auto']}/{base['left_auto']}; lanes after ({len(lanes)}): cross-track "
             f"{xt_l:.3f}/{xt_b:.3f} m ({xt_l / xt_b:.2f}), turn-rate error {tr_l:.2f}/{tr_b:.2f} deg/s "

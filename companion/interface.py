@@ -52,7 +52,7 @@ class Telemetry:
     thrust_ratio: float = NAN  # 0..1, actual
     mass_angle: float = NAN  # rad, rolling-mass angle
     heading_target: float = NAN  # rad, the heading set-point the autopilot reports it holds (NAV_CONTROLLER_OUTPUT)
-    turn_rate_target: float = NAN  # rad/s, the turn rate its rate loop is asked for (ArduRover PID_TUNING steer)
+    turn_rate_target: float = NAN  # rad/s, the turn rate its rate loop is asked for (PID_TUNING, profile.pid_tuning)
     turn_rate_achieved: float = NAN  # rad/s, the turn rate that loop measured (same message)
     cross_track: float = NAN  # m, the navigation's cross-track error (NAV_CONTROLLER_OUTPUT.xtrack_error)
     mode: str = ""

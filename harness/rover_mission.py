@@ -1,6 +1,7 @@
 """An ordinary survey on a real autopilot: a lawnmower of waypoints uploaded with the MAVLink mission
 protocol and flown in AUTO, by a ground station of its own (pymavlink, its own serial port), the
-way an operator's planner does it. For the benches and SITL tests of ``companion run --learn``.
+way an operator's planner does it. For the benches and SITL tests of ``companion run --learn``, on
+ArduRover (a boat at the surface) and ArduSub (an AUV at a depth): :class:`MissionVehicle`.
 
 * :func:`lawnmower` — ``lanes`` lanes of ``lane_m`` metres, ``spacing_m`` apart, north and back,
   starting ``start_m`` north of home: (north, east) offsets in metres.
@@ -16,6 +17,9 @@ import math
 import time
 from dataclasses import dataclass, field
 
+from companion.link.autopilots.ardurover import PROFILE as ARDUROVER
+from companion.link.autopilots.ardusub import PROFILE as ARDUSUB
+from companion.link.profile import PidTuningReport
 from harness.mavlink_clients import connect_client
 from harness.station_thread import StationThread
 
@@ -28,6 +32,43 @@ MAV_CMD_DO_SET_MODE = 176
 MAV_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
 MAV_MISSION_ACCEPTED = 0
 ROVER_AUTO = 10
+SUB_AUTO = 3
+RAD_TO_DEG = 180.0 / math.pi
+
+
+@dataclass(frozen=True)
+class MissionVehicle:
+    """What differs between the vehicles a survey is flown on: AUTO's mode number, the waypoints'
+    altitude (m above home: ArduSub's home is the surface, so a depth is negative) and the
+    PID_TUNING report of its heading rate loop (axis and units, from the autopilot's profile)."""
+
+    auto_mode: int
+    altitude_m: float
+    pid_tuning: PidTuningReport
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.auto_mode, int) and self.auto_mode >= 0):
+            raise ValueError(f"MissionVehicle.auto_mode must be a mode number, not {self.auto_mode!r}")
+        if not math.isfinite(self.altitude_m):
+            raise ValueError(f"MissionVehicle.altitude_m must be finite, not {self.altitude_m!r}")
+        if not isinstance(self.pid_tuning, PidTuningReport):
+            raise ValueError(f"MissionVehicle.pid_tuning must be a PidTuningReport, not {self.pid_tuning!r}")
+
+    @property
+    def pid_mask(self) -> int:
+        """The GCS_PID_MASK value that asks for the heading rate loop's PID_TUNING."""
+        return self.pid_tuning.mask_bit
+
+
+def _report(profile) -> PidTuningReport:
+    if profile.pid_tuning is None:
+        raise ValueError(f"{profile.name} sends no PID_TUNING of its heading rate loop")
+    return profile.pid_tuning
+
+
+ROVER = MissionVehicle(ROVER_AUTO, 0.0, _report(ARDUROVER))
+#: the AUV 5 m deep (where the simulator starts it)
+SUB = MissionVehicle(SUB_AUTO, -5.0, _report(ARDUSUB))
 
 
 def lawnmower(lanes: int = 8, lane_m: float = 120.0, spacing_m: float = 20.0, start_m: float = 10.0
@@ -50,8 +91,10 @@ def offset(lat: float, lon: float, north: float, east: float) -> tuple[float, fl
     return lat + dlat, lon + dlon
 
 
-def upload_mission(conn, home: tuple[float, float], points: list[tuple[float, float]], timeout_s: float = 30.0) -> None:
-    """The waypoints (module docstring); RuntimeError when the vehicle does not accept them."""
+def upload_mission(conn, home: tuple[float, float], points: list[tuple[float, float]], timeout_s: float = 30.0,
+                   altitude_m: float = 0.0) -> None:
+    """The waypoints (module docstring), at ``altitude_m`` above home; RuntimeError when the vehicle
+    does not accept them."""
     items = [home] + [offset(home[0], home[1], n, e) for n, e in points]
     conn.mav.mission_count_send(1, 1, len(items), 0)
     deadline = time.monotonic() + timeout_s
@@ -66,7 +109,8 @@ def upload_mission(conn, home: tuple[float, float], points: list[tuple[float, fl
         seq = msg.seq
         lat, lon = items[seq]
         conn.mav.mission_item_int_send(1, 1, seq, MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, MAV_CMD_NAV_WAYPOINT,
-                                       0, 1, 0.0, 0.0, 0.0, 0.0, int(round(lat * 1e7)), int(round(lon * 1e7)), 0.0, 0)
+                                       0, 1, 0.0, 0.0, 0.0, 0.0, int(round(lat * 1e7)), int(round(lon * 1e7)),
+                                       altitude_m if seq else 0.0, 0)
     raise RuntimeError("the mission upload did not finish (no MISSION_ACK)")
 
 
@@ -91,21 +135,33 @@ class MissionTrack:
     cross_track: list[tuple[float, float]] = field(default_factory=list)  # (vehicle s, m) NAV_CONTROLLER_OUTPUT
     turn_rates: list[tuple[float, float, float]] = field(default_factory=list)  # (vehicle s, asked, got) deg/s
 
-    def legs(self, trim: float = 0.25) -> list[dict]:
+    def legs(self, trim: float = 0.25, points: list[tuple[float, float]] | None = None) -> list[dict]:
         """Each lane (a leg to an even waypoint: north or south), its middle (``trim`` cut from each
         end, the turns out): start and end vehicle time, cross-track RMS (m) and turn-rate error RMS
-        (deg/s, where PID_TUNING was sent)."""
+        (deg/s, where PID_TUNING was sent). The cross-track is NAV_CONTROLLER_OUTPUT's (ArduRover),
+        or with the mission's ``points`` each position's distance from the lane's line (ArduSub
+        sends no cross-track error: its NAV_CONTROLLER_OUTPUT.xtrack_error is 0)."""
         out = []
         for (t0, seq), (t1, _next) in zip(self.waypoints, self.waypoints[1:]):
             if seq < 2 or seq % 2:
                 continue
             a, b = t0 + trim * (t1 - t0), t1 - trim * (t1 - t0)
-            xt = [x for t, x in self.cross_track if a <= t <= b]
+            if points is None:
+                xt = [x for t, x in self.cross_track if a <= t <= b]
+            else:  # waypoint seq is points[seq - 1] (item 0 is home); the lane starts at the one before
+                xt = [_off_line(points[seq - 2], points[seq - 1], (n, e)) for t, n, e in self.positions if a <= t <= b]
             rates = [(d - g) for t, d, g in self.turn_rates if a <= t <= b]
             out.append({"waypoint": seq, "start_s": t0, "end_s": t1,
                         "cross_track_rms_m": math.sqrt(sum(x * x for x in xt) / len(xt)) if xt else math.nan,
                         "turn_rate_error_rms_deg_s": math.sqrt(sum(e * e for e in rates) / len(rates)) if rates else math.nan})
         return out
+
+
+def _off_line(start: tuple[float, float], end: tuple[float, float], at: tuple[float, float]) -> float:
+    """The signed distance (m) of ``at`` from the line through ``start`` and ``end`` ((north, east))."""
+    dn, de = end[0] - start[0], end[1] - start[1]
+    length = math.hypot(dn, de)
+    return ((at[0] - start[0]) * de - (at[1] - start[1]) * dn) / length if length > 0 else math.nan
 
 
 class MissionGroundStation(StationThread):
@@ -114,9 +170,10 @@ class MissionGroundStation(StationThread):
     what = "mission ground station"
 
     def __init__(self, endpoint: str, points: list[tuple[float, float]], params: dict[str, float] | None = None,
-                 *, source_system: int = 255) -> None:
+                 *, source_system: int = 255, vehicle: MissionVehicle = ROVER) -> None:
         super().__init__()
         self.endpoint, self.points, self.params = endpoint, points, dict(params or {})
+        self.vehicle = vehicle
         self.source_system = source_system
         self.track = MissionTrack()
         self.home: tuple[float, float] | None = None
@@ -137,7 +194,7 @@ class MissionGroundStation(StationThread):
                     self.home = (msg.lat / 1e7, msg.lon / 1e7)
         if self.home is None:
             raise RuntimeError("no position from the vehicle")
-        upload_mission(self.conn, self.home, self.points)
+        upload_mission(self.conn, self.home, self.points, altitude_m=self.vehicle.altitude_m)
         armed = False
         while not armed and time.monotonic() < deadline:
             self.command(MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
@@ -147,12 +204,12 @@ class MissionGroundStation(StationThread):
             raise RuntimeError("the vehicle would not arm")
         in_auto = False
         while not in_auto and time.monotonic() < deadline:  # refused until the EKF has a position
-            self.command(MAV_CMD_DO_SET_MODE, 1.0, ROVER_AUTO)
+            self.command(MAV_CMD_DO_SET_MODE, 1.0, self.vehicle.auto_mode)
             msg = self.conn.recv_match(type="HEARTBEAT", blocking=True, timeout=2.0)
-            in_auto = msg is not None and msg.get_srcComponent() == 1 and msg.custom_mode == ROVER_AUTO
+            in_auto = msg is not None and msg.get_srcComponent() == 1 and msg.custom_mode == self.vehicle.auto_mode
         if not in_auto:
             raise RuntimeError("the vehicle would not enter AUTO")
-        self.track.modes.append((self.now_s, ROVER_AUTO))  # the clock of the last position: within 0.2 s
+        self.track.modes.append((self.now_s, self.vehicle.auto_mode))  # the clock of the last position: within 0.2 s
         self._start_thread()
         return self
 
@@ -200,7 +257,9 @@ class MissionGroundStation(StationThread):
                     self.track.waypoints.append((t, msg.seq))
             elif kind == "NAV_CONTROLLER_OUTPUT":
                 self.track.cross_track.append((self.now_s, msg.xtrack_error))
-            elif kind == "PID_TUNING" and msg.axis == 5:  # the steering loop
-                self.track.turn_rates.append((self.now_s, msg.desired, msg.achieved))
+            elif kind == "PID_TUNING" and msg.axis == self.vehicle.pid_tuning.axis:  # the heading rate loop
+                report = self.vehicle.pid_tuning
+                self.track.turn_rates.append((self.now_s, msg.desired * report.desired_to_rad_s * RAD_TO_DEG,
+                                              msg.achieved * report.achieved_to_rad_s * RAD_TO_DEG))
             elif kind == "MISSION_ITEM_REACHED" and msg.seq == len(self.points):
                 self.done_at_s = self.now_s

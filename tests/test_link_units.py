@@ -444,3 +444,30 @@ def test_the_steering_loops_pid_tuning_is_read_as_turn_rates():
     assembler.take(roll)  # another loop's message changes nothing
     assert assembler._fields["turn_rate_target"] == pytest.approx(math.radians(12.0))
     assert assembler._fields["turn_rate_achieved"] == pytest.approx(math.radians(9.0))
+
+
+def test_ardusubs_yaw_rate_loop_is_read_from_its_own_axis_in_its_own_units():
+    """ArduSub 4.7 sends its yaw rate loop on PID_TUNING axis YAW (3), the target in rad/s × 0.01
+    and the gyro in deg/s (GCS_MAVLink_Sub.cpp); a steering axis (5) is not its."""
+    assembler = TelemetryAssembler(ARDUSUB)
+    yaw = mavlink.MAVLink_pid_tuning_message(3, 0.002, 9.0, 0.0, 0.001, 0.0, 0.0, 0.0, 0.0)  # 0.2 rad/s asked
+    steer = mavlink.MAVLink_pid_tuning_message(5, 12.0, 9.0, 0.1, 0.02, 0.0, 0.0, 0.0, 0.0)
+    assembler.take(yaw)
+    assembler.take(steer)
+    assert assembler._fields["turn_rate_target"] == pytest.approx(0.2, rel=1e-5)
+    assert assembler._fields["turn_rate_achieved"] == pytest.approx(math.radians(9.0))
+    rover = TelemetryAssembler(ARDUROVER)
+    rover.take(yaw)  # ArduRover's steering loop is axis 5: a yaw axis is not it
+    assert "turn_rate_target" not in rover._fields
+
+
+def test_a_pid_tuning_report_is_one_bit_of_a_real_axis():
+    from companion.link.profile import PidTuningReport
+
+    assert ARDUSUB.pid_tuning.with_bit(1.0) == 5.0 and ARDUROVER.pid_tuning.with_bit(4.0) == 5.0
+    with pytest.raises(ValueError, match="one bit"):
+        PidTuningReport("pid_tuning_mask", 6, 3)
+    with pytest.raises(ValueError, match="PID_TUNING_AXIS"):
+        PidTuningReport("pid_tuning_mask", 4, 9)
+    with pytest.raises(ValueError, match="desired_to_rad_s"):
+        PidTuningReport("pid_tuning_mask", 4, 3, desired_to_rad_s=0.0)

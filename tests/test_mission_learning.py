@@ -461,12 +461,36 @@ def test_a_campaign_during_learning_ends_the_session_first_and_its_gains_stand(t
 
 
 def test_learning_is_refused_where_its_gains_could_not_be_verified():
+    from companion.link.autopilots.px4_uuv import PROFILE as PX4_UUV
     from companion.link.profiles import ARDUROVER, ARDUSUB, SIM
     from companion.procedures.learning import unverifiable
 
     assert unverifiable(SIM) is None  # reports the heading set-point it holds
     assert unverifiable(ARDUROVER) is None  # reports its steering loop's turn rates (PID_TUNING)
-    assert "could not be verified" in unverifiable(ARDUSUB) and "companion identify" in unverifiable(ARDUSUB)
+    assert unverifiable(ARDUSUB) is None  # reports its yaw rate loop's turn rates (PID_TUNING axis YAW)
+    refused = unverifiable(PX4_UUV)
+    assert "could not be verified" in refused and "companion identify" in refused
+
+
+def test_ardusubs_rate_loop_applies_no_feed_forward_and_never_freezes_its_integrator():
+    """eq. A.2r: ArduSub sends P + I (+ D) to the motors, never FF, and its vectored mixer never
+    reports a yaw limit, so the integrator runs on while the output is saturated (only IMAX holds it)."""
+    from companion.numerics.rate_loop import ARDUROVER_RATE_LOOP, ARDUSUB_RATE_LOOP
+
+    plant = RudderPlant(a22=-1.0, b2=1.0, delta0=0.0, rudder_max=0.35)
+    times = np.arange(0.0, 20.0, 0.1)
+    desired = np.where(times < 10.0, 0.6, 0.0)  # beyond what full rudder holds (0.35 rad/s): saturated
+    gains = {"heading_rate_p": 1.0, "heading_rate_i": 0.5, "heading_rate_imax": 1.0}
+    with_ff = simulate_rate_tracking(plant, {**gains, "heading_rate_ff": 2.0}, times, desired, 0.0,
+                                     full_scale=0.35, rate_loop=ARDUSUB_RATE_LOOP)
+    without_ff = simulate_rate_tracking(plant, gains, times, desired, 0.0, full_scale=0.35, rate_loop=ARDUSUB_RATE_LOOP)
+    assert np.array_equal(with_ff, without_ff)  # FF changes nothing on ArduSub
+    rover = simulate_rate_tracking(plant, gains, times, desired, 0.0, full_scale=0.35, rate_loop=ARDUROVER_RATE_LOOP)
+    assert np.allclose(rover[times < 10.0], without_ff[times < 10.0], atol=1e-9)  # the same while saturated
+    after = (times > 10.5) & (times < 14.0)
+    # asked for 0 again: ArduSub's integrator wound up to IMAX while saturated and holds the turn
+    # longer, by more than 1 deg/s for 3.5 s (ArduRover's, frozen at the limit, lets it go sooner)
+    assert np.min(without_ff[after] - rover[after]) > math.radians(1.0)
 
 
 def test_a_replay_that_starts_in_a_steady_turn_stays_in_it():
@@ -631,3 +655,14 @@ def test_the_scaled_simulation_is_the_plain_one_at_constant_speed():
     assert simulate_yaw_scaled(model, times, rudder, 0.3, 0.01, ones, ones) == pytest.approx(plain, abs=1e-9)
     with pytest.raises(ValueError):
         simulate_yaw_scaled(model, times, rudder, 0.3, 0.01, ones[:-1], ones)
+
+
+def test_a_thrusters_yaw_takes_windows_at_any_speed_and_only_it_does():
+    """eq. L.3 with p = n = 0 (ArduSub's yaw is differential thrust, its authority independent of
+    the speed): a window whose speed changed in a corner still teaches; a speed law that scales the
+    rows keeps its bound on the spread."""
+    assert TrackingConfig(a22_speed_exponent=0.0, b2_speed_exponent=0.0, speed_tolerance=math.inf).speed_tolerance == math.inf
+    with pytest.raises(ValueError, match="speed_tolerance"):
+        TrackingConfig(speed_tolerance=math.inf)  # Nomoto's a22 ∝ u and a rudder's b2 ∝ u²
+    with pytest.raises(ValueError, match="speed_tolerance"):
+        TrackingConfig(a22_speed_exponent=0.0, b2_speed_exponent=0.0, speed_tolerance=1.5)

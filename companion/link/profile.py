@@ -15,6 +15,7 @@ from typing import Literal
 
 from companion.link.actuation import Actuation
 from companion.link.errors import ProfileError
+from companion.numerics.rate_loop import ARDUROVER_RATE_LOOP, RateLoopForm
 
 #: PWM values that mean "no data" in SERVO_OUTPUT_RAW / RC fields, and the plausible PWM range.
 PWM_VALID_MIN = 800
@@ -66,6 +67,37 @@ class CampaignDefaults:
 
 
 @dataclass(frozen=True)
+class PidTuningReport:
+    """Which PID_TUNING message reports the heading's rate loop, how to ask for it and its units.
+
+    ``mask_param`` is the neutral name of the parameter (``GCS_PID_MASK``) whose bit ``mask_bit``
+    makes the autopilot send it; ``axis`` is its PID_TUNING_AXIS (MAVLink common: 3 YAW, 5 STEER);
+    ``desired_to_rad_s`` and ``achieved_to_rad_s`` turn the message's ``desired`` and ``achieved``
+    into rad/s (deg/s: π/180; ArduSub 4.7 sends its yaw rate target in rad/s × 0.01: 100)."""
+
+    mask_param: str
+    mask_bit: int
+    axis: int
+    desired_to_rad_s: float = math.pi / 180.0
+    achieved_to_rad_s: float = math.pi / 180.0
+
+    def __post_init__(self) -> None:
+        if not self.mask_param:
+            raise ValueError("PidTuningReport.mask_param: the neutral name of the mask parameter is needed")
+        if not (isinstance(self.mask_bit, int) and self.mask_bit > 0 and self.mask_bit & (self.mask_bit - 1) == 0):
+            raise ValueError(f"PidTuningReport.mask_bit must be one bit (1, 2, 4, ...), not {self.mask_bit!r}")
+        if not (isinstance(self.axis, int) and 1 <= self.axis <= 6):
+            raise ValueError(f"PidTuningReport.axis must be a PID_TUNING_AXIS (1..6), not {self.axis!r}")
+        for name, value in (("desired_to_rad_s", self.desired_to_rad_s), ("achieved_to_rad_s", self.achieved_to_rad_s)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
+                raise ValueError(f"PidTuningReport.{name} must be a finite factor > 0, not {value!r}")
+
+    def with_bit(self, mask: float) -> float:
+        """The mask parameter's value ``mask`` with this report's bit set."""
+        return float(int(mask) | self.mask_bit)
+
+
+@dataclass(frozen=True)
 class AutopilotProfile:
     """How the product's neutral notions map onto one autopilot (see the module docstring)."""
 
@@ -100,10 +132,19 @@ class AutopilotProfile:
     reports_heading_target: bool = False
     # how learning during missions verifies gains (``behaviors.mission_learning``): "course_changes"
     # (heading set-point jumps as steps) or "turn_rate" (the rate loop's tracking of the turn rate the
-    # navigation asks for, from PID_TUNING: ArduRover in AUTO)
+    # navigation asks for, from PID_TUNING: ArduRover and ArduSub in AUTO)
     learning_verification: Literal["course_changes", "turn_rate"] = "course_changes"
-    # the parameter whose bit 0 makes the autopilot send its steering loop's PID_TUNING (None: none)
-    pid_tuning_mask: str | None = None
+    # the PID_TUNING message of its heading's rate loop: the mask bit that asks for it, its axis and
+    # units (None: it sends none)
+    pid_tuning: PidTuningReport | None = None
+    # the form of its heading rate loop (eq. A.2r): whether FF reaches the output and whether the
+    # integrator stops at the output's limit, for the turn-rate verification's replay
+    rate_loop: RateLoopForm = ARDUROVER_RATE_LOOP
+    # its yaw moment comes from thrusters the autopilot mixes (ArduSub: it has no yaw fin), whose
+    # authority does not depend on the speed through the water: learning writes a window's rows as
+    # they are (eq. L.3 with p = n = 0), takes windows of any speed spread, and one band spans the
+    # speeds of the mission
+    yaw_from_thrusters: bool = False
     # how the actuator read-back behaves between samples, for the identifier's input filter:
     # "foh" a physical deflection (our simulator reports the rudder itself), "zoh" an output held
     # from one control loop to the next (ArduPilot reports its commanded output)

@@ -31,9 +31,6 @@ STANDARD_GRAVITY = 9.80665
 SEA_LEVEL_PRESSURE_HPA = 1013.25
 
 
-#: PID_TUNING_AXIS of a rover's steering rate loop (MAVLink common)
-PID_TUNING_STEER = 5
-
 @dataclass(frozen=True)
 class DepthSensor:
     """Pressure → depth: ``depth = (press_abs − surface_hpa)·100 / (ρ·g)`` (PROTOCOL.md)."""
@@ -274,12 +271,14 @@ class TelemetryAssembler:
         self._fields["cross_track"] = self._number(msg, "xtrack_error")
 
     def _on_pid_tuning(self, msg: Any) -> None:
-        """The steering rate loop's asked-for and measured turn rates (PID_TUNING axis STEER, deg/s)."""
-        if int(getattr(msg, "axis", 0)) != PID_TUNING_STEER:
+        """The heading rate loop's asked-for and measured turn rates: the PID_TUNING axis and units
+        the profile names (ArduRover: STEER, deg/s; ArduSub: YAW, its target in rad/s × 0.01)."""
+        report = self.profile.pid_tuning
+        if report is None or self._number(msg, "axis") != report.axis:
             return
         desired, achieved = self._number(msg, "desired"), self._number(msg, "achieved")
-        self._fields["turn_rate_target"] = math.radians(desired) if math.isfinite(desired) else math.nan
-        self._fields["turn_rate_achieved"] = math.radians(achieved) if math.isfinite(achieved) else math.nan
+        self._fields["turn_rate_target"] = desired * report.desired_to_rad_s if math.isfinite(desired) else math.nan
+        self._fields["turn_rate_achieved"] = achieved * report.achieved_to_rad_s if math.isfinite(achieved) else math.nan
 
     def _on_scaled_pressure(self, msg: Any) -> None:
         if not self.profile.depth_from_pressure:

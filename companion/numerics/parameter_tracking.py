@@ -77,7 +77,9 @@ class TrackingConfig:
     process_noise: float = 0.003  # q: relative σ of θ's random walk per √s
     min_windows: int = 2
     min_r2: float = 0.9
-    speed_tolerance: float = 0.5  # (max − min)/mean speed of a window normalised by eq. L.3
+    # (max − min)/mean speed of a window normalised by eq. L.3; inf (only with p = n = 0: a yaw that
+    # does not depend on the speed, a thruster's) takes windows at any speed
+    speed_tolerance: float = 0.5
     a22_speed_exponent: float = 1.0  # p in a22 ∝ u^p (eq. L.3)
     b2_speed_exponent: float = 2.0  # n in b2 ∝ uⁿ (eq. L.3; the vehicle's actuation, eq. S.3)
     min_rudder_std: float = 0.005  # rad
@@ -85,10 +87,12 @@ class TrackingConfig:
     max_relative_sigma: float = 0.15
 
     def __post_init__(self) -> None:
-        require_positive(self, "band_width", "min_windows", "speed_tolerance", "min_rudder_std",
-                         "min_heading_span_deg", "max_relative_sigma")
+        require_positive(self, "band_width", "min_windows", "min_rudder_std", "min_heading_span_deg",
+                         "max_relative_sigma")
         require_range(self, "min_r2", 0.0, 1.0)
-        require_range(self, "speed_tolerance", 0.0, 1.0)  # beyond 1 the slowest sample may be at rest
+        if not (self.speed_tolerance == math.inf and self.a22_speed_exponent == self.b2_speed_exponent == 0.0):
+            require_positive(self, "speed_tolerance")
+            require_range(self, "speed_tolerance", 0.0, 1.0)  # beyond 1 the slowest sample may be at rest
         require_non_negative(self, "process_noise", "a22_speed_exponent", "b2_speed_exponent")
 
 

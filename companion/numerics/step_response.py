@@ -31,6 +31,7 @@ from scipy.signal import savgol_filter
 
 from .attitude_shaping import ShapedYawTarget
 from .px4_step import PX4_CONTROLLERS, fly, px4_controller
+from .rate_loop import ARDUROVER_RATE_LOOP, RateLoopForm
 from .skid_step import SkidDrive, SkidState
 from .step_figures import PredictedStep, StepFigures
 
@@ -227,17 +228,22 @@ def simulate_step(plant: RudderPlant, controller: str, gains: dict[str, float], 
 def simulate_rate_tracking(plant: RudderPlant, gains: dict[str, float], times: ArrayLike,
                            desired: ArrayLike, yaw_rate0: float, *, rudder0: float = math.nan,
                            full_scale: float = 0.5236, output_scale: float = 1.0, rate_imax: float = 1.0,
-                           dt: float = 0.01, **_limits: float) -> np.ndarray:
-    """The turn rate (rad/s, at ``times``) of eq. A.2's rate loop alone on the model, asked for the
+                           rate_loop: RateLoopForm = ARDUROVER_RATE_LOOP, dt: float = 0.01,
+                           **_limits: float) -> np.ndarray:
+    """The turn rate (rad/s, at ``times``) of eq. A.2's rate loop alone on the model, in the form
+    ``rate_loop`` (eq. A.2r: ArduSub's without FF and without the integrator's freeze), asked for the
     recorded ``desired`` turn rate (held between samples): what the rate loop with ``gains`` makes
     of the turns a navigation asked for (the angle loop's limits, ``_limits``, do not act here). A
     record may begin in the middle of a turn, so it starts where the vehicle was: at ``yaw_rate0``
     with the rudder ``rudder0`` it had (unknown: the rudder that holds that turn steadily,
-    b2·(δ − δ0) = −a22·r0) and the integrator that, with these gains, gives that rudder."""
+    b2·(δ − δ0) = −a22·r0) and the integrator that, with these gains, gives that rudder. The rate
+    PID's D term is not modelled (0: ArduSub's yaw default; learning neither reads nor writes it)."""
     t = np.asarray(times, dtype=float)
     wanted = np.asarray(desired, dtype=float)
     rate_p, rate_i = gains.get("heading_rate_p", 0.0), gains.get("heading_rate_i", 0.0)
     rate_ff, rate_imax = gains.get("heading_rate_ff", 0.0), gains.get("heading_rate_imax", rate_imax)
+    if not rate_loop.feed_forward:
+        rate_ff = 0.0
     r = yaw_rate0
     delta = rudder0 if math.isfinite(rudder0) else plant.delta0 - plant.a22 * r / plant.b2
     delta = min(max(delta, -plant.rudder_max), plant.rudder_max)
@@ -256,7 +262,7 @@ def simulate_rate_tracking(plant: RudderPlant, gains: dict[str, float], times: A
         for _ in range(steps):
             rate_error = demand_rate - r
             output = output_scale * (rate_ff * demand_rate + rate_p * rate_error + integral)
-            if abs(output) < 1.0 or (rate_i * rate_error) * output <= 0.0:
+            if not rate_loop.freeze_at_limit or abs(output) < 1.0 or (rate_i * rate_error) * output <= 0.0:
                 integral = min(max(integral + rate_i * rate_error * h, -rate_imax), rate_imax)
             output = output_scale * (rate_ff * demand_rate + rate_p * rate_error + integral)
             delta = _slew(delta, min(max(output, -1.0), 1.0) * full_scale, plant.rudder_max,

@@ -13,8 +13,10 @@ gains, its writes through the link and its records in the store.
 * **Which gains, verified how**: the heading kind's scheduled gains, never its trims. On ArduRover in
   AUTO the navigation controller asks for a turn rate, so the rate loop's FF/P/I carry the turns: they
   are verified by how the rate loop tracks the turn rates the navigation asks for (PID_TUNING, the
-  profile's ``learning_verification = "turn_rate"``; its ``pid_tuning_mask`` parameter gets bit 0 for
-  the session and its own value back at the end). The whole design is written, the cascade's angle P
+  profile's ``learning_verification = "turn_rate"``; the mask parameter of its ``pid_tuning`` report
+  gets the report's bit for the session and its own value back at the end). ArduSub in AUTO alike:
+  its angle loop turns the vehicle toward the next waypoint through the yaw rate loop, whose
+  PID_TUNING (axis YAW) reports the rates it is asked for. The whole design is written, the cascade's angle P
   with them: that is the pairing its predictions are of (eq. D.1; writing the rate gains alone under
   the vehicle's own angle P was predicted to overshoot 9.5 % on a 20° step in GUIDED on ArduRover's
   boat, beyond the acceptable). The angle P acts only where a heading is held (GUIDED), which AUTO's
@@ -43,6 +45,7 @@ from behaviors.gain_scheduling import ScheduleKind
 from behaviors.mission_learning import DesignOutcome, LearningConfig, LearningResult, MissionLearner, Phase
 from companion.link.errors import ParamError
 from companion.link.port import VehiclePort
+from companion.link.profile import AutopilotProfile
 from companion.interface import Command, SetParameters
 from companion.numerics.identification import YawModel
 from companion.numerics.mission_turns import FlownSegment
@@ -107,7 +110,8 @@ class ScheduledDesign:
         which eq. A.2k's steps carry but this replay does not)."""
         case = self._case(speed)
         return simulate_rate_tracking(case.plant, dict(gains), segment.times, segment.desired,
-                                      float(segment.achieved[0]), rudder0=segment.rudder0, **case.limits)
+                                      float(segment.achieved[0]), rudder0=segment.rudder0,
+                                      rate_loop=self.limits.rate_loop, **case.limits)
 
     def rate_limit(self, speed: float) -> float:
         """The steady turn rate at full rudder on the model at ``speed`` (rad/s): b2·δmax/|a22| (eq. 3.6)."""
@@ -190,10 +194,11 @@ def heading_kind_for(config: CampaignConfig) -> ScheduleKind | None:
     return next((k for k in config.kinds() if k.axis == "yaw"), None)
 
 
-def unverifiable(profile) -> str | None:
+def unverifiable(profile: AutopilotProfile) -> str | None:
     """Why learned gains could not be verified on this autopilot (None when they can): it must report
     its heading set-point (course changes as steps) or its rate loop's turn rates (PID_TUNING)."""
-    if profile.learning_verification == "turn_rate" and profile.pid_tuning_mask in profile.params:
+    report = profile.pid_tuning
+    if profile.learning_verification == "turn_rate" and report is not None and report.mask_param in profile.params:
         return None
     if profile.learning_verification == "course_changes" and profile.reports_heading_target:
         return None
@@ -228,7 +233,8 @@ class LearningSession:
             return f"no model of this autopilot's heading controller to design with ({kind.name if kind else 'none'})"
         profile = self.link.profile
         limit_names = tuple(name for name in LIMIT_PARAMETERS if name in profile.params)
-        mask = (profile.pid_tuning_mask,) if profile.pid_tuning_mask in profile.params else ()
+        report = profile.pid_tuning
+        mask = (report.mask_param,) if report is not None and report.mask_param in profile.params else ()
         self.restore = RestorePoint.capture(self.link, Footprint.of(parameters=kind.scheduled + limit_names + mask))
         values = self.restore.parameters
         original = {name: values[name] for name in kind.scheduled if name in values}
@@ -237,13 +243,20 @@ class LearningSession:
         limits = HeadingLimits.from_vehicle(values, full_scale=self.campaign.cascade.full_scale,
                                             rudder_rate=self.campaign.rudder_rate,
                                             output_scale_base=self.campaign.cascade.output_scale_base
-                                            if kind.name == "cascade" else None)
+                                            if kind.name == "cascade" else None, rate_loop=profile.rate_loop)
         margin = profile.prediction_margin_pct
         config = replace(self.config, verification=profile.learning_verification)
-        # the windows' rows are written at their band's speed by the vehicle's own speed law of b2
-        # (eq. L.3; the actuation read from the vehicle: a rudder's u², a skid pair's u, eq. S.3)
-        law = self.campaign.speed_law or "u2"
-        config = replace(config, tracking=replace(config.tracking, b2_speed_exponent=LAW_EXPONENTS[law]))
+        if profile.yaw_from_thrusters:
+            # a thruster's yaw moment does not depend on the speed: the rows as they are (eq. L.3 with
+            # p = n = 0), a window whose speed changed in a corner still teaches, and one band spans
+            # every speed the mission flies (up to twice its first window's)
+            config = replace(config, tracking=replace(config.tracking, a22_speed_exponent=0.0, b2_speed_exponent=0.0,
+                                                      speed_tolerance=math.inf, band_width=1.0))
+        else:
+            # the windows' rows are written at their band's speed by the vehicle's own speed law of b2
+            # (eq. L.3; the actuation read from the vehicle: a rudder's u², a skid pair's u, eq. S.3)
+            law = self.campaign.speed_law or "u2"
+            config = replace(config, tracking=replace(config.tracking, b2_speed_exponent=LAW_EXPONENTS[law]))
         if margin is not None:  # the prediction's measured margin on this autopilot (eq. L.2)
             config = replace(config, verdict=replace(config.verdict, overshoot_margin_pct=float(margin)))
         # the whole design is written (what its predictions are of); a turn-rate verification flies
@@ -258,8 +271,8 @@ class LearningSession:
             "original": original, "modes": list(config.modes), "heading_kind": kind.name})
         self.trail_id = self.store.save_restore_point(self.campaign_id, self.restore.as_json(), vehicle_identity(self.link))
         self.recorder = TrailRecorder(self.store, self.trail_id, self.link)
-        if mask and mask[0] in values:  # the steering loop's PID_TUNING, for the turn-rate verification
-            self._send([SetParameters({mask[0]: float(int(values[mask[0]]) | 1)})])
+        if report is not None and mask and mask[0] in values:  # the rate loop's PID_TUNING, for the turn-rate verification
+            self._send([SetParameters({mask[0]: report.with_bit(values[mask[0]])})])
         self.link.status_text(f"LEARN: on, original {kind.name} gains recorded"[:50])
         log.info("learning on: original gains %s, limits %s", original, limits)
         return None

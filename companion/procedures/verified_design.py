@@ -43,6 +43,7 @@ from companion.checks import require_non_negative, require_positive
 from companion.link.autopilots import registered_profiles
 from companion.numerics.skid_step import SkidMixer, SkidPlant, SpeedHold
 from companion.numerics.speed_law import choose_speed_law
+from companion.numerics.rate_loop import ARDUROVER_RATE_LOOP, RateLoopForm
 from companion.numerics.step_design import StepCase, cascade_case, pi_case, px4_rover_case, px4_uuv_case
 from companion.numerics.step_figures import PredictedStep, StepFigures
 from companion.numerics.step_response import predict_step
@@ -87,6 +88,8 @@ class HeadingLimits:
     #: PX4 UUV: the surge thrust (0–1) flown at each speed, (speed, thrust) pairs, which the yaw
     #: torque is allocated beside (eq. A.5a); empty: not known
     forward_thrust: tuple[tuple[float, float], ...] = ()
+    #: the rate loop's form (eq. A.2r), for the turn-rate verification's replay (learning during missions)
+    rate_loop: RateLoopForm = ARDUROVER_RATE_LOOP
 
     def __post_init__(self) -> None:
         if self.skid is not None and not isinstance(self.skid, SkidPlant):
@@ -94,6 +97,8 @@ class HeadingLimits:
         for speed, thrust in self.forward_thrust:
             if not (math.isfinite(speed) and math.isfinite(thrust) and 0.0 <= thrust <= 1.0):
                 raise ValueError(f"HeadingLimits.forward_thrust: a (speed, thrust 0..1) pair, not {(speed, thrust)!r}")
+        if not isinstance(self.rate_loop, RateLoopForm):
+            raise ValueError(f"HeadingLimits.rate_loop must be a RateLoopForm, not {self.rate_loop!r}")
 
     def thrust_at(self, speed: float) -> float:
         """The surge thrust at ``speed``, linear between the pairs flown and held beyond them (NaN:
@@ -105,7 +110,8 @@ class HeadingLimits:
 
     @classmethod
     def from_vehicle(cls, values: dict[str, float], *, full_scale: float, rudder_rate: float | None,
-                     output_scale_base: float | None = None) -> "HeadingLimits":
+                     output_scale_base: float | None = None,
+                     rate_loop: RateLoopForm = ARDUROVER_RATE_LOOP) -> "HeadingLimits":
         """From the parameters read with the original gains (:data:`LIMIT_PARAMETERS`; ArduPilot's
         and PX4's turn limits and PX4's steering slew in degrees) and the profile's rudder full scale
         and servo rate; what the vehicle does not say takes the profile's. ``output_scale_base``: the
@@ -130,7 +136,8 @@ class HeadingLimits:
                    rate_threshold=math.radians(threshold) if threshold and threshold > 0 else 0.0,
                    torque_max=min(max(torque, 0.0), 1.0) if math.isfinite(torque) else 1.0,
                    input_tc=tc if math.isfinite(tc) and tc > 0 else 0.0,
-                   yaw_slew_max=math.radians(slew) if math.isfinite(slew) and slew > 0 else math.inf)
+                   yaw_slew_max=math.radians(slew) if math.isfinite(slew) and slew > 0 else math.inf,
+                   rate_loop=rate_loop)
 
 
 def limits_case(controller: str, model, speed: float | None, limits: HeadingLimits) -> StepCase:

@@ -38,7 +38,7 @@ from companion.link.actuation import OUTPUTS
 from companion.link.autopilots.ardupilot import ArduPilotStrategy, yaw_quaternion
 from companion.link.autopilots.skid_room import doublet_scale, refusal, scaled, with_actuation
 from companion.link.errors import ProfileError
-from companion.link.profile import AutopilotProfile, CampaignDefaults, NativeScale
+from companion.link.profile import AutopilotProfile, CampaignDefaults, NativeScale, PidTuningReport
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +81,9 @@ PROFILE = AutopilotProfile(
     strategy="ardurover",
     # in AUTO the navigation asks the rate loop for a turn rate: learning verifies its tracking
     learning_verification="turn_rate",
-    pid_tuning_mask="pid_tuning_mask",
+    # GCS_PID_MASK bit 0: the steering rate loop, PID_TUNING axis STEER, both rates in deg/s
+    # (Rover GCS_MAVLink_Rover.cpp send_pid_tuning)
+    pid_tuning=PidTuningReport(mask_param="pid_tuning_mask", mask_bit=1, axis=5),
     water_speed_sensor=False,
     depth_from_pressure=False,
     vehicle_kind="surface",

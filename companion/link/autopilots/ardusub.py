@@ -48,7 +48,8 @@ from dataclasses import replace
 from companion.interface import Telemetry
 from companion.link.autopilots.ardupilot import ArduPilotStrategy, yaw_quaternion
 from companion.link.errors import ParamTimeout
-from companion.link.profile import AutopilotProfile, CampaignDefaults, NativeScale
+from companion.link.profile import AutopilotProfile, CampaignDefaults, NativeScale, PidTuningReport
+from companion.numerics.rate_loop import ARDUSUB_RATE_LOOP
 from companion.link.autopilots.vectored_mix import (STICK_CENTRE, STICK_HALF_RANGE, VECTORED_FACTORS,  # noqa: F401
                                                     VectoredAxes, throttle_stick, unmix_vectored)
 
@@ -70,7 +71,8 @@ GAIN_RANGES = {"angle_p_range": (0.0, 6.0), "rate_p_range": (0.0, 2.0), "rate_i_
 
 PROFILE = AutopilotProfile(
     name="ardusub",
-    modes={"manual": 19, "hold": 2, "guided": 4, "stabilize": 0, "poshold": 16},  # hold = ALT_HOLD
+    # hold = ALT_HOLD; auto = AUTO (a mission, where learning during missions runs)
+    modes={"manual": 19, "hold": 2, "guided": 4, "stabilize": 0, "poshold": 16, "auto": 3},
     channels={"rudder": 4, "elevator": 1, "thrust": 5, "vertical": 3},
     servo_outputs={},  # thrusters are mixed: read back by un-mixing (Strategy.on_snapshot)
     params={
@@ -83,6 +85,8 @@ PROFILE = AutopilotProfile(
         "turn_rate_max": "ATC_RATE_Y_MAX", "turn_accel_max": "ATC_ACCEL_Y_MAX",
         # and the set-point's input shaping (eq. A.2s): on where the rate feed-forward is
         "input_tc": "ATC_INPUT_TC", "yaw_slew_max": "ATC_SLEW_YAW", "rate_ff_enabled": "ATC_RATE_FF_ENAB",
+        # bit 2 (value 4) sends the yaw rate loop's PID_TUNING (learning during missions; restored after)
+        "pid_tuning_mask": "GCS_PID_MASK",
     },
     aliases={"gcs_sysid": ("SYSID_MYGCS",), "system_id": ("SYSID_THISMAV",)},
     # ATC_ACCEL_Y_MAX is in centidegrees/s², ATC_SLEW_YAW in centidegrees/s
@@ -102,6 +106,16 @@ PROFILE = AutopilotProfile(
                    "ATC_RAT_YAW_IMAX": 0.222, "ATC_ACCEL_Y_MAX": 110000.0, "ATC_INPUT_TC": 0.15,
                    "ATC_SLEW_YAW": 6000.0, "ATC_RATE_FF_ENAB": 1.0},
     strategy="ardusub",
+    # in AUTO the angle loop turns the vehicle toward the next waypoint through the yaw rate loop:
+    # learning verifies that loop's tracking of the rates it is asked for (PID_TUNING axis YAW, sent
+    # for GCS_PID_MASK bit 2, value 4: GCS_MAVLink_Sub.cpp send_pid_tuning). Its ``desired`` is the
+    # rate PID's (5 Hz filtered) target in rad/s × 0.01, its ``achieved`` the gyro in deg/s.
+    learning_verification="turn_rate",
+    pid_tuning=PidTuningReport(mask_param="pid_tuning_mask", mask_bit=4, axis=3, desired_to_rad_s=100.0),
+    rate_loop=ARDUSUB_RATE_LOOP,  # no FF applied, no integrator freeze (eq. A.2r)
+    # the vectored frame yaws by differential thrust; a vehicle slows at AUTO's corners (SITL's ROV:
+    # 1.0 → 0.5 m/s) while its yaw authority stays: learning's windows hold those corners
+    yaw_from_thrusters=True,
     water_speed_sensor=False,
     depth_from_pressure=False,
     vehicle_kind="underwater",
@@ -113,8 +127,12 @@ PROFILE = AutopilotProfile(
     thrust_meaning="the pilot's forward stick (RC 5, held by an override; 1 = full ahead)",
 )
 
-#: the base streams, GLOBAL_POSITION_INT (depth) and HOME_POSITION (the surface, see Strategy.depth)
-STREAMS = {30: 50.0, 36: 50.0, 32: 10.0, 33: 10.0, 74: 10.0, 242: 0.5}
+#: the base streams, GLOBAL_POSITION_INT (depth) and HOME_POSITION (the surface, see Strategy.depth),
+#: and PID_TUNING (the yaw rate loop, once GCS_PID_MASK asks for it) at 25 Hz for learning during
+#: missions: at the port's default EXTRA1 rate the verification missed a 1.4 Hz yaw limit cycle of
+#: learned gains on SITL's ROV (±18 °/s, 10.5 °/s RMS of tracking error in its log; a lane's segment
+#: read 1.9 °/s) and kept them (measured)
+STREAMS = {30: 50.0, 36: 50.0, 32: 10.0, 33: 10.0, 74: 10.0, 242: 0.5, 194: 25.0}
 
 ACRO_YAW_P_DEFAULT = 3.375  # ArduSub's ACRO_YAW_P define: MANUAL's yaw scale is ACRO_YAW_P / this
 RELEASE_AFTER_S = 0.25  # a centred stick is held this long (vehicle time) before it is released

@@ -1,0 +1,113 @@
+"""ArduSub SITL flying its own vehicle (``--model vectored``: SITL's BlueROV2-like ROV) as a user
+finds it: ArduPilot's ``sub.parm`` defaults plus what the rig needs, for the SITL test and bench of
+``companion run --learn`` on ArduSub (``harness.rover_mission`` flies the survey).
+
+ArduSub's AUTO (AC_WPNav) flies a holonomic vehicle: at a corner it translates sideways while the
+yaw turns toward the next leg (WP_YAW_BEHAVIOR 4). The vectored frame's lateral thrust is what makes
+that possible, and its yaw moment does not depend on the speed; our own AUV physics behind the JSON
+backend (``sim.ardupilot_json.SubVectoredDecoder``) has neither (no lateral force; its yaw is a rudder
+whose authority falls with u²), so in AUTO it stops at the first corner and cannot turn (measured).
+
+The rig's extra parameters: ``FS_PILOT_INPUT 0`` and ``FS_GCS_ENABLE 0`` (the ground station and the
+companion arm and fly it without sticks; as ``bench/bench_ardupilot.py``), anything else given. SITL
+runs on loopback (run inside ``unshare -n``); its serial0 (``endpoint``) is the companion's, serial1
+(``station_endpoint``) the ground station's. Started and stopped by process id.
+"""
+from __future__ import annotations
+
+import logging
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from sim.ardupilot_sitl import DEFAULT_HOME, MAVLINK_BASE_PORT, free_instance
+
+log = logging.getLogger(__name__)
+
+RIG_PARAMETERS = {"FS_PILOT_INPUT": 0.0, "FS_GCS_ENABLE": 0.0}
+
+
+@dataclass
+class SubSitl:
+    """``ardusub --model vectored`` on a free instance (module docstring)."""
+
+    bin_dir: str
+    speedup: float = 10.0
+    params: dict[str, float] = field(default_factory=dict)
+    home: str = DEFAULT_HOME
+    workdir: Path | None = None  # SITL's eeprom and logs (None: a temporary folder)
+    instance: int = -1
+    process: subprocess.Popen | None = None
+    _tmp: tempfile.TemporaryDirectory | None = None
+
+    def __post_init__(self) -> None:
+        if not self.speedup > 0:
+            raise ValueError(f"SubSitl.speedup must be > 0, not {self.speedup!r}")
+
+    @property
+    def port(self) -> int:
+        return MAVLINK_BASE_PORT + 10 * self.instance
+
+    @property
+    def endpoint(self) -> str:
+        return f"tcp:127.0.0.1:{self.port}"
+
+    @property
+    def station_endpoint(self) -> str:
+        return f"tcp:127.0.0.1:{self.port + 2}"
+
+    def start(self) -> "SubSitl":
+        binary = Path(self.bin_dir) / "ardusub"
+        defaults = Path(self.bin_dir).resolve().parents[2] / "Tools" / "autotest" / "default_params" / "sub.parm"
+        if not binary.is_file() or not defaults.is_file():
+            raise FileNotFoundError(f"need {binary} and {defaults} (an ArduPilot tree built for SITL)")
+        if self.workdir is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="sub-sitl-")
+            self.workdir = Path(self._tmp.name)
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        extra = self.workdir / "rig.parm"
+        extra.write_text("".join(f"{name} {value:g}\n" for name, value in {**RIG_PARAMETERS, **self.params}.items()))
+        self.instance = free_instance()
+        command = [str(binary), "--model", "vectored", "--speedup", f"{self.speedup:g}", "-I", str(self.instance),
+                   "--home", self.home, "--defaults", f"{defaults},{extra}"]
+        log.info("starting ArduSub SITL: %s", " ".join(command))
+        self.process = subprocess.Popen(command, cwd=self.workdir, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+        return self
+
+    def wait_listening(self, patience_s: float = 30.0) -> None:
+        """Until serial0 accepts connections (a process start, wall clock)."""
+        import socket
+
+        deadline = time.monotonic() + patience_s
+        while time.monotonic() < deadline:
+            if self.process is not None and self.process.poll() is not None:
+                raise RuntimeError(f"ArduSub SITL exited with code {self.process.returncode}")
+            with socket.socket() as probe:
+                probe.settimeout(0.5)
+                if probe.connect_ex(("127.0.0.1", self.port)) == 0:
+                    return
+            time.sleep(0.5)
+        raise RuntimeError(f"ArduSub SITL did not listen on {self.endpoint} within {patience_s:g} s")
+
+    def stop(self) -> int | None:
+        if self.process is None:
+            return None
+        if self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+        return self.process.returncode
+
+    def __enter__(self) -> "SubSitl":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
