@@ -22,7 +22,9 @@ Phases (:class:`Phase`):
 3. **verifying** — the next ``verify_turns`` course changes (``verify_segments`` turn-rate
    segments) are judged against the turns flown on the original gains at the same speed and
    against their prediction (eq. L.2); from ``min_verify`` on, the verdict comes early when each
-   turn alone gives the same verdict as all of them together. Kept: **kept**.
+   turn alone gives the same verdict as all of them together. Turn-rate segments also need the
+   legs held no worse than on the original gains (eq. L.2h): a keep waits for a leg flown on the
+   learned gains. Kept: **kept**.
    Else **waiting to revert**, then the original gains are written at the next safe moment:
    **reverted**, and this session writes nothing more (the reason is said and stored). Kept gains
    are those verified at the speed flown: they are not rescheduled to speeds the turns did not
@@ -39,7 +41,7 @@ import enum
 import logging
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Protocol, Sequence
 
 from behaviors.base import Behaviour, Footprint
@@ -234,6 +236,7 @@ class MissionLearner(Behaviour):
         self.written_at = math.nan
         self.writes: list[GainWrite] = []
         self.turns: list[TurnFigures] = []
+        self._straights_seen: list[tuple[str | None, float]] = []  # (gains in force, turn-rate error deg/s)
         self.windows: list[WindowOutcome] = []
         self.verdict: TurnVerdict | None = None
         self.verdict_at_s = math.nan
@@ -306,6 +309,7 @@ class MissionLearner(Behaviour):
                                    telemetry.turn_rate_achieved, telemetry.speed_water, telemetry.rudder)
             if segment is not None:
                 self._segment_flown(segment)
+            self._straights_flown(recorder)
         else:
             turn = recorder.add(t, telemetry.yaw, telemetry.heading_target if allowed else math.nan,
                                 telemetry.speed_water)
@@ -433,6 +437,19 @@ class MissionLearner(Behaviour):
                                       error=segment.error_deg_s(within=within), predicted_error=predicted,
                                       original_error=original, metric=RATE_ERROR))
 
+    def _straights_flown(self, recorder: RateSegmentRecorder) -> None:
+        """Each straight window the recorder closed, as flown on the original or the learned gains
+        (eq. L.2h; one that began before a write is on neither)."""
+        for start, error in recorder.straights[len(self._straights_seen):]:
+            written = self.written
+            gains = "original" if written is None else "learned" if start >= self.written_at else None
+            self._straights_seen.append((gains, error))
+
+    def _holding(self) -> tuple[list[float], list[float]]:
+        """The straights' turn-rate errors (deg/s) on the original and on the learned gains."""
+        finite = [(gains, e) for gains, e in self._straights_seen if math.isfinite(e)]
+        return [e for g, e in finite if g == "original"], [e for g, e in finite if g == "learned"]
+
     def _maybe_judge(self, now: float) -> list[Command]:
         """eq. L.2 over the turns (segments) flown on the learned gains: after ``verify_turns``
         (``verify_segments``), or from ``min_verify`` on when every one of them alone gives the same
@@ -452,6 +469,13 @@ class MissionLearner(Behaviour):
                      for turn in after]
             if any(keep != verdict.keep for keep in alone):
                 return []
+        if verdict.keep and self.by_rate:  # eq. L.2h: the legs too, once one was flown on the learned gains
+            before_legs, after_legs = self._holding()
+            if before_legs and not after_legs:
+                return []
+            worse = self.config.verdict.holding_worse(before_legs, after_legs)
+            if worse is not None:
+                verdict = replace(verdict, keep=False, reason=worse)
         self.verdict, self.verdict_at_s = verdict, now
         self.events.append({"type": "verdict", "time_s": now, **self.verdict.to_dict()})
         if self.verdict.keep:

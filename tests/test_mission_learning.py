@@ -666,3 +666,67 @@ def test_a_thrusters_yaw_takes_windows_at_any_speed_and_only_it_does():
         TrackingConfig(speed_tolerance=math.inf)  # Nomoto's a22 ∝ u and a rudder's b2 ∝ u²
     with pytest.raises(ValueError, match="speed_tolerance"):
         TrackingConfig(a22_speed_exponent=0.0, b2_speed_exponent=0.0, speed_tolerance=1.5)
+
+
+def test_turn_rate_learned_gains_that_hold_the_legs_worse_are_not_kept():
+    """eq. L.2h: a verdict the turns would give is held back until a leg is flown on the learned
+    gains, and refused when the legs' tracking grew beyond 1.5× and 0.2 deg/s of the original's."""
+    config = VerdictConfig()
+    assert config.holding_worse([0.28, 0.30], [0.68, 0.67]) is not None  # SITL's ArduSub ROV, measured
+    assert "worse on the legs" in config.holding_worse([0.28], [0.68])
+    assert config.holding_worse([0.28, 0.30], [0.40]) is None  # within 0.2 deg/s
+    assert config.holding_worse([2.0], [2.9]) is None  # within 1.5×
+    assert config.holding_worse([], [5.0]) is None and config.holding_worse([0.3], []) is None
+    recorder = RateSegmentRecorder(window_s=20.0, min_rate_deg_s=2.0)
+    times = np.arange(0.0, 41.0, 0.04)
+    for t in times:  # a leg: asks for no turn, the rate loop wanders by 0.5 deg/s
+        recorder.add(float(t), 0.0, math.radians(0.5) * math.sin(t), 2.0)
+    assert len(recorder.straights) == 2 and recorder.straights[0][1] == pytest.approx(0.5 / math.sqrt(2), rel=0.05)
+
+
+@pytest.mark.parametrize("wobble_deg_s, kept", [(0.1, True), (1.0, False)])
+def test_a_turn_rate_verdict_waits_for_a_leg_and_refuses_gains_that_hold_it_worse(wobble_deg_s, kept):
+    """eq. L.2h in the learner: a mission of 40 s turning and 40 s legs; the learned gains track the
+    turns better (as predicted) and wobble on the legs by ``wobble_deg_s`` where the original gains
+    wobbled by 0.1 deg/s: kept when they hold the legs as well, reverted when they do not."""
+    from behaviors.mission_learning import DesignOutcome, LearningConfig, MissionLearner
+
+    class Design:
+        summary = "synthetic"
+
+        def gains_at(self, speed):
+            return {"heading_rate_ff": 2.0}
+
+        def predict(self, gains, speed, step):
+            return 1.0, 0.0
+
+        def replay(self, gains, speed, segment):
+            return (0.93 if gains.get("heading_rate_ff") == 2.0 else 0.7) * segment.desired
+
+        def rate_limit(self, speed):
+            return math.radians(20.0)
+
+    learner = MissionLearner(lambda validated: DesignOutcome(Design(), "synthetic"), {"heading_rate_ff": 0.5},
+                             LearningConfig(verification="turn_rate", verify_segments=2))
+    now = [0.0]
+    learner.models.validated = lambda: [(2.0, None)] if now[0] > 60.0 else []
+    written = []
+    for k in range(20 * 900):
+        t = now[0] = 0.05 * k
+        leg = (t // 40.0) % 2 == 1
+        desired = 0.0 if leg else math.radians(6.0) * math.sin(0.4 * t)
+        quality = 0.93 if written else 0.7
+        wobble = math.radians(wobble_deg_s if written else 0.1) * math.sin(3.0 * t)
+        achieved = wobble if leg else quality * desired
+        telemetry = Telemetry(time_s=t, yaw=0.0, yaw_rate=0.0, speed_water=2.0, rudder=0.0,
+                              turn_rate_target=desired, turn_rate_achieved=achieved, mode="auto", armed=True)
+        for command in learner.tick(telemetry):
+            if type(command).__name__ == "SetParameters":
+                written.append((t, command.values))
+    assert written
+    if kept:
+        assert learner.phase is Phase.KEPT, learner.note
+    else:
+        assert learner.phase in (Phase.WAITING_TO_REVERT, Phase.REVERTED), learner.note
+        assert "worse on the legs" in learner.verdict.reason
+        assert learner.verdict.after_error < learner.verdict.before_error  # the turns alone would have kept them

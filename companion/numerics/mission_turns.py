@@ -194,6 +194,9 @@ class RateSegmentRecorder:
         self._rows: list[tuple[float, float, float, float]] = []
         self._rudder0 = math.nan
         self.interrupted = 0
+        #: the windows that asked for less turning than a segment (the straights): (start, turn-rate
+        #: error RMS in deg/s), for how the rate loop holds a leg (eq. L.2h)
+        self.straights: list[tuple[float, float]] = []
 
     @property
     def turning(self) -> bool:
@@ -220,7 +223,10 @@ class RateSegmentRecorder:
         segment = FlownSegment(float(rows[0, 0]), rows[:, 0], rows[:, 1], rows[:, 2],
                                float(np.nanmean(rows[:, 3])) if np.isfinite(rows[:, 3]).any() else math.nan,
                                float(self._rudder0))
-        return segment if math.radians(segment.size_deg_s) >= self.min_rate else None
+        if math.radians(segment.size_deg_s) >= self.min_rate:
+            return segment
+        self.straights.append((segment.t_start, segment.error_deg_s()))
+        return None
 
 
 @dataclass(frozen=True)
@@ -230,10 +236,27 @@ class VerdictConfig:
 
     overshoot_margin_pct: float = 3.0
     error_tolerance: float = 0.3
+    #: eq. L.2h: learned gains are not kept while the legs' turn-rate error on them exceeds the
+    #: original gains' by this factor and this many deg/s (measured on SITL's ArduSub ROV: kept gains
+    #: that tracked its corners better held its lanes at 0.67–0.69 deg/s against 0.27–0.30)
+    holding_ratio: float = 1.5
+    holding_floor_deg_s: float = 0.2
 
     def __post_init__(self) -> None:
-        require_non_negative(self, "overshoot_margin_pct")
-        require_positive(self, "error_tolerance")
+        require_non_negative(self, "overshoot_margin_pct", "holding_floor_deg_s")
+        require_positive(self, "error_tolerance", "holding_ratio")
+
+    def holding_worse(self, before: Sequence[float], after: Sequence[float]) -> str | None:
+        """Why the legs flown on learned gains (``after``: each window's turn-rate error, deg/s) are
+        held worse than those on the original gains (``before``) beyond eq. L.2h's tolerance; None
+        when they are not, or when either side has no leg."""
+        old, new = _mean(before), _mean(after)
+        if not (math.isfinite(old) and math.isfinite(new)):
+            return None
+        if new > max(self.holding_ratio * old, old + self.holding_floor_deg_s):
+            return (f"worse on the legs: turn-rate error {new:.2f} deg/s on {len(after)} straight windows against "
+                    f"{old:.2f} deg/s on the original gains ({len(before)})")
+        return None
 
 
 @dataclass(frozen=True)
