@@ -32,7 +32,6 @@ import argparse
 import json
 import math
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -42,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from companion.rehearsal.launcher import SimulatorProcess  # noqa: E402
 from companion.records.store import Store  # noqa: E402
-from harness.rover_mission import ROVER, SUB, MissionGroundStation, lawnmower  # noqa: E402
+from harness.rover_mission import ROVER, SUB, MissionGroundStation, fly_survey_beside, lawnmower  # noqa: E402
 from harness.sub_sitl import SubSitl  # noqa: E402
 
 SITL_SERIAL1_OFFSET = 2  # SITL's serial1 (tcp:2) is its serial0 port + 2, MAVLink 2
@@ -66,23 +65,18 @@ def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder:
                "--store", str(store), "--max-vehicle-time", "3000" if sub else "1500"] + (
                    ["--learn"] if learn else ["--no-scheduling"])
     points = lawnmower()
+    station = MissionGroundStation(station_endpoint, points, params, vehicle=vehicle)
     with open(folder / f"companion-{tag}.log", "w") as output:
-        companion = subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT)
-        station = MissionGroundStation(station_endpoint, points, params, vehicle=vehicle)
         try:
-            station.start_when_open()
-            station.wait_done(companion, 3000.0 / speedup)
+            run = fly_survey_beside(command, station, 3000.0 / speedup, output=output)
         finally:
-            companion.terminate()
-            companion.wait(timeout=60)
-            station.stop()
             sim.stop()
     track = station.track
     auto = vehicle.auto_mode
     auto_at = next((t for t, mode in track.modes if mode == auto), math.nan)
     out = {"hull": hull, "seed": seed, "learn": learn, "mission_s": station.done_at_s - auto_at, "auto_at_s": auto_at,
            "left_auto": any(mode != auto for t, mode in track.modes if t > auto_at),
-           "legs": track.legs(points=points if sub else None), "companion_exit": companion.returncode}
+           "legs": track.legs(points=points if sub else None), "companion_exit": run.returncode}
     with Store(store) as records:
         campaign = next((c for c in records.campaigns() if c["kind"] == "learning"), None)
         results = records.behavior_results(campaign["id"], "learning") if campaign else []

@@ -28,6 +28,7 @@ def run_suite(extra: list[str], keep: Path | None = None) -> tuple[int, float, s
     done = subprocess.run([sys.executable, "-m", "pytest", "-q", *extra], cwd=ROOT, capture_output=True, text=True)
     wall = time.monotonic() - started
     if keep is not None:  # the whole output, for a failure's traceback
+        keep.parent.mkdir(parents=True, exist_ok=True)
         keep.write_text(done.stdout + done.stderr)
     lines = [line for line in done.stdout.splitlines() if line.strip()]
     summary = lines[-1] if lines else done.stderr[-500:]

@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import logging
 import math
+import subprocess
 import time
 from dataclasses import dataclass, field
+from typing import IO, Sequence
 
 from companion.link.autopilots.ardurover import PROFILE as ARDUROVER
 from companion.link.autopilots.ardusub import PROFILE as ARDUSUB
@@ -263,3 +265,31 @@ class MissionGroundStation(StationThread):
                                               msg.achieved * report.achieved_to_rad_s * RAD_TO_DEG))
             elif kind == "MISSION_ITEM_REACHED" and msg.seq == len(self.points):
                 self.done_at_s = self.now_s
+
+
+@dataclass(frozen=True)
+class SurveyRun:
+    """How a companion beside a flown survey ended: whether the survey finished, its exit code and
+    its output (empty when it wrote to a file)."""
+
+    finished: bool
+    returncode: int
+    output: str
+
+
+def fly_survey_beside(command: Sequence[str], station: MissionGroundStation, wall_s: float,
+                      output: IO[str] | None = None) -> SurveyRun:
+    """Start the companion ``command``, let ``station`` upload and fly its survey (at most ``wall_s``
+    of wall clock: a process's life, not vehicle logic), then stop the companion and the station.
+    The companion's output goes to ``output`` (a file) or is returned."""
+    companion = subprocess.Popen(list(command), stdout=output if output is not None else subprocess.PIPE,
+                                 stderr=subprocess.STDOUT, text=True)
+    try:
+        station.start_when_open()
+        finished = station.wait_done(companion, wall_s)
+    finally:
+        companion.terminate()
+        text = companion.communicate(timeout=60)[0] or ""
+        station.stop()
+    return SurveyRun(finished, companion.returncode, text)
+

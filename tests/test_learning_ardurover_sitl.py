@@ -9,7 +9,6 @@ survey at 10× speed-up (about 70 s of wall time).
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -17,7 +16,7 @@ import pytest
 
 from companion.rehearsal.launcher import SimulatorProcess
 from companion.records.store import Store
-from harness.rover_mission import ROVER_AUTO, MissionGroundStation, lawnmower
+from harness.rover_mission import ROVER_AUTO, MissionGroundStation, fly_survey_beside, lawnmower
 from tests.sitl_limits import SITL_UNDER_LOAD
 
 BIN = os.environ.get("ARDUPILOT_SITL_BIN")
@@ -32,20 +31,13 @@ def test_learning_in_auto_stops_the_weave_and_keeps_verified_gains(tmp_path):
     store_path = tmp_path / "store.sqlite"
     with SimulatorProcess("boat", SPEEDUP, 1, (0.0, 0.0), autopilot="ardurover", ardupilot_bin=BIN, lockstep=False,
                           ready_timeout_s=120.0) as sim:
-        companion = subprocess.Popen([sys.executable, "-m", "companion", "run", "--connect", sim.endpoint, "--learn",
-                                      "--no-health", "--store", str(store_path), "--max-vehicle-time", "1500"],
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         station = MissionGroundStation(f"tcp:127.0.0.1:{sim.port + 2}", lawnmower(),
                                        {"WP_SPEED": 2.0, "GCS_PID_MASK": 1})
-        try:
-            station.start_when_open()
-            finished = station.wait_done(companion, 3000.0 / SPEEDUP)
-        finally:
-            companion.terminate()
-            output = companion.communicate(timeout=60)[0]
-            station.stop()
-    assert companion.returncode == 0, output[-2000:]
-    assert finished, "the survey did not finish"
+        run = fly_survey_beside([sys.executable, "-m", "companion", "run", "--connect", sim.endpoint, "--learn",
+                                 "--no-health", "--store", str(store_path), "--max-vehicle-time", "1500"],
+                                station, 3000.0 / SPEEDUP)
+    assert run.returncode == 0, run.output[-2000:]
+    assert run.finished, "the survey did not finish"
     assert [mode for _, mode in station.track.modes] == [ROVER_AUTO]  # never left AUTO
     with Store(store_path) as store:
         (campaign,) = [c for c in store.campaigns() if c["kind"] == "learning"]

@@ -13,7 +13,6 @@ verdict says), never timings. Skipped unless ``ARDUPILOT_SITL_BIN`` names the fo
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -21,7 +20,7 @@ import pytest
 
 from companion.records.store import Store
 from harness.mavlink_clients import connect_client
-from harness.rover_mission import SUB, MissionGroundStation, lawnmower
+from harness.rover_mission import SUB, MissionGroundStation, fly_survey_beside, lawnmower
 from harness.sub_sitl import SubSitl
 from tests.sitl_limits import SITL_UNDER_LOAD
 
@@ -60,21 +59,14 @@ def test_learning_in_auto_on_ardusub_ends_with_a_verdict_the_vehicle_holds(tmp_p
     store_path = tmp_path / "store.sqlite"
     with SubSitl(BIN, SPEEDUP, workdir=tmp_path / "sitl") as sitl:
         sitl.wait_listening()
-        companion = subprocess.Popen([sys.executable, "-m", "companion", "run", "--connect", sitl.endpoint, "--learn",
-                                      "--no-health", "--store", str(store_path), "--max-vehicle-time", "3000"],
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         station = MissionGroundStation(sitl.station_endpoint, lawnmower(), {"GCS_PID_MASK": float(SUB.pid_mask)},
                                        vehicle=SUB)
-        try:
-            station.start_when_open()
-            finished = station.wait_done(companion, 3000.0 / SPEEDUP)
-        finally:
-            companion.terminate()
-            output = companion.communicate(timeout=60)[0]
-            station.stop()
+        run = fly_survey_beside([sys.executable, "-m", "companion", "run", "--connect", sitl.endpoint, "--learn",
+                                 "--no-health", "--store", str(store_path), "--max-vehicle-time", "3000"],
+                                station, 3000.0 / SPEEDUP)
         on_vehicle = _read(sitl.endpoint, list(NATIVE.values()))  # after the companion's end
-    assert companion.returncode == 0, output[-2000:]
-    assert finished, "the survey did not finish"
+    assert run.returncode == 0, run.output[-2000:]
+    assert run.finished, "the survey did not finish"
     assert [mode for _, mode in station.track.modes] == [SUB.auto_mode]  # never left AUTO
     assert station.track.turn_rates, "no PID_TUNING of the yaw rate loop reached the ground station"
     with Store(store_path) as store:

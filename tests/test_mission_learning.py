@@ -352,28 +352,32 @@ def test_the_rate_loop_prediction_tracks_with_the_right_feed_forward_and_not_wit
     assert rms(desired - with_p) < rms(desired - tracked)
 
 
+class _RateDesign:
+    """A synthetic design for the turn-rate learner: its gains (FF 2) are predicted as flown, the
+    original gains' replay falls 30 % short of the asked-for rates."""
+
+    summary = "synthetic"
+
+    def gains_at(self, speed):
+        return {"heading_rate_ff": 2.0}
+
+    def predict(self, gains, speed, step):
+        return 1.0, 0.0
+
+    def replay(self, gains, speed, segment):
+        return (0.93 if gains.get("heading_rate_ff") == 2.0 else 0.7) * segment.desired
+
+    def rate_limit(self, speed):
+        return math.radians(20.0)
+
+
 def test_the_learner_verifies_turn_rate_tracking_where_the_navigation_asks_for_rates():
     """A learner in "turn_rate" mode judges segments: kept when the flown tracking error after the
     write is below the original gains' replay on the same asked-for rates and near its own
     prediction (a synthetic design and vehicle)."""
     from behaviors.mission_learning import DesignOutcome, LearningConfig, MissionLearner
 
-    class Design:
-        summary = "synthetic"
-
-        def gains_at(self, speed):
-            return {"heading_rate_ff": 2.0}
-
-        def predict(self, gains, speed, step):
-            return 1.0, 0.0
-
-        def replay(self, gains, speed, segment):  # the design predicted as flown, the original 30 % short
-            return (0.93 if gains.get("heading_rate_ff") == 2.0 else 0.7) * segment.desired
-
-        def rate_limit(self, speed):
-            return math.radians(20.0)
-
-    learner = MissionLearner(lambda validated: DesignOutcome(Design(), "synthetic"), {"heading_rate_ff": 0.5},
+    learner = MissionLearner(lambda validated: DesignOutcome(_RateDesign(), "synthetic"), {"heading_rate_ff": 0.5},
                              LearningConfig(verification="turn_rate", verify_segments=2))
     now = [0.0]
     learner.models.validated = lambda: [(2.0, None)] if now[0] > 60.0 else []  # (the tracker is tested above)
@@ -691,22 +695,7 @@ def test_a_turn_rate_verdict_waits_for_a_leg_and_refuses_gains_that_hold_it_wors
     wobbled by 0.1 deg/s: kept when they hold the legs as well, reverted when they do not."""
     from behaviors.mission_learning import DesignOutcome, LearningConfig, MissionLearner
 
-    class Design:
-        summary = "synthetic"
-
-        def gains_at(self, speed):
-            return {"heading_rate_ff": 2.0}
-
-        def predict(self, gains, speed, step):
-            return 1.0, 0.0
-
-        def replay(self, gains, speed, segment):
-            return (0.93 if gains.get("heading_rate_ff") == 2.0 else 0.7) * segment.desired
-
-        def rate_limit(self, speed):
-            return math.radians(20.0)
-
-    learner = MissionLearner(lambda validated: DesignOutcome(Design(), "synthetic"), {"heading_rate_ff": 0.5},
+    learner = MissionLearner(lambda validated: DesignOutcome(_RateDesign(), "synthetic"), {"heading_rate_ff": 0.5},
                              LearningConfig(verification="turn_rate", verify_segments=2))
     now = [0.0]
     learner.models.validated = lambda: [(2.0, None)] if now[0] > 60.0 else []
