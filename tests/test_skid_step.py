@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from types import SimpleNamespace
 
 import pytest
 
+from companion.link.actuation import Actuation, OutputScale
 from companion.link.profiles import get_profile
 from companion.numerics.identification import YawModel
 from companion.numerics.skid_step import SkidDrive, SkidMixer, SkidPlant, SkidState, SpeedHold
@@ -197,7 +197,8 @@ def test_the_skid_plant_from_what_the_campaign_measured():
 
 
 def test_a_skid_boat_campaign_predicts_through_its_mixer():
-    actuation = SimpleNamespace(skid=True, thrust_asymmetry=1.5, steering_throttle_mix=0.7)
+    actuation = Actuation("skid", left=OutputScale(1), right=OutputScale(3), thrust_asymmetry=1.5,
+                          steering_throttle_mix=0.7)
     profile = dataclasses.replace(get_profile("ardurover"), actuation=actuation)
     config = CampaignConfig(thrusts=(0.4, 0.8), axes=("yaw",)).resolved_for(profile)
     assert config.skid_mixer == SkidMixer(1.5, 0.7)

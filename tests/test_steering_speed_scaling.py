@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from behaviors.cascade_schedule import cascade_kind
+from companion.link.actuation import Actuation, OutputScale
 from companion.link.profiles import get_profile
 from companion.numerics.cascade_gains import CascadeRules, design_cascade_gains, output_speed_scale
 from companion.numerics.identification import YawModel
@@ -66,7 +66,7 @@ def test_the_turn_acceleration_limit_slows_the_start_of_a_step():
 def _rover(skid: bool = False):
     profile = get_profile("ardurover")
     if skid:
-        profile = replace(profile, actuation=SimpleNamespace(skid=True))
+        profile = replace(profile, actuation=Actuation("skid", left=OutputScale(1), right=OutputScale(3)))
     return profile
 
 
