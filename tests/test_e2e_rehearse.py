@@ -12,12 +12,13 @@ import pytest
 from companion.numerics.gains import CAMPAIGN_DAMPING
 from companion.records.store import Store
 
-# one worker runs the module: its rehearsal (a module fixture, about 14 s) is made once, not once per
-# worker that a test of it lands on
+# one worker runs the module: its rehearsal (about 14 s) is made once, not once per worker that a test
+# of it lands on; session-scoped, because the worker may run other modules' tests between this one's,
+# and a module fixture would be made again after each (three times, measured)
 pytestmark = [pytest.mark.e2e, pytest.mark.xdist_group("e2e-rehearse")]
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def rehearsal(tmp_path_factory):
     out = tmp_path_factory.mktemp("rehearsal")
     command = [sys.executable, "-m", "companion", "rehearse", "--out", str(out), "--thrusts", "0.7,1.0",

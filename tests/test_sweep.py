@@ -236,12 +236,13 @@ def no_case_left(workdir: Path) -> None:
     assert str(workdir / "tmp") not in ps
 
 
-#: the tests of the local sweep run on one worker: its sweep (a module fixture, about 25 s) is made
-#: once, not once per worker that one of them lands on
+#: the tests of the local sweep run on one worker: its sweep (about 25 s) is made once, not once per
+#: worker that one of them lands on; session-scoped, because the worker may run other modules' tests
+#: between these, and a module fixture would be made again after them (twice, measured)
 ONE_WORKER = pytest.mark.xdist_group("local-sweep")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def local_sweep(tmp_path_factory) -> dict:
     """The 2 x 2 sweep on the local default cluster (2 workers), interrupted by SIGINT once its first
     two rows are in (the other two cases have just started) and resumed: the workdir, what the
