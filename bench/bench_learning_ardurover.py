@@ -18,8 +18,14 @@ baseline. Never pass/fail.
 
     python bench/bench_learning_ardurover.py --hulls boat,boat-3dof --repeats 3
 
+``--hulls motorboat`` (or ``motorboat-skid``): SITL's own boat as it ships (``rover.parm`` +
+``motorboat.parm``; :class:`harness.own_sitl.OwnSitl`), physics this project did not write, the same
+survey at WP_SPEED 2. The seed only numbers the repeat.
+
+    python bench/bench_learning_ardurover.py --hulls motorboat --repeats 3
+
 ``--autopilot ardusub``: ArduSub SITL flying its own vectored ROV as it ships (``sub.parm``;
-:class:`harness.sub_sitl.SubSitl`: our AUV physics cannot fly ArduSub's AUTO), the same survey
+:class:`harness.own_sitl.OwnSitl`: our AUV physics cannot fly ArduSub's AUTO), the same survey
 5 m deep at ArduSub's WPNAV_SPEED (1 m/s), the yaw rate loop's PID_TUNING (GCS_PID_MASK 4) and the
 cross-track measured from the positions against each lane's line (ArduSub sends none). The seed
 only numbers the repeat (SITL's own vehicle has no seed).
@@ -42,18 +48,21 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from companion.rehearsal.launcher import SimulatorProcess  # noqa: E402
 from companion.records.store import Store  # noqa: E402
 from harness.rover_mission import ROVER, SUB, MissionGroundStation, fly_survey_beside, lawnmower  # noqa: E402
-from harness.sub_sitl import SubSitl  # noqa: E402
+from harness.own_sitl import OWN_VEHICLES, OwnSitl  # noqa: E402
 
 SITL_SERIAL1_OFFSET = 2  # SITL's serial1 (tcp:2) is its serial0 port + 2, MAVLink 2
 
 
-def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder: Path, sub: bool = False) -> dict:
+def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder: Path) -> dict:
     tag = f"{hull}-{seed}-{'learn' if learn else 'base'}"
-    if sub:  # SITL's own ROV (harness.sub_sitl): its serial1 is the ground station's
-        sim = SubSitl(bin_dir, speedup, workdir=folder / f"sitl-{tag}").start()
+    own = OWN_VEHICLES.get(hull)
+    sub = own is not None and own.binary == "ardusub"
+    if own is not None:  # SITL's own vehicle (harness.own_sitl): its serial1 is the ground station's
+        sim = OwnSitl(bin_dir, own, speedup, workdir=folder / f"sitl-{tag}").start()
         sim.wait_listening()
         endpoint, station_endpoint = sim.endpoint, sim.station_endpoint
-        vehicle, params = SUB, {"GCS_PID_MASK": float(SUB.pid_mask)}
+        vehicle = SUB if sub else ROVER
+        params = {"GCS_PID_MASK": float(vehicle.pid_mask)} | ({} if sub else {"WP_SPEED": 2.0})
     else:
         sim = SimulatorProcess(preset=hull, speedup=speedup, seed=seed, lockstep=False, autopilot="ardurover",
                                ardupilot_bin=bin_dir, log_path=folder / f"sim-{tag}.log")
@@ -113,8 +122,9 @@ def compare(learned: dict, baseline: dict) -> list[dict]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--autopilot", choices=("ardurover", "ardusub"), default="ardurover",
-                        help="ardusub: SITL's own vectored ROV (--hulls is then only its label)")
-    parser.add_argument("--hulls", default=None, help="ArduRover: our presets (default boat,boat-3dof)")
+                        help="ardusub: SITL's own vectored ROV (--hulls is then ignored)")
+    parser.add_argument("--hulls", default=None,
+                        help="ArduRover: our presets (default boat,boat-3dof) or SITL's own motorboat, motorboat-skid")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--speedup", type=float, default=10.0)
     parser.add_argument("--ardupilot-bin", default=os.environ.get("ARDUPILOT_SITL_BIN"))
@@ -131,11 +141,11 @@ def main() -> int:
         folder = Path(args.keep or name)
         folder.mkdir(parents=True, exist_ok=True)
         sub = args.autopilot == "ardusub"
-        hulls = args.hulls or ("sitl-rov" if sub else "boat,boat-3dof")
+        hulls = "sitl-rov" if sub else args.hulls or "boat,boat-3dof"
         for hull in hulls.split(","):
             for seed in range(1, args.repeats + 1):
-                learned = fly(hull, seed, True, args.speedup, args.ardupilot_bin, folder, sub)
-                baseline = (fly(hull, seed, False, args.speedup, args.ardupilot_bin, folder, sub) if args.baseline
+                learned = fly(hull, seed, True, args.speedup, args.ardupilot_bin, folder)
+                baseline = (fly(hull, seed, False, args.speedup, args.ardupilot_bin, folder) if args.baseline
                             else {**learned, "legs": [], "mission_s": math.nan, "left_auto": False})
                 rows.append({"learned": learned, "baseline": baseline, "lanes": compare(learned, baseline)})
                 print(summary(rows[-1]), flush=True)

@@ -1,5 +1,5 @@
 """``companion run --learn`` beside the real ArduSub firmware flying an ordinary survey in AUTO:
-ArduSub SITL flies its own vectored ROV as it ships (``sub.parm``; ``harness.sub_sitl``: our AUV
+ArduSub SITL flies its own vectored ROV as it ships (``sub.parm``; ``harness.own_sitl``: our AUV
 physics cannot fly ArduSub's AUTO, which translates sideways at corners), a ground station of its
 own (SITL's serial1) uploads a lawnmower 5 m deep with the MAVLink mission protocol and switches to
 AUTO, and the companion on serial0 only learns, designs and, where a design is predicted better
@@ -21,7 +21,7 @@ import pytest
 from companion.records.store import Store
 from harness.mavlink_clients import connect_client
 from harness.rover_mission import SUB, MissionGroundStation, fly_survey_beside, lawnmower
-from harness.sub_sitl import SubSitl
+from harness.own_sitl import VECTORED_ROV, OwnSitl
 from tests.sitl_limits import SITL_UNDER_LOAD
 
 BIN = os.environ.get("ARDUPILOT_SITL_BIN")
@@ -57,7 +57,7 @@ def _read(endpoint: str, names: list[str]) -> dict[str, float]:
 
 def test_learning_in_auto_on_ardusub_ends_with_a_verdict_the_vehicle_holds(tmp_path):
     store_path = tmp_path / "store.sqlite"
-    with SubSitl(BIN, SPEEDUP, workdir=tmp_path / "sitl") as sitl:
+    with OwnSitl(BIN, VECTORED_ROV, SPEEDUP, workdir=tmp_path / "sitl") as sitl:
         sitl.wait_listening()
         station = MissionGroundStation(sitl.station_endpoint, lawnmower(), {"GCS_PID_MASK": float(SUB.pid_mask)},
                                        vehicle=SUB)
