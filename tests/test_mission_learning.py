@@ -323,17 +323,47 @@ def test_a_crash_mid_learning_leaves_a_trail_that_puts_the_original_gains_back(t
 
 
 # ---------------------------------------------------------------------------- turn-rate segments
-def test_a_turn_rate_segment_is_a_window_with_turning_asked_for():
-    recorder = RateSegmentRecorder(window_s=10.0, min_rate_deg_s=2.0)
+def test_a_turn_rate_segment_opens_with_the_turn_asked_for_and_lasts_at_most_a_window():
+    recorder = RateSegmentRecorder(window_s=10.0, min_rate_deg_s=2.0, lead_s=2.0)
     found = []
     for k in range(620):  # 31 s at 20 Hz: 10 s straight, then a ±10°/s sine asked for
         t = 0.05 * k
         desired = 0.0 if t < 10.0 else math.radians(10.0) * math.sin(0.5 * t)
-        segment = recorder.add(t, desired, 0.8 * desired, 2.0)
+        segment = recorder.add(t, desired, 0.8 * desired, 2.0, rudder=0.01 if t < 9.0 else 0.02)
         if segment is not None:
             found.append(segment)
-    assert [round(s.t_start) for s in found] == [10, 20]  # the straight asked for nothing
+    # the first opens 2 s before the turn asked for (its lead), the next at once when the window is full
+    assert len(found) == 2 and found[0].t_start == pytest.approx(8.0)
+    assert found[0].times[-1] == pytest.approx(18.0) and found[1].t_start == pytest.approx(18.05)
+    assert found[0].rudder0 == pytest.approx(0.01) and found[1].rudder0 == pytest.approx(0.02)
     assert found[0].error_deg_s() == pytest.approx(0.2 * found[0].size_deg_s, rel=1e-6)
+    assert recorder.straights == []  # 8 s of straight is no leg
+
+
+def test_each_turn_of_a_lane_end_corner_is_a_segment_of_its_own():
+    """Two 90° turns 10 s apart (a lane-end corner): two segments, each from 2 s before its turn to
+    3 s after it, wherever the corner falls on the clock; the lanes either side are legs."""
+    for offset in (0.0, 7.3, 13.1):
+        recorder = RateSegmentRecorder(window_s=20.0, min_rate_deg_s=2.0, lead_s=2.0, quiet_s=3.0)
+        found = []
+        for k in range(int(100.0 / 0.04)):
+            t = 0.04 * k
+            first, second = 40.0 + offset, 58.0 + offset  # each turn asks 11.25°/s for 8 s
+            turning = first <= t < first + 8.0 or second <= t < second + 8.0
+            desired = math.radians(11.25) if turning else 0.0
+            segment = recorder.add(t, desired, 0.9 * desired, 2.0)
+            if segment is not None:
+                found.append(segment)
+        assert [s.t_start for s in found] == pytest.approx([first - 2.0, second - 2.0], abs=0.1), offset  # to a sample or two
+        assert all(12.9 <= s.times[-1] - s.times[0] <= 13.1 for s in found)
+        assert len(recorder.straights) >= 2 and all(error == pytest.approx(0.0) for _, error in recorder.straights)
+
+
+def test_a_brief_blip_asked_for_is_neither_a_segment_nor_a_leg():
+    recorder = RateSegmentRecorder(window_s=20.0, min_rate_deg_s=2.0)
+    found = [recorder.add(0.05 * k, math.radians(2.5) if 200 <= k < 204 else 0.0, 0.0, 2.0) for k in range(400)]
+    assert not any(found)
+    assert [round(start) for start, _ in recorder.straights] == []  # 10 s, a blip, 9.8 s: no 20 s leg
 
 
 def test_the_rate_loop_prediction_tracks_with_the_right_feed_forward_and_not_without():

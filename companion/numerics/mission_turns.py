@@ -9,8 +9,15 @@ integrated absolute error normalised by the change (``iae_s``, seconds), from th
 the jump to the one after.
 
 **Turn-rate segments** (a navigation that asks the rate loop for a turn rate: ArduRover in AUTO).
-Consecutive ``window_s`` windows of the asked-for and the measured turn rate; a window whose
-asked-for rate has an RMS of at least ``min_rate_deg_s`` is a segment, its figure the RMS of the
+A segment is cut at the mission's own turns: it opens when the asked-for turn rate reaches
+``min_rate_deg_s``, with the ``lead_s`` seconds before it (the rate loop's state before the turn, which
+a replay starts from), and closes once the asked-for rate has stayed below ``min_rate_deg_s`` for
+``quiet_s`` seconds, or after ``window_s`` seconds of turning (the next segment then opens at once).
+So each turn of a lane-end corner (two 90° turns a short leg apart) is a segment of its own, where
+fixed windows fell across the corner at a phase the clock chose: one segment or two. A closed
+segment whose asked-for rate has an RMS below ``min_rate_deg_s`` (a blip) is dropped. The legs
+between turns, in ``window_s`` windows asking for no turn, are kept as straights (eq. L.2h). A
+segment's figure is the RMS of the
 tracking error (deg/s) over the samples that asked for no more than the rudder can give (a
 fraction of the model's steady turn rate at full rudder): beyond it the rudder is at its stop
 whatever the gains, and a lane-end turn asking for 100°/s of a boat that turns at 17°/s would
@@ -184,15 +191,19 @@ class FlownSegment:
 
 
 class RateSegmentRecorder:
-    """Streams (time, asked-for rate, measured rate, speed); :meth:`add` returns a
-    :class:`FlownSegment` when a window with enough asked-for turning closes (module docstring)."""
+    """Streams (time, asked-for rate, measured rate, speed, rudder); :meth:`add` returns a
+    :class:`FlownSegment` when a turn asked for closes, and keeps the legs' windows in
+    :attr:`straights` (module docstring, "Turn-rate segments")."""
 
-    def __init__(self, window_s: float = 20.0, min_rate_deg_s: float = 2.0, max_gap_s: float = 1.0) -> None:
-        if not (window_s > 0 and min_rate_deg_s > 0 and max_gap_s > 0):
-            raise ValueError("RateSegmentRecorder needs a positive window, rate and gap")
+    def __init__(self, window_s: float = 20.0, min_rate_deg_s: float = 2.0, max_gap_s: float = 1.0,
+                 lead_s: float = 2.0, quiet_s: float = 3.0) -> None:
+        if not (window_s > 0 and min_rate_deg_s > 0 and max_gap_s > 0 and lead_s >= 0 and quiet_s > 0):
+            raise ValueError("RateSegmentRecorder needs a positive window, rate, gap and quiet time, and a lead ≥ 0")
         self.window_s, self.min_rate, self.max_gap_s = window_s, math.radians(min_rate_deg_s), max_gap_s
-        self._rows: list[tuple[float, float, float, float]] = []
-        self._rudder0 = math.nan
+        self.lead_s, self.quiet_s = lead_s, quiet_s
+        self._quiet: list[tuple[float, float, float, float, float]] = []  # rows asking for no turn, not yet a leg
+        self._turn: list[tuple[float, float, float, float, float]] = []  # the open segment's rows
+        self._calm_since = math.nan  # in a segment: since when the asked-for rate stayed below min_rate
         self.interrupted = 0
         #: the windows that asked for less turning than a segment (the straights): (start, turn-rate
         #: error RMS in deg/s), for how the rate loop holds a leg (eq. L.2h)
@@ -200,33 +211,51 @@ class RateSegmentRecorder:
 
     @property
     def turning(self) -> bool:
-        return bool(self._rows)
+        return bool(self._turn)
 
     def discard(self) -> None:
-        if self._rows:
+        """Drop the open segment and the leg so far (the gains changed during them)."""
+        if self._turn:
             self.interrupted += 1
-        self._rows = []
+        self._turn, self._quiet = [], []
 
     def add(self, t: float, desired: float, achieved: float, speed: float,
             rudder: float = math.nan) -> FlownSegment | None:
         if not all(math.isfinite(v) for v in (t, desired, achieved)):
-            self._rows = []
+            self._turn, self._quiet = [], []
             return None
-        if self._rows and t - self._rows[-1][0] > self.max_gap_s:
-            self._rows = []
-        if not self._rows:
-            self._rudder0 = rudder
-        self._rows.append((t, desired, achieved, speed))
-        if t - self._rows[0][0] < self.window_s:
+        last = (self._turn or self._quiet or [None])[-1]
+        if last is not None and t - last[0] > self.max_gap_s:
+            self._turn, self._quiet = [], []
+        row = (t, desired, achieved, speed, rudder)
+        asking = abs(desired) >= self.min_rate
+        if not self._turn:
+            if not asking:
+                self._quiet.append(row)
+                if t - self._quiet[0][0] >= self.window_s:
+                    rows = np.asarray(self._quiet)
+                    self.straights.append((float(rows[0, 0]), math.degrees(float(np.sqrt(np.mean(
+                        (rows[:, 1] - rows[:, 2]) ** 2))))))
+                    self._quiet = [r for r in self._quiet if t - r[0] <= self.lead_s]  # the next turn's lead
+                return None
+            self._turn = [r for r in self._quiet if t - r[0] <= self.lead_s] + [row]
+            self._quiet, self._calm_since = [], math.nan
             return None
-        rows, self._rows = np.asarray(self._rows), []
+        self._turn.append(row)
+        if asking:
+            self._calm_since = math.nan
+        elif not math.isfinite(self._calm_since):
+            self._calm_since = t
+        calm = math.isfinite(self._calm_since) and t - self._calm_since >= self.quiet_s
+        if not calm and t - self._turn[0][0] < self.window_s:
+            return None
+        rows, self._turn = np.asarray(self._turn), []
+        if calm:  # the calm tail is the start of a leg (and the next turn's lead)
+            self._quiet = [tuple(r) for r in rows[rows[:, 0] >= self._calm_since]]
         segment = FlownSegment(float(rows[0, 0]), rows[:, 0], rows[:, 1], rows[:, 2],
                                float(np.nanmean(rows[:, 3])) if np.isfinite(rows[:, 3]).any() else math.nan,
-                               float(self._rudder0))
-        if math.radians(segment.size_deg_s) >= self.min_rate:
-            return segment
-        self.straights.append((segment.t_start, segment.error_deg_s()))
-        return None
+                               float(rows[0, 4]))
+        return segment if math.radians(segment.size_deg_s) >= self.min_rate else None
 
 
 @dataclass(frozen=True)
