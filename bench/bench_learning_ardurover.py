@@ -23,6 +23,7 @@ baseline. Never pass/fail.
 survey at WP_SPEED 2. The seed only numbers the repeat.
 
     python bench/bench_learning_ardurover.py --hulls motorboat --repeats 3
+    python bench/bench_learning_ardurover.py --hulls motorboat --repeats 3 --set ATC_STR_RAT_FF=0.3 --set ATC_STR_RAT_I=0.02
 
 ``--autopilot ardusub``: ArduSub SITL flying its own vectored ROV as it ships (``sub.parm``;
 :class:`harness.own_sitl.OwnSitl`: our AUV physics cannot fly ArduSub's AUTO), the same survey
@@ -53,12 +54,13 @@ from harness.own_sitl import OWN_VEHICLES, OwnSitl  # noqa: E402
 SITL_SERIAL1_OFFSET = 2  # SITL's serial1 (tcp:2) is its serial0 port + 2, MAVLink 2
 
 
-def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder: Path) -> dict:
+def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder: Path,
+        settings: dict[str, float] | None = None) -> dict:
     tag = f"{hull}-{seed}-{'learn' if learn else 'base'}"
     own = OWN_VEHICLES.get(hull)
     sub = own is not None and own.binary == "ardusub"
     if own is not None:  # SITL's own vehicle (harness.own_sitl): its serial1 is the ground station's
-        sim = OwnSitl(bin_dir, own, speedup, workdir=folder / f"sitl-{tag}").start()
+        sim = OwnSitl(bin_dir, own, speedup, params=dict(settings or {}), workdir=folder / f"sitl-{tag}").start()
         sim.wait_listening()
         endpoint, station_endpoint = sim.endpoint, sim.station_endpoint
         vehicle = SUB if sub else ROVER
@@ -85,7 +87,8 @@ def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder:
     auto_at = next((t for t, mode in track.modes if mode == auto), math.nan)
     out = {"hull": hull, "seed": seed, "learn": learn, "mission_s": station.done_at_s - auto_at, "auto_at_s": auto_at,
            "left_auto": any(mode != auto for t, mode in track.modes if t > auto_at),
-           "legs": track.legs(points=points if sub else None), "companion_exit": run.returncode}
+           "legs": track.legs(points=points if sub else None), "corners": track.corners(),
+           "companion_exit": run.returncode}
     with Store(store) as records:
         campaign = next((c for c in records.campaigns() if c["kind"] == "learning"), None)
         results = records.behavior_results(campaign["id"], "learning") if campaign else []
@@ -112,11 +115,12 @@ def _clean(value):
     return value
 
 
-def compare(learned: dict, baseline: dict) -> list[dict]:
-    """Lanes flown after the write, against the same lanes (by waypoint) in the baseline."""
-    base = {leg["waypoint"]: leg for leg in baseline["legs"]}
+def compare(learned: dict, baseline: dict, what: str = "legs") -> list[dict]:
+    """Lanes (``what="corners"``: lane-end corners) flown after the write, against the same ones (by
+    waypoint) in the baseline."""
+    base = {leg["waypoint"]: leg for leg in baseline.get(what, [])}
     return [{"waypoint": leg["waypoint"], "learned": leg, "baseline": base.get(leg["waypoint"])}
-            for leg in learned["legs"] if leg["start_s"] >= learned.get("write_at", math.inf)]
+            for leg in learned.get(what, []) if leg["start_s"] >= learned.get("write_at", math.inf)]
 
 
 def main() -> int:
@@ -133,9 +137,18 @@ def main() -> int:
                         help="keep each run's store and logs in DIR (default: a temporary folder, deleted)")
     parser.add_argument("--baseline", action=argparse.BooleanOptionalAction, default=True,
                         help="fly the baseline (the frame's gains alone) after each learning run (default: yes)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="SITL's own vehicles: a parameter among its defaults at boot (repeatable), e.g. a "
+                             "boat tuned poorly: --set ATC_STR_RAT_FF=0.3")
     args = parser.parse_args()
     if not args.ardupilot_bin:
         parser.error("give --ardupilot-bin or set ARDUPILOT_SITL_BIN (ArduPilot's build/sitl/bin)")
+    try:
+        settings = {name.strip(): float(value) for name, _, value in (item.partition("=") for item in args.set)}
+    except ValueError:
+        parser.error(f"--set takes NAME=VALUE with a number, not {args.set}")
+    if settings and args.autopilot == "ardurover" and not set((args.hulls or "").split(",")) <= set(OWN_VEHICLES):
+        parser.error("--set applies to SITL's own vehicles only (--hulls motorboat,motorboat-skid)")
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-learning-") as name:
         folder = Path(args.keep or name)
@@ -144,10 +157,11 @@ def main() -> int:
         hulls = "sitl-rov" if sub else args.hulls or "boat,boat-3dof"
         for hull in hulls.split(","):
             for seed in range(1, args.repeats + 1):
-                learned = fly(hull, seed, True, args.speedup, args.ardupilot_bin, folder)
-                baseline = (fly(hull, seed, False, args.speedup, args.ardupilot_bin, folder) if args.baseline
+                learned = fly(hull, seed, True, args.speedup, args.ardupilot_bin, folder, settings)
+                baseline = (fly(hull, seed, False, args.speedup, args.ardupilot_bin, folder, settings) if args.baseline
                             else {**learned, "legs": [], "mission_s": math.nan, "left_auto": False})
-                rows.append({"learned": learned, "baseline": baseline, "lanes": compare(learned, baseline)})
+                rows.append({"learned": learned, "baseline": baseline, "lanes": compare(learned, baseline),
+                             "corners": compare(learned, baseline, "corners")})
                 print(summary(rows[-1]), flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(_clean(rows), indent=1, allow_nan=False))
@@ -166,6 +180,9 @@ def summary(row: dict) -> str:
     xt_b = mean([lane["baseline"]["cross_track_rms_m"] for lane in lanes if lane["baseline"]])
     tr_l = mean([lane["learned"]["turn_rate_error_rms_deg_s"] for lane in lanes])
     tr_b = mean([lane["baseline"]["turn_rate_error_rms_deg_s"] for lane in lanes if lane["baseline"]])
+    corners = row.get("corners", [])
+    tc_l = mean([c["learned"]["turn_rate_error_rms_deg_s"] for c in corners])
+    tc_b = mean([c["baseline"]["turn_rate_error_rms_deg_s"] for c in corners if c["baseline"]])
     verdict = lrn.get("verdict") or {}
     original, written = lrn.get("original") or {}, lrn.get("written") or {}
     changed = ", ".join(f"{name} {original.get(name, math.nan):.3g}→{value:.3g}" for name, value in written.items()
@@ -174,7 +191,8 @@ def summary(row: dict) -> str:
             f"verified {lrn.get('verified_s', math.nan):6.1f} s after AUTO, reverts {lrn.get('reverts', 0)}, "
             f"left AUTO {lrn['left_auto']}/{base['left_auto']}; lanes after ({len(lanes)}): cross-track "
             f"{xt_l:.3f}/{xt_b:.3f} m ({xt_l / xt_b:.2f}), turn-rate error {tr_l:.2f}/{tr_b:.2f} deg/s "
-            f"({tr_l / tr_b:.2f}); mission {lrn['mission_s']:.1f}/{base['mission_s']:.1f} s "
+            f"({tr_l / tr_b:.2f}); corners after ({len(corners)}): turn-rate error {tc_l:.2f}/{tc_b:.2f} deg/s "
+            f"({tc_l / tc_b:.2f}); mission {lrn['mission_s']:.1f}/{base['mission_s']:.1f} s "
             f"({100 * (lrn['mission_s'] / base['mission_s'] - 1):+.1f} %); verdict: {verdict.get('reason', lrn.get('reason'))}")
 
 

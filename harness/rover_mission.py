@@ -158,6 +158,20 @@ class MissionTrack:
                         "turn_rate_error_rms_deg_s": math.sqrt(sum(e * e for e in rates) / len(rates)) if rates else math.nan})
         return out
 
+    def corners(self, trim: float = 0.25) -> list[dict]:
+        """Each lane-end corner: from the end of a lane's middle to the start of the next lane's
+        middle (``legs``' trim), named by the lane it leads into; its turn-rate error RMS (deg/s) over
+        every sample, the turns the rudder flies at its stop included."""
+        lanes = self.legs(trim)
+        out = []
+        for before, after in zip(lanes, lanes[1:]):
+            a = before["end_s"] - trim * (before["end_s"] - before["start_s"])
+            b = after["start_s"] + trim * (after["end_s"] - after["start_s"])
+            rates = [(d - g) for t, d, g in self.turn_rates if a <= t <= b]
+            out.append({"waypoint": after["waypoint"], "start_s": a, "end_s": b,
+                        "turn_rate_error_rms_deg_s": math.sqrt(sum(e * e for e in rates) / len(rates)) if rates else math.nan})
+        return out
+
 
 def _off_line(start: tuple[float, float], end: tuple[float, float], at: tuple[float, float]) -> float:
     """The signed distance (m) of ``at`` from the line through ``start`` and ``end`` ((north, east))."""
