@@ -77,3 +77,22 @@ def set_param_echoed(conn, name: str, value: float, timeout_s: float = 10.0) -> 
         if msg is not None and msg.param_id == name and abs(msg.param_value - value) < 1e-6:
             return
     raise AssertionError(f"{name} was never echoed as {value}")
+
+
+def read_parameters(endpoint: str, names: list[str], tries: int = 10) -> dict[str, float]:
+    """The autopilot's (system 1, component 1) values of ``names``: PARAM_REQUEST_READ on a connection
+    of the caller's own (system 254), each asked ``tries`` times at most; a name never answered is
+    left out."""
+    conn = connect_client(endpoint, source_system=254, timeout=30.0)
+    try:
+        values: dict[str, float] = {}
+        for name in names:
+            for _ in range(tries):
+                conn.mav.param_request_read_send(1, 1, name.encode(), -1)
+                msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
+                if msg is not None and msg.param_id == name:
+                    values[name] = msg.param_value
+                    break
+        return values
+    finally:
+        conn.close()

@@ -13,15 +13,14 @@ verdict says), never timings. Skipped unless ``ARDUPILOT_SITL_BIN`` names the fo
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 import pytest
 
-from companion.records.store import Store
-from harness.mavlink_clients import connect_client
-from harness.rover_mission import SUB, MissionGroundStation, fly_survey_beside, lawnmower
+from harness.mavlink_clients import read_parameters
 from harness.own_sitl import VECTORED_ROV, OwnSitl
+from harness.rover_mission import SUB, MissionGroundStation, lawnmower
+from tests.learning_rig import SPEEDUP, learn_beside, learning_record
 from tests.sitl_limits import SITL_UNDER_LOAD
 
 BIN = os.environ.get("ARDUPILOT_SITL_BIN")
@@ -29,7 +28,6 @@ pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.xdist_group("sitl")
     not (BIN and (Path(BIN) / "ardusub").is_file()),
     reason="ARDUPILOT_SITL_BIN is not set to a folder with ArduPilot's ardusub SITL binary")]
 
-SPEEDUP = 10.0
 ORIGINAL = {"heading_rate_ff": 0.0, "heading_rate_p": 0.18, "heading_rate_i": 0.018, "heading_angle_p": 6.0}
 #: turn-rate error RMS (deg/s) on a lane's middle that is a yaw limit cycle, not tracking: the shipped
 #: gains fly 0.1–0.4, verified designs 0.6–0.8, and gains that oscillate at 1.4 Hz 10.7 (bench)
@@ -38,42 +36,19 @@ NATIVE = {"heading_rate_ff": "ATC_RAT_YAW_FF", "heading_rate_p": "ATC_RAT_YAW_P"
           "heading_angle_p": "ATC_ANG_YAW_P"}
 
 
-def _read(endpoint: str, names: list[str]) -> dict[str, float]:
-    """The vehicle's values of ``names`` (PARAM_REQUEST_READ on a connection of the test's own)."""
-    conn = connect_client(endpoint, source_system=254, timeout=30.0)
-    try:
-        values: dict[str, float] = {}
-        for name in names:
-            for _ in range(10):
-                conn.mav.param_request_read_send(1, 1, name.encode(), -1)
-                msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
-                if msg is not None and msg.param_id == name:
-                    values[name] = msg.param_value
-                    break
-        return values
-    finally:
-        conn.close()
-
-
 def test_learning_in_auto_on_ardusub_ends_with_a_verdict_the_vehicle_holds(tmp_path):
     store_path = tmp_path / "store.sqlite"
     with OwnSitl(BIN, VECTORED_ROV, SPEEDUP, workdir=tmp_path / "sitl") as sitl:
         sitl.wait_listening()
         station = MissionGroundStation(sitl.station_endpoint, lawnmower(), {"GCS_PID_MASK": float(SUB.pid_mask)},
                                        vehicle=SUB)
-        run = fly_survey_beside([sys.executable, "-m", "companion", "run", "--connect", sitl.endpoint, "--learn",
-                                 "--no-health", "--store", str(store_path), "--max-vehicle-time", "3000"],
-                                station, 3000.0 / SPEEDUP)
-        on_vehicle = _read(sitl.endpoint, list(NATIVE.values()))  # after the companion's end
+        run = learn_beside(sitl.endpoint, station, store_path, max_vehicle_s=3000.0)
+        on_vehicle = read_parameters(sitl.endpoint, list(NATIVE.values()))  # after the companion's end
     assert run.returncode == 0, run.output[-2000:]
     assert run.finished, "the survey did not finish"
     assert [mode for _, mode in station.track.modes] == [SUB.auto_mode]  # never left AUTO
     assert station.track.turn_rates, "no PID_TUNING of the yaw rate loop reached the ground station"
-    with Store(store_path) as store:
-        (campaign,) = [c for c in store.campaigns() if c["kind"] == "learning"]
-        (result,) = store.behavior_results(campaign["id"], "learning")
-        events = [e["result"] for e in store.behavior_results(campaign["id"], "learning_event")]
-    learned = result["result"]
+    campaign, learned, events = learning_record(store_path)
     assert campaign["config"]["original"] == pytest.approx(ORIGINAL, rel=1e-6)  # the ROV as it ships
     # the corners taught a model the designer was asked about
     assert [e for e in events if e["type"] == "design"], learned["reason"]

@@ -224,8 +224,8 @@ class RateSegmentRecorder:
         if not all(math.isfinite(v) for v in (t, desired, achieved)):
             self._turn, self._quiet = [], []
             return None
-        last = (self._turn or self._quiet or [None])[-1]
-        if last is not None and t - last[0] > self.max_gap_s:
+        open_rows = self._turn or self._quiet
+        if open_rows and t - open_rows[-1][0] > self.max_gap_s:
             self._turn, self._quiet = [], []
         row = (t, desired, achieved, speed, rudder)
         asking = abs(desired) >= self.min_rate
@@ -249,12 +249,12 @@ class RateSegmentRecorder:
         calm = math.isfinite(self._calm_since) and t - self._calm_since >= self.quiet_s
         if not calm and t - self._turn[0][0] < self.window_s:
             return None
-        rows, self._turn = np.asarray(self._turn), []
+        flown, self._turn = np.asarray(self._turn), []
         if calm:  # the calm tail is the start of a leg (and the next turn's lead)
-            self._quiet = [tuple(r) for r in rows[rows[:, 0] >= self._calm_since]]
-        segment = FlownSegment(float(rows[0, 0]), rows[:, 0], rows[:, 1], rows[:, 2],
-                               float(np.nanmean(rows[:, 3])) if np.isfinite(rows[:, 3]).any() else math.nan,
-                               float(rows[0, 4]))
+            self._quiet = [(t_, d_, a_, s_, r_) for t_, d_, a_, s_, r_ in flown[flown[:, 0] >= self._calm_since]]
+        segment = FlownSegment(float(flown[0, 0]), flown[:, 0], flown[:, 1], flown[:, 2],
+                               float(np.nanmean(flown[:, 3])) if np.isfinite(flown[:, 3]).any() else math.nan,
+                               float(flown[0, 4]))
         return segment if math.radians(segment.size_deg_s) >= self.min_rate else None
 
 
