@@ -15,8 +15,12 @@ a replay starts from), and closes once the asked-for rate has stayed below ``min
 ``quiet_s`` seconds, or after ``window_s`` seconds of turning (the next segment then opens at once).
 So each turn of a lane-end corner (two 90° turns a short leg apart) is a segment of its own, where
 fixed windows fell across the corner at a phase the clock chose: one segment or two. A closed
-segment whose asked-for rate has an RMS below ``min_rate_deg_s`` (a blip) is dropped. The legs
-between turns, in ``window_s`` windows asking for no turn, are kept as straights (eq. L.2h). A
+segment whose asked-for rate has an RMS below ``min_rate_deg_s`` (a blip) is dropped. The legs are
+counted apart, on consecutive ``window_s`` windows of the stream: one whose asked-for rate has an RMS
+below ``min_rate_deg_s`` is a straight (eq. L.2h), brief asks included. (Measured on SITL's ArduSub
+ROV: with the legs taken only between the turns' cut, every leg window holding a brief ask of 2°/s
+was lost, and learned gains whose heading loop asked for more on the lanes lost exactly their worse
+windows: kept with the lanes held 2.2× worse.) A
 segment's figure is the RMS of the
 tracking error (deg/s) over the samples that asked for no more than the rudder can give (a
 fraction of the model's steady turn rate at full rudder): beyond it the rudder is at its stop
@@ -39,6 +43,7 @@ Either failing reverts, with the figure that failed.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -201,12 +206,14 @@ class RateSegmentRecorder:
             raise ValueError("RateSegmentRecorder needs a positive window, rate, gap and quiet time, and a lead ≥ 0")
         self.window_s, self.min_rate, self.max_gap_s = window_s, math.radians(min_rate_deg_s), max_gap_s
         self.lead_s, self.quiet_s = lead_s, quiet_s
-        self._quiet: list[tuple[float, float, float, float, float]] = []  # rows asking for no turn, not yet a leg
+        self._lead: deque[tuple[float, float, float, float, float]] = deque()  # the last lead_s s outside a turn
         self._turn: list[tuple[float, float, float, float, float]] = []  # the open segment's rows
         self._calm_since = math.nan  # in a segment: since when the asked-for rate stayed below min_rate
+        self._leg: list[tuple[float, float, float]] = []  # the open leg window: (time, asked, measured)
+        self._last_t = math.nan
         self.interrupted = 0
-        #: the windows that asked for less turning than a segment (the straights): (start, turn-rate
-        #: error RMS in deg/s), for how the rate loop holds a leg (eq. L.2h)
+        #: the ``window_s`` windows whose asked-for rate has an RMS below ``min_rate`` (the legs, brief
+        #: asks included): (start, turn-rate error RMS in deg/s), for how the rate loop holds a leg (eq. L.2h)
         self.straights: list[tuple[float, float]] = []
 
     @property
@@ -214,32 +221,34 @@ class RateSegmentRecorder:
         return bool(self._turn)
 
     def discard(self) -> None:
-        """Drop the open segment and the leg so far (the gains changed during them)."""
+        """Drop the open segment and leg window (the gains changed during them)."""
         if self._turn:
             self.interrupted += 1
-        self._turn, self._quiet = [], []
+        self._reset()
+
+    def _reset(self) -> None:
+        self._turn, self._leg = [], []
+        self._lead.clear()
 
     def add(self, t: float, desired: float, achieved: float, speed: float,
             rudder: float = math.nan) -> FlownSegment | None:
         if not all(math.isfinite(v) for v in (t, desired, achieved)):
-            self._turn, self._quiet = [], []
+            self._reset()
             return None
-        open_rows = self._turn or self._quiet
-        if open_rows and t - open_rows[-1][0] > self.max_gap_s:
-            self._turn, self._quiet = [], []
+        if math.isfinite(self._last_t) and t - self._last_t > self.max_gap_s:
+            self._reset()
+        self._last_t = t
+        self._add_to_leg(t, desired, achieved)
         row = (t, desired, achieved, speed, rudder)
         asking = abs(desired) >= self.min_rate
         if not self._turn:
-            if not asking:
-                self._quiet.append(row)
-                if t - self._quiet[0][0] >= self.window_s:
-                    rows = np.asarray(self._quiet)
-                    self.straights.append((float(rows[0, 0]), math.degrees(float(np.sqrt(np.mean(
-                        (rows[:, 1] - rows[:, 2]) ** 2))))))
-                    self._quiet = [r for r in self._quiet if t - r[0] <= self.lead_s]  # the next turn's lead
-                return None
-            self._turn = [r for r in self._quiet if t - r[0] <= self.lead_s] + [row]
-            self._quiet, self._calm_since = [], math.nan
+            if asking:  # a turn opens, with the lead before it
+                self._turn, self._calm_since = [*self._lead, row], math.nan
+                self._lead.clear()
+            else:
+                self._lead.append(row)
+                while t - self._lead[0][0] > self.lead_s:
+                    self._lead.popleft()
             return None
         self._turn.append(row)
         if asking:
@@ -250,12 +259,23 @@ class RateSegmentRecorder:
         if not calm and t - self._turn[0][0] < self.window_s:
             return None
         flown, self._turn = np.asarray(self._turn), []
-        if calm:  # the calm tail is the start of a leg (and the next turn's lead)
-            self._quiet = [(t_, d_, a_, s_, r_) for t_, d_, a_, s_, r_ in flown[flown[:, 0] >= self._calm_since]]
+        if calm:  # the calm tail may lead the next turn
+            self._lead.extend((t_, d_, a_, s_, r_) for t_, d_, a_, s_, r_ in flown[flown[:, 0] >= t - self.lead_s])
         segment = FlownSegment(float(flown[0, 0]), flown[:, 0], flown[:, 1], flown[:, 2],
                                float(np.nanmean(flown[:, 3])) if np.isfinite(flown[:, 3]).any() else math.nan,
                                float(flown[0, 4]))
         return segment if math.radians(segment.size_deg_s) >= self.min_rate else None
+
+    def _add_to_leg(self, t: float, desired: float, achieved: float) -> None:
+        """The legs: consecutive ``window_s`` windows of the stream, whatever the turns' cut; a window
+        whose asked-for rate has an RMS below ``min_rate`` is a straight (a brief ask on a leg stays
+        in it: a leg flown on gains that make the heading loop ask for more is judged, not dropped)."""
+        self._leg.append((t, desired, achieved))
+        if t - self._leg[0][0] < self.window_s:
+            return
+        rows, self._leg = np.asarray(self._leg), []
+        if float(np.sqrt(np.mean(rows[:, 1] ** 2))) < self.min_rate:
+            self.straights.append((float(rows[0, 0]), math.degrees(float(np.sqrt(np.mean((rows[:, 1] - rows[:, 2]) ** 2))))))
 
 
 @dataclass(frozen=True)
