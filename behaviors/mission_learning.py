@@ -37,7 +37,6 @@ the moment.
 """
 from __future__ import annotations
 
-import enum
 import logging
 import math
 from collections import deque
@@ -45,6 +44,8 @@ from dataclasses import dataclass, replace
 from typing import Callable, Protocol, Sequence
 
 from behaviors.base import Behaviour, Footprint
+from behaviors.learning_records import GainWrite, Phase
+from behaviors.mission_speed import SpeedLearner, SpeedLearningResult
 import numpy as np
 
 from companion.checks import require_choice, require_positive
@@ -89,16 +90,6 @@ class DesignOutcome:
 Designer = Callable[[Sequence[tuple[float, YawModel]]], DesignOutcome]
 
 
-class Phase(enum.Enum):
-    LEARNING = "learning"
-    WAITING_TO_WRITE = "waiting to write"
-    VERIFYING = "verifying"
-    KEPT = "kept"
-    WAITING_TO_REVERT = "waiting to revert"
-    REVERTED = "reverted"
-    OVERRIDDEN = "overridden"  # someone else changed a learned gain: theirs stands, learning stops
-
-
 @dataclass(frozen=True)
 class LearningConfig:
     """When to write and how to verify (module docstring)."""
@@ -137,20 +128,6 @@ class LearningConfig:
 
 
 @dataclass(frozen=True)
-class GainWrite:
-    """One write: when, why (``design``, ``schedule``, ``revert``), at what speed, which gains."""
-
-    time_s: float
-    why: str
-    speed: float
-    gains: dict[str, float]
-
-    def to_dict(self) -> dict:
-        return {"time_s": self.time_s, "why": self.why, "speed": self.speed if math.isfinite(self.speed) else None,
-                "gains": dict(self.gains)}
-
-
-@dataclass(frozen=True)
 class BandSummary:
     """One speed band as learned: centre speed, windows absorbed, validated, the model, validation R²s."""
 
@@ -184,6 +161,10 @@ class LearningResult:
     original_best: bool = False
     verified: tuple[str, ...] = ()  # the learned gains verified by the mission's turns (they stay)
     verdict_at_s: float = math.nan  # vehicle time of the verdict (NaN: none yet)
+    #: the speed loop's learning (eq. L.4; ``behaviors.mission_speed``), None where none runs
+    speed: SpeedLearningResult | None = None
+    #: why the speed loop learns nothing on this vehicle ("" where it learns)
+    speed_off: str = ""
 
     @property
     def in_force(self) -> bool:
@@ -205,21 +186,26 @@ class LearningResult:
                 "windows": [w.to_dict() for w in self.windows], "bands": [b.to_dict() for b in self.bands],
                 "verdict": self.verdict.to_dict() if self.verdict else None, "design": self.design,
                 "mode_left_s": self.mode_left_s,
-                "verdict_at_s": self.verdict_at_s if math.isfinite(self.verdict_at_s) else None}
+                "verdict_at_s": self.verdict_at_s if math.isfinite(self.verdict_at_s) else None,
+                "speed": self.speed.to_dict() if self.speed is not None else None, "speed_off": self.speed_off}
 
 
 class MissionLearner(Behaviour):
     """The module docstring's phases over ``designer`` and the vehicle's ``original`` gains (neutral
     names, read before anything was written)."""
 
-    def __init__(self, designer: Designer, original: dict[str, float], config: LearningConfig = LearningConfig()) -> None:
+    def __init__(self, designer: Designer, original: dict[str, float], config: LearningConfig = LearningConfig(),
+                 speed: SpeedLearner | None = None, speed_off: str = "") -> None:
         super().__init__("learning")
         if not original:
             raise ValueError("MissionLearner needs the vehicle's original gains")
         self.designer = designer
         self.original = dict(original)
         self.config = config
-        self.footprint = Footprint.of(parameters=tuple(original))
+        #: the speed loop's learner (eq. L.4), written at this learner's safe moments; None: ``speed_off`` says why
+        self.speed = speed
+        self.speed_off = "" if speed is not None else (speed_off or "no speed loop learned")
+        self.footprint = Footprint.of(parameters=tuple(original) + (tuple(speed.original) if speed is not None else ()))
         self.estimator = PassiveYawEstimator(config.window, keep_records=True, speed_exponents=(
             config.tracking.a22_speed_exponent, config.tracking.b2_speed_exponent))
         self.models = MissionModels(config.tracking)
@@ -253,16 +239,28 @@ class MissionLearner(Behaviour):
 
     # ------------------------------------------------------------------ ground station
     def accept(self) -> list[Command]:
-        """The ground station accepts the gains being verified (or kept): they stay."""
+        """The ground station accepts the gains being verified (or kept): they stay (the speed loop's too)."""
+        speed = self._speed_accept()
         if self.phase not in (Phase.VERIFYING, Phase.KEPT):
-            return []
+            return speed
         self.verified = dict(self.written or self.verified)
         self._set(Phase.KEPT, "accepted by the ground station")
-        return [StatusText("LEARN: gains accepted by the ground station")]
+        return [StatusText("LEARN: gains accepted by the ground station")] + speed
+
+    def _speed_accept(self) -> list[Command]:
+        if self.speed is None:
+            return []
+        commands = self.speed.accept()
+        self.events += self.speed.drain()
+        return commands
 
     def revert(self, reason: str = "reverted by the ground station") -> None:
         """The original gains go back at the next step, at once (the operator chose the moment); a
-        design not yet written is dropped. Either way this session writes nothing more."""
+        design not yet written is dropped. Either way this session writes nothing more. The speed
+        loop's learned gains go back alike (eq. L.4)."""
+        if self.speed is not None:
+            self.speed.revert(reason)
+            self.events += self.speed.drain()
         if self.phase in (Phase.REVERTED, Phase.OVERRIDDEN):
             return
         if self.written is None and self.verified:  # kept gains: the ground station takes them back
@@ -316,6 +314,9 @@ class MissionLearner(Behaviour):
             if turn is not None:
                 self._turn_flown(turn)
         steady = self._steady(telemetry, allowed)
+        if self.speed is not None:  # the speed loop (eq. L.4), written at the same safe moments
+            commands += self.speed.update(telemetry, allowed, steady)
+            self.events += self.speed.drain()
         if self._revert_now and self.phase is Phase.WAITING_TO_REVERT:
             return commands + self._write_original(t, telemetry.speed_water)
         if self.phase is Phase.LEARNING:
@@ -508,4 +509,5 @@ class MissionLearner(Behaviour):
         return LearningResult(phase=self.phase, reason=self.note, writes=tuple(self.writes), turns=tuple(self.turns),
                               windows=tuple(self.windows), bands=bands, verdict=self.verdict, design=self.design_summary,
                               mode_left_s=self._outside_s, original_best=self.original_best,
-                              verified=tuple(self.verified), verdict_at_s=self.verdict_at_s)
+                              verified=tuple(self.verified), verdict_at_s=self.verdict_at_s,
+                              speed=self.speed.result() if self.speed is not None else None, speed_off=self.speed_off)

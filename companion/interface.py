@@ -54,6 +54,8 @@ class Telemetry:
     heading_target: float = NAN  # rad, the heading set-point the autopilot reports it holds (NAV_CONTROLLER_OUTPUT)
     turn_rate_target: float = NAN  # rad/s, the turn rate its rate loop is asked for (PID_TUNING, profile.pid_tuning)
     turn_rate_achieved: float = NAN  # rad/s, the turn rate that loop measured (same message)
+    speed_target: float = NAN  # m/s, the speed its speed loop is asked for (PID_TUNING, profile.speed_loop_report)
+    speed_achieved: float = NAN  # m/s, the speed that loop measured (same message)
     cross_track: float = NAN  # m, the navigation's cross-track error (NAV_CONTROLLER_OUTPUT.xtrack_error)
     mode: str = ""
     armed: bool = False

@@ -98,6 +98,27 @@ class PidTuningReport:
 
 
 @dataclass(frozen=True)
+class SpeedLoopReport:
+    """Which PID_TUNING message reports the autopilot's speed loop (the one ``companion run --learn``
+    designs and verifies, eq. L.4): the mask parameter's neutral name and the bit that asks for it,
+    and its PID_TUNING_AXIS. Its ``desired`` is the speed the loop is asked for after its
+    acceleration limit and ``achieved`` the speed it measured, both in m/s (ArduRover 4.7:
+    ``GCS_MAVLINK_Rover::send_pid_tuning`` sends ``AR_AttitudeControl``'s throttle-speed PID info for
+    GCS_PID_MASK bit value 2 on axis 4, PID_TUNING_ACCZ)."""
+
+    mask_param: str
+    mask_bit: int
+    axis: int
+
+    def __post_init__(self) -> None:
+        PidTuningReport(self.mask_param, self.mask_bit, self.axis)  # the same checks
+
+    def with_bit(self, mask: float) -> float:
+        """The mask parameter's value ``mask`` with this report's bit set."""
+        return float(int(mask) | self.mask_bit)
+
+
+@dataclass(frozen=True)
 class AutopilotProfile:
     """How the product's neutral notions map onto one autopilot (see the module docstring)."""
 
@@ -137,6 +158,9 @@ class AutopilotProfile:
     # the PID_TUNING message of its heading's rate loop: the mask bit that asks for it, its axis and
     # units (None: it sends none)
     pid_tuning: PidTuningReport | None = None
+    # the PID_TUNING message of its speed loop, on an autopilot whose speed loop the companion
+    # designs (ArduRover: eq. S.5) and learns during missions (eq. L.4); None: no speed loop learned
+    speed_loop_report: SpeedLoopReport | None = None
     # the form of its heading rate loop (eq. A.2r): whether FF reaches the output and whether the
     # integrator stops at the output's limit, for the turn-rate verification's replay
     rate_loop: RateLoopForm = ARDUROVER_RATE_LOOP

@@ -273,6 +273,11 @@ class TelemetryAssembler:
     def _on_pid_tuning(self, msg: Any) -> None:
         """The heading rate loop's asked-for and measured turn rates: the PID_TUNING axis and units
         the profile names (ArduRover: STEER, deg/s; ArduSub: YAW, its target in rad/s × 0.01)."""
+        speed = self.profile.speed_loop_report
+        if speed is not None and self._number(msg, "axis") == speed.axis:  # the speed loop's, in m/s
+            self._fields["speed_target"] = self._number(msg, "desired")
+            self._fields["speed_achieved"] = self._number(msg, "achieved")
+            return
         report = self.profile.pid_tuning
         if report is None or self._number(msg, "axis") != report.axis:
             return

@@ -38,7 +38,8 @@ through the rate loop on the model (``simulate_rate_tracking``).
 * *as predicted*: the mean flown figure after within ``error_tolerance`` (relative) of its prediction,
   and the worst flown overshoot at most ``overshoot_margin_pct`` points above the worst predicted.
 
-Either failing reverts, with the figure that failed.
+Either failing reverts, with the figure that failed. The speed loop's learned gains are judged by the
+same rule on speed-change segments (``SPEED_ERROR``, eq. L.4: ``companion.numerics.mission_speed``).
 """
 from __future__ import annotations
 
@@ -57,6 +58,12 @@ from .step_response import step_metrics
 
 #: the figure of merit of a course change (IAE/|Δψ|) and of a turn-rate segment (RMS tracking error)
 STEP_ERROR, RATE_ERROR = "step error s", "turn-rate error deg/s"
+#: the figure of merit of a speed-change segment (RMS speed-tracking error of the speed loop, eq. L.4)
+SPEED_ERROR = "speed error m/s"
+#: each metric's name and unit in a verdict's words, and what its replay is asked for
+_METRIC_WORDS = {STEP_ERROR: ("step error", "s", "course changes"),
+                 RATE_ERROR: ("turn-rate error", "deg/s", "turn rates"),
+                 SPEED_ERROR: ("speed error", "m/s", "speeds")}
 
 
 @dataclass(frozen=True)
@@ -340,8 +347,7 @@ def judge_turns(before: Sequence[TurnFigures], after: Sequence[TurnFigures], con
     reference)."""
     if not after:
         raise ValueError("no turn flown on the learned gains")
-    unit = "s" if after[0].metric == STEP_ERROR else "deg/s"
-    name = "step error" if after[0].metric == STEP_ERROR else "turn-rate error"
+    name, unit, asked = _METRIC_WORDS[after[0].metric]
     after_error = _mean([t.error for t in after])
     predicted = _mean([t.predicted_error for t in after])
     worst_after = max((t.overshoot_pct for t in after if math.isfinite(t.overshoot_pct)), default=math.nan)
@@ -351,7 +357,7 @@ def judge_turns(before: Sequence[TurnFigures], after: Sequence[TurnFigures], con
         reference, source = _mean([t.error for t in before]), f"{len(before)} flown on the original gains"
     elif not flown_reference:
         reference = _mean([t.original_error for t in after])
-        source = "the original gains replayed on the same turn rates"
+        source = f"the original gains replayed on the same {asked}"
     else:
         reference, source = _mean([t.original_error for t in after]), "the original gains' prediction (none flown before)"
 

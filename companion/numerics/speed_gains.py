@@ -321,3 +321,44 @@ def _clamp(name: str, value: float, limits: tuple[float, float], clamped: list[s
     if value < low or value > high:
         clamped.append(name)
     return min(max(value, low), high)
+
+
+def simulate_speed_tracking(model: SurgeModel, gains: SpeedLoopGains, times: np.ndarray, desired: np.ndarray,
+                            speed0: float, throttle0: float) -> np.ndarray:
+    """The speed ArduRover's loop (eq. S.5) with ``gains`` achieves on the surge model (eq. S.4) when
+    asked for the speeds ``desired`` at ``times`` (a flown record's PID_TUNING target: the demand
+    after ArduRover's acceleration limit, so none is applied again), at the record's sample times:
+    the replay of eq. L.4. It starts where the record did: at ``speed0``, with the thrust at the
+    throttle the record began with (``throttle0``) and the integrator holding what the feed-forward
+    and P did not give of it (the loop continues from its own output, as the turn-rate replay of
+    eq. A.2r continues from the rudder). The demand is interpolated linearly between samples and
+    the loop runs at ArduRover's 50 Hz."""
+    times = np.asarray(times, dtype=float)
+    desired = np.asarray(desired, dtype=float)
+    if times.size == 0:
+        return np.empty(0)
+    slope = gains.cruise_throttle / gains.cruise_speed if gains.cruise_speed > 0.0 and gains.cruise_throttle > 0.0 else 0.0
+    n = int(math.ceil((times[-1] - times[0]) / LOOP_S)) + 1
+    grid = times[0] + np.arange(n) * LOOP_S
+    demand = np.interp(grid, times, desired)
+    alpha = LOOP_S / (LOOP_S + 1.0 / (2.0 * math.pi * ERROR_FILTER_HZ))
+    u = float(speed0)
+    error = float(demand[0]) - u
+    throttle = throttle0 if math.isfinite(throttle0) else model.throttle_for(max(u, 0.0))
+    integrator = min(max(throttle - demand[0] * slope - gains.p * error, -INTEGRATOR_MAX), INTEGRATOR_MAX)
+    thrust = throttle
+    follow = 1.0 if model.lag <= 0.0 else 1.0 - math.exp(-LOOP_S / model.lag)
+    speed = np.empty(n)
+    for k in range(n):
+        speed[k] = u
+        error += alpha * ((demand[k] - u) - error)
+        unlimited = demand[k] * slope + gains.p * error + integrator
+        out = min(max(unlimited, 0.0), 1.0)
+        if out == unlimited:  # ArduPilot freezes the integrator while the output is limited
+            integrator = min(max(integrator + gains.i * error * LOOP_S, -INTEGRATOR_MAX), INTEGRATOR_MAX)
+        thrust += (out - thrust) * follow
+        steady = model.gain * max(thrust, 0.0) ** model.exponent
+        first = model.gamma * (steady * steady - u * abs(u))
+        u1 = u + LOOP_S * first
+        u = u + 0.5 * LOOP_S * (first + model.gamma * (steady * steady - u1 * abs(u1)))
+    return np.interp(times, grid, speed)

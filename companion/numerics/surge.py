@@ -135,8 +135,9 @@ def steady_law(levels: Sequence[tuple[float, float]]) -> tuple[float, float]:
     return float(math.exp(log_k)), float(p)
 
 
-def fit_surge_model(times: Sequence[float], throttle: Sequence[float], speed: Sequence[float],
-                    levels: Sequence[tuple[float, float]], stretches: Sequence[tuple[int, int]]) -> SurgeModel:
+def fit_surge_model(times: Sequence[float] | NDArray[np.float64], throttle: Sequence[float] | NDArray[np.float64],
+                    speed: Sequence[float] | NDArray[np.float64], levels: Sequence[tuple[float, float]],
+                    stretches: Sequence[tuple[int, int]]) -> SurgeModel:
     """Eq. S.4 from a record (``times``, measured ``throttle`` and ``speed``), its steady ``levels``
     (throttle, speed) and the index ranges [start, stop) of its straight, contiguous ``stretches``
     (those shorter than 5 samples are skipped). ValueError when nothing can be fitted."""

@@ -22,6 +22,12 @@ gains, its writes through the link and its records in the store.
   boat, beyond the acceptable). The angle P acts only where a heading is held (GUIDED), which AUTO's
   verification does not fly: there it stands on the prediction of the validated model, as the
   campaign's predicted steps do.
+* **The speed loop** (eq. L.4), where the profile names a speed loop the companion designs
+  (``speed_unlearned``: ArduRover's): :class:`behaviors.mission_speed.SpeedLearner` inside the
+  heading learner, designing with :class:`SpeedLoopDesigner` (the campaign's ``design_speed_gains``
+  on the surge model fitted and validated on the mission's speed changes), its four gains in the same
+  restore point and trail, its PID_TUNING bit set in the same mask; elsewhere the record says why
+  nothing is learned for speed.
 * **Records**: one campaign of kind ``learning`` per session. Its restore point (the original
   gains) is stored as a trail before the first write and every write is recorded before it is sent
   (:class:`companion.procedures.trail.TrailRecorder`), so a ``kill -9`` mid-learning is followed by
@@ -43,12 +49,16 @@ import numpy as np
 from behaviors.base import Footprint
 from behaviors.gain_scheduling import ScheduleKind
 from behaviors.mission_learning import DesignOutcome, LearningConfig, LearningResult, MissionLearner, Phase
+from behaviors.mission_speed import SPEED_LOOP_GAINS, SpeedDesignOutcome, SpeedLearner, SpeedLearningConfig
 from companion.link.errors import ParamError
 from companion.link.port import VehiclePort
 from companion.link.profile import AutopilotProfile
 from companion.interface import Command, SetParameters
 from companion.numerics.identification import YawModel
+from companion.numerics.mission_speed import FlownSpeedSegment, SpeedFit
 from companion.numerics.mission_turns import FlownSegment
+from companion.numerics.speed_gains import (SpeedDesign, SpeedLoopGains, SpeedRules, design_speed_gains,
+                                            simulate_speed_tracking)
 from companion.numerics.schedule import YawSchedule
 from companion.numerics.speed_law import LAW_EXPONENTS
 from companion.numerics.step_response import predict_step, simulate_rate_tracking
@@ -190,6 +200,62 @@ class HeadingDesigner:
         return DesignOutcome(ScheduledDesign(kind, schedule, limits, summary), choice.choice.reason())
 
 
+@dataclass(frozen=True)
+class LearnedSpeedLoop:
+    """A speed-loop design on the mission's validated surge model (eq. S.5 scored by eq. S.5r), in the
+    shape the speed learner reads (``behaviors.mission_speed.LearnedSpeedDesign``): the gains to write
+    and eq. L.4's replay of any gains through ArduRover's speed loop on the model."""
+
+    design: SpeedDesign
+    summary: str
+
+    @property
+    def gains(self) -> dict[str, float]:
+        return self.design.gains.params()
+
+    def replay(self, gains: dict[str, float], segment: FlownSpeedSegment) -> np.ndarray:
+        """The speeds the loop with ``gains`` achieves on the surge model asked for the segment's speeds,
+        from the segment's first measured speed and throttle (``simulate_speed_tracking``)."""
+        return simulate_speed_tracking(self.design.surge, SpeedLoopGains.from_params(gains), segment.times,
+                                       segment.desired, float(segment.achieved[0]), segment.throttle0)
+
+
+class SpeedLoopDesigner:
+    """The campaign's speed design (``design_speed_gains``, eq. S.5 and S.5r) on a surge model fitted and
+    validated on the mission's own speed changes (eq. L.4), the vehicle's own gains a candidate; its
+    speed range the mission's steady speeds, its steps below WP_SPEED (``context``: ``speed_default``,
+    ``accel_max`` as read)."""
+
+    def __init__(self, original: dict[str, float], context: dict[str, float], rules: SpeedRules) -> None:
+        self.original, self.context, self.rules = dict(original), dict(context), rules
+
+    def __call__(self, fit: SpeedFit) -> SpeedDesignOutcome:
+        speed_max = self.context.get("speed_default", math.inf)
+        try:
+            design = design_speed_gains(fit.model, self.original["cruise_speed"], fit.speed_range, self.rules,
+                                        self.context.get("accel_max", 1.0), SpeedLoopGains.from_params(self.original),
+                                        speed_max=speed_max if speed_max > 0.0 else math.inf)
+        except ValueError as exc:
+            return SpeedDesignOutcome(None, f"no speed design: {exc}")
+        if design.keeps_original:
+            return SpeedDesignOutcome(None, design.reason(), original_best=True)
+        gains = design.gains
+        summary = (f"CRUISE_SPEED {gains.cruise_speed:.2f}, CRUISE_THROTTLE {100 * gains.cruise_throttle:.0f} %, "
+                   f"P {gains.p:.3g}, I {gains.i:.3g} on {fit.model.describe()}")
+        return SpeedDesignOutcome(LearnedSpeedLoop(design, summary), design.reason())
+
+
+def speed_unlearned(profile: AutopilotProfile, campaign: CampaignConfig) -> str | None:
+    """Why the speed loop learns nothing on this autopilot (None when it learns, eq. L.4): its profile
+    must name a speed loop the companion designs (ArduRover's, eq. S.5), its gains and the PID_TUNING
+    report of it."""
+    report = profile.speed_loop_report
+    if (report is not None and campaign.speed.enabled and report.mask_param in profile.params
+            and all(name in profile.params for name in SPEED_LOOP_GAINS)):
+        return None
+    return f"nothing is learned for speed: {profile.name} has no speed loop the companion designs"
+
+
 def heading_kind_for(config: CampaignConfig) -> ScheduleKind | None:
     return next((k for k in config.kinds() if k.axis == "yaw"), None)
 
@@ -210,8 +276,9 @@ class LearningSession:
     """One ``companion run --learn`` session: the learner, its trail and its records."""
 
     def __init__(self, link: VehiclePort, store: Store, vehicle_id: int, config: LearningConfig = LearningConfig(),
-                 campaign: CampaignConfig = CampaignConfig()) -> None:
+                 campaign: CampaignConfig = CampaignConfig(), speed: SpeedLearningConfig = SpeedLearningConfig()) -> None:
         self.link, self.store, self.vehicle_id, self.config = link, store, vehicle_id, config
+        self.speed_config = speed
         self.campaign = campaign.resolved_for(link.profile)
         self.learner: MissionLearner | None = None
         self.campaign_id: int | None = None
@@ -235,7 +302,11 @@ class LearningSession:
         limit_names = tuple(name for name in LIMIT_PARAMETERS if name in profile.params)
         report = profile.pid_tuning
         mask = (report.mask_param,) if report is not None and report.mask_param in profile.params else ()
-        self.restore = RestorePoint.capture(self.link, Footprint.of(parameters=kind.scheduled + limit_names + mask))
+        speed_off = speed_unlearned(profile, self.campaign)
+        speed_names = SPEED_LOOP_GAINS if speed_off is None else ()
+        # the speed loop's gains are in the restore point (and so in the trail) before anything is written
+        self.restore = RestorePoint.capture(self.link, Footprint.of(
+            parameters=kind.scheduled + limit_names + mask + speed_names))
         values = self.restore.parameters
         original = {name: values[name] for name in kind.scheduled if name in values}
         if len(original) != len(kind.scheduled):
@@ -266,20 +337,48 @@ class LearningSession:
             self.straights = StraightRunning()
             speed_gains = self._speed_gains(profile)
         designer = HeadingDesigner(self.campaign, kind, original, limits, self.straights, speed_gains)
-        self.learner = MissionLearner(designer, original, config)
+        speed = self._speed_learner(values, speed_off)
+        if speed is None and speed_off is None:
+            speed_off = "nothing is learned for speed: the vehicle did not give its speed-loop gains"
+        self.learner = MissionLearner(designer, original, config, speed=speed, speed_off=speed_off or "")
+        if speed_off:
+            log.info("learning: %s", speed_off)
         self.campaign_id = self.store.start_campaign(self.vehicle_id, "learning", {
-            "original": original, "modes": list(config.modes), "heading_kind": kind.name})
+            "original": original, "modes": list(config.modes), "heading_kind": kind.name,
+            "speed_original": dict(speed.original) if speed is not None else None, "speed_off": speed_off or None})
         self.trail_id = self.store.save_restore_point(self.campaign_id, self.restore.as_json(), vehicle_identity(self.link))
         self.recorder = TrailRecorder(self.store, self.trail_id, self.link)
-        if report is not None and mask and mask[0] in values:  # the rate loop's PID_TUNING, for the turn-rate verification
-            self._send([SetParameters({mask[0]: report.with_bit(values[mask[0]])})])
+        masks = [r for r in (report, profile.speed_loop_report if speed is not None else None)
+                 if r is not None and r.mask_param in values]
+        if masks:  # the rate loop's (and the speed loop's) PID_TUNING, for the verifications; put back at the end
+            value = values[masks[0].mask_param]
+            for item in masks:
+                value = item.with_bit(value)
+            self._send([SetParameters({masks[0].mask_param: value})])
         self.link.status_text(f"LEARN: on, original {kind.name} gains recorded"[:50])
         log.info("learning on: original gains %s, limits %s", original, limits)
         return None
 
+    def _speed_learner(self, values: dict[str, float], speed_off: str | None) -> SpeedLearner | None:
+        """The speed loop's learner (eq. L.4) over its original gains from the restore point and the
+        context it designs with (WP_SPEED, ATC_ACCEL_MAX, read only); None where the speed learns nothing."""
+        if speed_off is not None:
+            return None
+        original = {name: values[name] for name in SPEED_LOOP_GAINS if name in values}
+        if len(original) != len(SPEED_LOOP_GAINS):
+            return None
+        names = [name for name in ("speed_default", "accel_max") if name in self.link.profile.params]
+        try:
+            context = self.link.get_params(names) if names else {}
+        except ParamError as exc:
+            log.info("learning: WP_SPEED/ATC_ACCEL_MAX not read (%s): the speed design takes none", exc)
+            context = {}
+        return SpeedLearner(SpeedLoopDesigner(original, context, self.campaign.speed.rules), original,
+                            self.speed_config)
+
     def _speed_gains(self, profile) -> dict[str, float]:
-        """The speed loop's gains as found (read only: learning never writes them), for eq. A.2k's
-        speed hold; empty when the vehicle does not give them (the throttle is then taken as held)."""
+        """The speed loop's gains as found, for eq. A.2k's speed hold (the speed learner's writes, eq. L.4,
+        are not followed by the heading's predictions); empty when the vehicle does not give them (the throttle is then taken as held)."""
         names = [name for name in ("speed_p", "speed_i") if name in profile.params]
         try:
             return self.link.get_params(names) if len(names) == 2 else {}
@@ -300,7 +399,20 @@ class LearningSession:
                 "bands": [{"speed": band.speed, "windows": band.windows, "validated": band.validated}
                           for band in result.bands],
                 "turns": len(result.turns), "writes": [w.to_dict() for w in result.writes[-5:]],
-                "verdict": result.verdict.to_dict() if result.verdict else None}
+                "verdict": result.verdict.to_dict() if result.verdict else None,
+                "speed": self._speed_status(result)}
+
+    @staticmethod
+    def _speed_status(result: LearningResult) -> dict:
+        """The speed loop's part of the status page (eq. L.4): its phase and why, its writes, its verdict."""
+        speed = result.speed
+        if speed is None:
+            return {"on": False, "reason": result.speed_off}
+        fit = speed.fits[-1] if speed.fits else None
+        return {"on": True, "phase": speed.phase, "reason": speed.reason, "segments": len(speed.segments),
+                "fit": fit.to_dict() if fit is not None else None,
+                "writes": [w.to_dict() for w in speed.writes[-5:]],
+                "verdict": speed.verdict.to_dict() if speed.verdict else None}
 
     @property
     def phase(self) -> Phase | None:
@@ -315,7 +427,15 @@ class LearningSession:
             changed = self._changed_by_others()
             if changed:
                 natives = ", ".join(f"{c.name} {c.value:g}" for c in changed.values())
-                self._send(self.learner.overridden(tuple(changed), f"set by someone else: {natives}"))
+                reason = f"set by someone else: {natives}"
+                speed = self.learner.speed
+                heading = tuple(name for name in changed if name in self.learner.original)
+                if heading:
+                    self._send(self.learner.overridden(heading, reason))
+                theirs = tuple(name for name in changed if speed is not None and name in speed.original)
+                if theirs and speed is not None:  # a learned speed gain: the speed learner stops (eq. L.4)
+                    self._send(speed.overridden(theirs, reason))
+                    self.learner.events += speed.drain()
             if self.straights is not None:
                 self.straights.add(telemetry)
             self._send(self.learner.tick(telemetry))
@@ -333,7 +453,7 @@ class LearningSession:
             raise RuntimeError("learning has not started")
         foreign = self.link.parameters.foreign
         found = {}
-        for neutral in learner.original:
+        for neutral in (*learner.original, *(learner.speed.original if learner.speed is not None else ())):
             for native in restore.natives_of.get(neutral, ()):
                 if native in foreign and native not in self._foreign_seen:
                     self._foreign_seen.add(native)
@@ -341,7 +461,8 @@ class LearningSession:
         return found
 
     def accept(self) -> bool:
-        if self.learner is None or self.learner.phase not in (Phase.VERIFYING, Phase.KEPT):
+        deciding = (Phase.VERIFYING, Phase.KEPT)
+        if self.learner is None or not (self.learner.phase in deciding or self._speed_phase() in deciding):
             return False
         self._send(self.learner.accept())
         self._drain()
@@ -350,11 +471,16 @@ class LearningSession:
     def revert(self) -> bool:
         """The ground station's revert: the original gains at the next step (at once), or a design
         waiting to be written dropped; False when there was nothing to revert."""
-        if self.learner is None or self.learner.phase not in (Phase.WAITING_TO_WRITE, Phase.VERIFYING, Phase.KEPT):
+        undoable = (Phase.WAITING_TO_WRITE, Phase.VERIFYING, Phase.KEPT)
+        if self.learner is None or not (self.learner.phase in undoable or self._speed_phase() in undoable):
             return False
         self.learner.revert()
         self._drain()
         return True
+
+    def _speed_phase(self) -> Phase | None:
+        learner = self.learner
+        return learner.speed.phase if learner is not None and learner.speed is not None else None
 
     def _send(self, commands: Sequence[Command]) -> None:
         if not commands:
@@ -385,17 +511,23 @@ class LearningSession:
             self._drain()
         except Exception as exc:  # noqa: BLE001 - the restore below matters more than a record
             log.error("learning: events not stored: %s", exc)
-        keep = tuple(learner.verified)
+        speed = learner.speed
+        keep = tuple(learner.verified) + (tuple(speed.verified) if speed is not None else ())
         if learner.phase is Phase.LEARNING and not learner.original_best:
             learner.note = learner.nothing_learned() or learner.note
         if learner.written is not None and set(learner.written) - set(keep):
             learner.note = f"{learner.note}; the session ended before the verification: original gains written back"
             learner.phase = Phase.REVERTED
+        if speed is not None and speed.written is not None and set(speed.written) - set(keep):
+            speed.note = f"{speed.note}; the session ended before the verification: original speed gains written back"
+            speed.phase = Phase.REVERTED
         restore = self.restore
         if restore is None:  # start() takes the restore point before it makes the learner
             raise RuntimeError("learning has no restore point")
         self.restore_problems = restore.restore(self.link, mode=False, keep=keep)
         learner.written = None
+        if speed is not None:
+            speed.written = None
         if self.restore_problems:
             log.error("learning: the vehicle could not be put back: %s", "; ".join(self.restore_problems))
             self._close(learner, "failed", f"not put back: {'; '.join(self.restore_problems)}", close_trail=False)

@@ -38,7 +38,7 @@ from companion.link.actuation import OUTPUTS
 from companion.link.autopilots.ardupilot import ArduPilotStrategy, yaw_quaternion
 from companion.link.autopilots.skid_room import doublet_scale, refusal, scaled, with_actuation
 from companion.link.errors import ProfileError
-from companion.link.profile import AutopilotProfile, CampaignDefaults, NativeScale, PidTuningReport
+from companion.link.profile import AutopilotProfile, CampaignDefaults, NativeScale, PidTuningReport, SpeedLoopReport
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +84,9 @@ PROFILE = AutopilotProfile(
     # GCS_PID_MASK bit 0: the steering rate loop, PID_TUNING axis STEER, both rates in deg/s
     # (Rover GCS_MAVLink_Rover.cpp send_pid_tuning)
     pid_tuning=PidTuningReport(mask_param="pid_tuning_mask", mask_bit=1, axis=5),
+    # GCS_PID_MASK bit value 2: the speed loop (AR_AttitudeControl::get_throttle_out_speed), PID_TUNING
+    # axis 4 (ACCZ): desired = the accel-limited speed demand, achieved = the measured speed, m/s
+    speed_loop_report=SpeedLoopReport(mask_param="pid_tuning_mask", mask_bit=2, axis=4),
     water_speed_sensor=False,
     depth_from_pressure=False,
     vehicle_kind="surface",

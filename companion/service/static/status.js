@@ -133,6 +133,13 @@ function render(s) {
     (l.writes || []).forEach((w) => parts.push(el("p",
       `t=${num(w.time_s, 0)} s ${w.why}: ` + Object.entries(w.gains).map(([k, v]) => `${k} ${num(v, 3)}`).join(", "))));
     if (l.verdict) parts.push(el("p", `verdict: ${l.verdict.reason}`, l.verdict.keep ? "yes" : "sev-err"));
+    const sp = l.speed;  // the speed loop (eq. L.4)
+    if (sp) {
+      parts.push(el("p", sp.on ? `speed loop ${sp.phase}: ${sp.reason}` : sp.reason, sp.on ? "" : "muted"));
+      (sp.writes || []).forEach((w) => parts.push(el("p",
+        `t=${num(w.time_s, 0)} s speed ${w.why}: ` + Object.entries(w.gains).map(([k, v]) => `${k} ${num(v, 3)}`).join(", "))));
+      if (sp.verdict) parts.push(el("p", `speed verdict: ${sp.verdict.reason}`, sp.verdict.keep ? "yes" : "sev-err"));
+    }
     replace("learning", parts);
   }
 
