@@ -48,7 +48,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from companion.rehearsal.launcher import SimulatorProcess  # noqa: E402
 from companion.records.store import Store  # noqa: E402
-from harness.rover_mission import ROVER, SUB, MissionGroundStation, fly_survey_beside, lawnmower  # noqa: E402
+from harness.rover_mission import (ROVER, SPEED_MASK_BIT, SUB, MissionGroundStation, fly_survey_beside,  # noqa: E402
+                                   lawnmower)
 from harness.own_sitl import OWN_VEHICLES, OwnSitl  # noqa: E402
 
 SITL_SERIAL1_OFFSET = 2  # SITL's serial1 (tcp:2) is its serial0 port + 2, MAVLink 2
@@ -64,13 +65,16 @@ def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder:
         sim.wait_listening()
         endpoint, station_endpoint = sim.endpoint, sim.station_endpoint
         vehicle = SUB if sub else ROVER
-        params = {"GCS_PID_MASK": float(vehicle.pid_mask)} | ({} if sub else {"WP_SPEED": 2.0})
+        # ArduRover: the steering loop's PID_TUNING and the speed loop's (eq. L.4), as learning asks for them
+        params = ({"GCS_PID_MASK": float(vehicle.pid_mask)} if sub else
+                  {"GCS_PID_MASK": float(vehicle.pid_mask | SPEED_MASK_BIT), "WP_SPEED": 2.0})
     else:
         sim = SimulatorProcess(preset=hull, speedup=speedup, seed=seed, lockstep=False, autopilot="ardurover",
                                ardupilot_bin=bin_dir, log_path=folder / f"sim-{tag}.log")
         sim.start()
         endpoint, station_endpoint = sim.endpoint, f"tcp:127.0.0.1:{sim.port + SITL_SERIAL1_OFFSET}"
-        vehicle, params = ROVER, {"WP_SPEED": 2.0, "GCS_PID_MASK": float(ROVER.pid_mask)}
+        # the steering loop's PID_TUNING and the speed loop's (eq. L.4), as the learning session asks for them
+        vehicle, params = ROVER, {"WP_SPEED": 2.0, "GCS_PID_MASK": float(ROVER.pid_mask | SPEED_MASK_BIT)}
     store = folder / f"store-{tag}.sqlite"
     command = [sys.executable, "-m", "companion", "-v", "run", "--connect", endpoint, "--no-health",
                "--store", str(store), "--max-vehicle-time", "3000" if sub else "1500"] + (
@@ -102,7 +106,24 @@ def fly(hull: str, seed: int, learn: bool, speedup: float, bin_dir: str, folder:
                    reverts=sum(1 for w in writes if w["why"] == "revert"), verdict=result["verdict"],
                    written=writes[0]["gains"] if writes else None, write_at=design,
                    original=campaign["config"].get("original") if campaign.get("config") else None)
+        out.update(speed=_speed_figures(result.get("speed"), auto_at, campaign.get("config") or {}))
     return out
+
+
+def _speed_figures(speed: dict | None, auto_at: float, config: dict) -> dict | None:
+    """The speed loop's learning (eq. L.4) from the session's record: phase and reason, the write
+    (vehicle s after AUTO), the gains written against the original, the fits and the verdict."""
+    if not speed:
+        return None
+    design = next((w for w in speed["writes"] if w["why"] == "design"), None)
+    verdict_at = speed.get("verdict_at_s")
+    return {"phase": speed["phase"], "reason": speed["reason"], "fits": speed["fits"],
+            "write_at": design["time_s"] if design else math.nan,
+            "design_s": design["time_s"] - auto_at if design else math.nan,
+            "verified_s": verdict_at - auto_at if verdict_at is not None else math.nan,
+            "written": design["gains"] if design else None, "original": config.get("speed_original"),
+            "reverts": sum(1 for w in speed["writes"] if w["why"] == "revert"), "verdict": speed["verdict"],
+            "segments": speed["segments"]}
 
 
 def _clean(value):
@@ -187,13 +208,38 @@ def summary(row: dict) -> str:
     original, written = lrn.get("original") or {}, lrn.get("written") or {}
     changed = ", ".join(f"{name} {original.get(name, math.nan):.3g}→{value:.3g}" for name, value in written.items()
                         if not math.isclose(value, original.get(name, math.nan), rel_tol=1e-3)) or "none"
-    return (f"gains changed: {changed}\n" + f"{lrn['hull']:10} seed {lrn['seed']}: {lrn.get('phase', '-'):9} write {lrn.get('design_s', math.nan):6.1f} s "
+    return (_speed_summary(row) + f"gains changed: {changed}\n" + f"{lrn['hull']:10} seed {lrn['seed']}: {lrn.get('phase', '-'):9} write {lrn.get('design_s', math.nan):6.1f} s "
             f"verified {lrn.get('verified_s', math.nan):6.1f} s after AUTO, reverts {lrn.get('reverts', 0)}, "
             f"left AUTO {lrn['left_auto']}/{base['left_auto']}; lanes after ({len(lanes)}): cross-track "
             f"{xt_l:.3f}/{xt_b:.3f} m ({xt_l / xt_b:.2f}), turn-rate error {tr_l:.2f}/{tr_b:.2f} deg/s "
             f"({tr_l / tr_b:.2f}); corners after ({len(corners)}): turn-rate error {tc_l:.2f}/{tc_b:.2f} deg/s "
             f"({tc_l / tc_b:.2f}); mission {lrn['mission_s']:.1f}/{base['mission_s']:.1f} s "
             f"({100 * (lrn['mission_s'] / base['mission_s'] - 1):+.1f} %); verdict: {verdict.get('reason', lrn.get('reason'))}")
+
+
+def _speed_summary(row: dict) -> str:
+    """The speed loop's figures (eq. L.4): when written and verified, which gains, the verdict, and the
+    speed-tracking RMS on the legs flown after the write against the same legs of the baseline."""
+    speed = row["learned"].get("speed")
+    if not speed:
+        return "speed loop: not learned\n"
+    base = {leg["waypoint"]: leg for leg in row["baseline"]["legs"]}
+    after = [(leg["speed_error_rms_m_s"], base[leg["waypoint"]]["speed_error_rms_m_s"])
+             for leg in row["learned"]["legs"] if leg["start_s"] >= speed["write_at"] and leg["waypoint"] in base]
+    finite = [(a, b) for a, b in after if math.isfinite(a) and math.isfinite(b)]
+    learned = sum(a for a, _ in finite) / len(finite) if finite else math.nan
+    baseline = sum(b for _, b in finite) / len(finite) if finite else math.nan
+    original, written = speed.get("original") or {}, speed.get("written") or {}
+    changed = ", ".join(f"{name} {original.get(name, math.nan):.3g}→{value:.3g}" for name, value in written.items()) \
+        or "none"
+    fit = speed["fits"][-1] if speed["fits"] else None
+    fitted = (f"fit R² {fit['validation_r2']:.3f} held out ({fit['surge']})" if fit and fit["validation_r2"] is not None
+              else "no fit")
+    verdict = speed.get("verdict") or {}
+    return (f"speed loop: {speed['phase']}, write {speed['design_s']:.1f} s verified {speed['verified_s']:.1f} s after "
+            f"AUTO, reverts {speed['reverts']}; {fitted}; gains {changed}; legs after the write ({len(finite)}): "
+            f"speed error {learned:.3f}/{baseline:.3f} m/s ({learned / baseline if baseline else math.nan:.2f}); "
+            f"verdict: {verdict.get('reason', speed['reason'])}\n")
 
 
 if __name__ == "__main__":

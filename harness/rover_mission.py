@@ -36,6 +36,9 @@ MAV_MISSION_ACCEPTED = 0
 ROVER_AUTO = 10
 SUB_AUTO = 3
 RAD_TO_DEG = 180.0 / math.pi
+#: ArduRover's speed loop on PID_TUNING (its profile's ``speed_loop_report``)
+SPEED_AXIS = ARDUROVER.speed_loop_report.axis if ARDUROVER.speed_loop_report is not None else 4
+SPEED_MASK_BIT = ARDUROVER.speed_loop_report.mask_bit if ARDUROVER.speed_loop_report is not None else 2
 
 
 @dataclass(frozen=True)
@@ -136,11 +139,15 @@ class MissionTrack:
     waypoints: list[tuple[float, int]] = field(default_factory=list)
     cross_track: list[tuple[float, float]] = field(default_factory=list)  # (vehicle s, m) NAV_CONTROLLER_OUTPUT
     turn_rates: list[tuple[float, float, float]] = field(default_factory=list)  # (vehicle s, asked, got) deg/s
+    #: (vehicle s, asked, got) m/s: ArduRover's speed loop (PID_TUNING axis 4, GCS_PID_MASK bit value 2)
+    speeds: list[tuple[float, float, float]] = field(default_factory=list)
 
     def legs(self, trim: float = 0.25, points: list[tuple[float, float]] | None = None) -> list[dict]:
         """Each lane (a leg to an even waypoint: north or south), its middle (``trim`` cut from each
         end, the turns out): start and end vehicle time, cross-track RMS (m) and turn-rate error RMS
-        (deg/s, where PID_TUNING was sent). The cross-track is NAV_CONTROLLER_OUTPUT's (ArduRover),
+        (deg/s, where PID_TUNING was sent), and the speed loop's tracking error RMS (m/s) over the whole
+        leg from the waypoint's start (its corner, re-acceleration and slow-down included; where its
+        PID_TUNING was sent). The cross-track is NAV_CONTROLLER_OUTPUT's (ArduRover),
         or with the mission's ``points`` each position's distance from the lane's line (ArduSub
         sends no cross-track error: its NAV_CONTROLLER_OUTPUT.xtrack_error is 0)."""
         out = []
@@ -153,9 +160,11 @@ class MissionTrack:
             else:  # waypoint seq is points[seq - 1] (item 0 is home); the lane starts at the one before
                 xt = [_off_line(points[seq - 2], points[seq - 1], (n, e)) for t, n, e in self.positions if a <= t <= b]
             rates = [(d - g) for t, d, g in self.turn_rates if a <= t <= b]
+            speeds = [(d - g) for t, d, g in self.speeds if t0 <= t <= t1]
             out.append({"waypoint": seq, "start_s": t0, "end_s": t1,
                         "cross_track_rms_m": math.sqrt(sum(x * x for x in xt) / len(xt)) if xt else math.nan,
-                        "turn_rate_error_rms_deg_s": math.sqrt(sum(e * e for e in rates) / len(rates)) if rates else math.nan})
+                        "turn_rate_error_rms_deg_s": math.sqrt(sum(e * e for e in rates) / len(rates)) if rates else math.nan,
+                        "speed_error_rms_m_s": math.sqrt(sum(e * e for e in speeds) / len(speeds)) if speeds else math.nan})
         return out
 
     def corners(self, trim: float = 0.25) -> list[dict]:
@@ -273,6 +282,8 @@ class MissionGroundStation(StationThread):
                     self.track.waypoints.append((t, msg.seq))
             elif kind == "NAV_CONTROLLER_OUTPUT":
                 self.track.cross_track.append((self.now_s, msg.xtrack_error))
+            elif kind == "PID_TUNING" and msg.axis == SPEED_AXIS and self.vehicle is ROVER:  # the speed loop, m/s
+                self.track.speeds.append((self.now_s, msg.desired, msg.achieved))
             elif kind == "PID_TUNING" and msg.axis == self.vehicle.pid_tuning.axis:  # the heading rate loop
                 report = self.vehicle.pid_tuning
                 self.track.turn_rates.append((self.now_s, msg.desired * report.desired_to_rad_s * RAD_TO_DEG,

@@ -250,10 +250,12 @@ def speed_unlearned(profile: AutopilotProfile, campaign: CampaignConfig) -> str 
     must name a speed loop the companion designs (ArduRover's, eq. S.5), its gains and the PID_TUNING
     report of it."""
     report = profile.speed_loop_report
-    if (report is not None and campaign.speed.enabled and report.mask_param in profile.params
+    if not (report is not None and report.mask_param in profile.params
             and all(name in profile.params for name in SPEED_LOOP_GAINS)):
-        return None
-    return f"nothing is learned for speed: {profile.name} has no speed loop the companion designs"
+        return f"nothing is learned for speed: {profile.name} has no speed loop the companion designs"
+    if not campaign.speed.enabled:
+        return "nothing is learned for speed: the speed loop's tuning is off in the campaign's configuration"
+    return None
 
 
 def heading_kind_for(config: CampaignConfig) -> ScheduleKind | None:
