@@ -5,9 +5,10 @@ function of vehicle time and telemetry that never asks for a manoeuvre: it only 
 
 Phases (:class:`behaviors.learning_records.Phase`, as the heading's):
 
-1. **learning** — the straight running in a mode the autopilot steers goes to
-   :class:`companion.numerics.mission_speed.StraightSpeedRecorder`: once it holds two stretches with
-   a speed change (the start of AUTO, a re-acceleration after a corner) the surge model (eq. S.4) is
+1. **learning** — the running in a mode the autopilot steers (corners included: ArduRover's AUTO
+   makes its speed changes in them) goes to
+   :class:`companion.numerics.mission_speed.MissionSpeedRecorder`: once it holds two stretches with
+   a speed change (the start of AUTO, a corner's slow-down and re-acceleration) the surge model (eq. S.4) is
    fitted on all but the newest of them and validated on that one (output error, R² ≥ 0.9). Every
    speed-change segment (PID_TUNING's asked-for and measured speed) is kept as flown on the original
    gains. A validated model goes to the ``designer``: the campaign's speed design (eq. S.5, scored by
@@ -15,7 +16,8 @@ Phases (:class:`behaviors.learning_records.Phase`, as the heading's):
    written, learning goes on for nothing more.
 2. **waiting to write** — the design's gains (CRUISE_SPEED, CRUISE_THROTTLE, ATC_SPEED_P, ATC_SPEED_I)
    are written at the heading learner's safe moment (a straight, in a mode the autopilot steers,
-   never one flown by hand), announced by STATUSTEXT and recorded.
+   never one flown by hand) while the vehicle runs straight (|yaw rate| < 3°/s), announced by
+   STATUSTEXT and recorded.
 3. **verifying** — the next speed-change segments flown on them (``verify_segments``, or
    ``min_verify`` when each alone gives the verdict all give) are judged by eq. L.2's rule on the speed
    error (``judge_turns`` with ``SPEED_ERROR``): flown RMS speed error against the original gains
@@ -39,13 +41,15 @@ from behaviors.learning_records import GainWrite, Phase
 from companion.checks import require_count, require_positive
 from companion.interface import Command, SetParameters, StatusText, Telemetry
 from companion.numerics.mission_speed import (FlownSpeedSegment, SpeedFit, SpeedRecordConfig, SpeedSegmentRecorder,
-                                              StraightSpeedRecorder)
+                                              MissionSpeedRecorder)
 from companion.numerics.mission_turns import SPEED_ERROR, TurnFigures, TurnVerdict, VerdictConfig, judge_turns
 
 log = logging.getLogger(__name__)
 
 #: the speed loop's gains learning writes (neutral names; ``behaviors.speed_tuning.SPEED_GAINS``)
 SPEED_LOOP_GAINS = ("cruise_speed", "cruise_thrust", "speed_p", "speed_i")
+#: a write waits for straight running (|yaw rate| below this, deg/s: the campaign's straight)
+WRITE_STRAIGHT_DEG_S = 3.0
 
 
 class LearnedSpeedDesign(Protocol):
@@ -133,7 +137,7 @@ class SpeedLearner:
         if missing:
             raise ValueError(f"SpeedLearner needs the vehicle's speed gains ({', '.join(sorted(missing))} missing)")
         self.designer, self.original, self.config = designer, dict(original), config
-        self.record = StraightSpeedRecorder(config.record)
+        self.record = MissionSpeedRecorder(config.record)
         self.segments = SpeedSegmentRecorder(config.segment_s, config.min_segment_s, config.min_change_m_s)
         self.phase: Phase = Phase.LEARNING
         self.note = "learning from the mission's speed changes"
@@ -193,10 +197,11 @@ class SpeedLearner:
         safe moment to write (a straight in such a mode)."""
         t = telemetry.time_s
         self.record.add(t, telemetry.thrust_ratio, telemetry.speed_water, telemetry.yaw_rate, allowed)
-        straight = (allowed and telemetry.finite("yaw_rate")
-                    and abs(telemetry.yaw_rate) < math.radians(self.config.record.straight_rate_deg_s))
+        turning = abs(telemetry.yaw_rate) if telemetry.finite("yaw_rate") else math.inf
+        recorded = allowed and turning < math.radians(self.config.record.max_yaw_rate_deg_s)
+        straight = allowed and turning < math.radians(WRITE_STRAIGHT_DEG_S)
         segment = self.segments.add(t, telemetry.speed_target, telemetry.speed_achieved, telemetry.thrust_ratio,
-                                    straight)
+                                    recorded)
         if segment is not None:
             self._segment_flown(segment)
         # the heading learner's safe moment (no net course change over its window, in a mode the

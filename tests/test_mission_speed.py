@@ -16,9 +16,9 @@ import pytest
 from behaviors.learning_records import GainWrite, Phase
 from behaviors.mission_speed import SPEED_LOOP_GAINS, SpeedLearner
 from companion.interface import SetParameters
-from companion.numerics.mission_speed import SpeedSegmentRecorder, StraightSpeedRecorder
+from companion.numerics.mission_speed import MissionSpeedRecorder, SpeedRecordConfig, SpeedSegmentRecorder
 from companion.numerics.mission_turns import SPEED_ERROR, TurnFigures, VerdictConfig, judge_turns
-from companion.numerics.speed_gains import SpeedLoopGains, SpeedRules, simulate_speed_tracking
+from companion.numerics.speed_gains import SpeedLoopGains, SpeedRules, design_speed_gains, simulate_speed_tracking
 from companion.numerics.surge import SurgeModel
 from companion.procedures.learning import LearningSession, SpeedLoopDesigner, speed_unlearned
 from companion.procedures.trail import interrupted, recover
@@ -33,8 +33,8 @@ TRUTH = SurgeTruth()
 
 
 def _record(survey: SpeedSurvey, until_fit: bool = True, seconds: float = 300.0, change_after_s: float = np.inf,
-            changed: SurgeTruth = TRUTH) -> tuple[StraightSpeedRecorder, list]:
-    recorder, fits = StraightSpeedRecorder(), []
+            changed: SurgeTruth = TRUTH) -> tuple[MissionSpeedRecorder, list]:
+    recorder, fits = MissionSpeedRecorder(), []
     while survey.time_s < seconds:
         telemetry = survey.next_telemetry()
         if telemetry.time_s > change_after_s:
@@ -64,32 +64,47 @@ def test_the_surge_model_is_fitted_on_the_missions_speed_changes_and_validated_o
 
 
 def test_a_model_the_held_out_speed_change_does_not_bear_out_is_not_validated():
-    """The boat changed after the first lane (half the drag per mass, twice the throttle lag): the model
-    of the first lane does not reproduce the re-acceleration of the second."""
-    changed = replace(TRUTH, gamma=0.5 * TRUTH.gamma, lag_s=2.0 * TRUTH.lag_s)
-    _, (fit,) = _record(SpeedSurvey(POOR, seed=2), change_after_s=60.0, changed=changed)
+    """The boat changed after the first minute (20 % less speed per throttle, a fouled propeller): the
+    model of the first minute does not reproduce the corner of the second. (Half the drag per mass
+    with twice the throttle lag instead passes this validation on the same survey, R² 0.945 with
+    0.075 m/s RMS: the corners' dips, which the measured throttle drives, dominate the speed's
+    variance; the verification of the flown speed changes is what refuses such a model's gains,
+    ``test_speed_gains_the_boat_does_not_answer_as_predicted_are_reverted_at_the_next_safe_moment``.)"""
+    _, (fit,) = _record(SpeedSurvey(POOR, seed=2), change_after_s=60.0, changed=replace(TRUTH, gain=2.0))
     assert not fit.validated and fit.validation_r2 < 0.9
+    _, (same,) = _record(SpeedSurvey(POOR, seed=2))
+    assert same.validated and same.validation_rms_m_s < 0.02
 
 
-def test_turns_and_hand_flown_modes_are_left_out_and_one_speed_change_is_not_enough():
-    survey = SpeedSurvey(POOR, seed=3)
-    recorder, fits = StraightSpeedRecorder(), []
-    while survey.time_s < 100.0:  # the first lane, its corner, the second lane flown by hand from 85 to 92 s
-        telemetry = survey.next_telemetry()
-        hand_flown = 85.0 <= telemetry.time_s < 92.0
-        recorder.add(telemetry.time_s, telemetry.thrust_ratio, telemetry.speed_water, telemetry.yaw_rate,
-                     not hand_flown)
-        fit = recorder.fit()
-        if fit is not None:
-            fits.append((telemetry.time_s, fit))
-    shape = survey.shape
+def test_the_corners_are_in_the_record_and_faster_turns_and_hand_flown_modes_are_not():
+    """ArduRover's AUTO slows and re-accelerates inside its corners: with the default limit (30°/s) the
+    survey's 20°/s corners are in the record; the campaign's straight-running limit (3°/s) leaves
+    them out; a mode the autopilot does not steer closes a stretch either way."""
+    shape = SpeedSurvey(POOR).shape
     corner = (shape.start_s + shape.lane_s + shape.slow_s, shape.start_s + shape.lane_s + shape.slow_s + shape.corner_s)
-    first, second = recorder.stretches
-    assert float(first.times[-1]) < corner[0] and second.t_start >= corner[1]  # the corner is in no stretch
-    assert float(second.times[-1]) < 85.0  # the hand-flown seconds closed the second lane's stretch
-    # one closed speed change (the first lane) is never fitted; the second closed at 85 s
-    (when, fit), = fits
-    assert 85.0 <= when < 85.1 and fit.held_out_start_s == second.t_start
+    for config, corners_in in ((SpeedRecordConfig(), True), (SpeedRecordConfig(max_yaw_rate_deg_s=3.0), False)):
+        survey = SpeedSurvey(POOR, seed=3)
+        recorder, fits = MissionSpeedRecorder(config), []
+        while survey.time_s < 100.0:  # the first lane, its corner, the second lane flown by hand from 85 to 92 s
+            telemetry = survey.next_telemetry()
+            hand_flown = 85.0 <= telemetry.time_s < 92.0
+            recorder.add(telemetry.time_s, telemetry.thrust_ratio, telemetry.speed_water, telemetry.yaw_rate,
+                         not hand_flown)
+            fit = recorder.fit()
+            if fit is not None:
+                fits.append((telemetry.time_s, fit))
+        first, second = recorder.stretches
+        in_corner = [t for s in recorder.stretches for t in s.times if corner[0] + 0.1 < t < corner[1] - 0.1]
+        assert bool(in_corner) is corners_in
+        if corners_in:  # cut at max_stretch_s (60 s), the second from there
+            assert 60.0 <= float(first.times[-1] - first.times[0]) < 60.0 + 2 * config.sample_s  # its last sample
+            assert second.t_start > float(first.times[-1])
+        else:
+            assert float(first.times[-1]) < corner[0] and second.t_start >= corner[1]
+        assert float(second.times[-1]) < 85.0  # the hand-flown seconds closed the second stretch
+        # one closed speed change (the first stretch) is never fitted; the second closed at 85 s
+        (when, fit), = fits
+        assert 85.0 <= when < 85.1 and fit.held_out_start_s == second.t_start
 
 
 def test_the_replay_reproduces_the_flown_speed_loop_and_tells_gains_apart():
@@ -186,14 +201,13 @@ def test_nothing_is_written_without_a_safe_moment():
 
 
 def test_the_vehicles_own_speed_gains_predicted_best_are_not_written_and_the_reason_is_said():
-    survey = SpeedSurvey(POOR, seed=1)
-    learner = _learner()
-    _fly(learner, survey, 130.0, safe=False)
-    assert learner.design is not None
-    good = SpeedLoopGains.from_params(learner.design.gains)
+    """The vehicle already flies the design eq. S.5 gives on its true surge model: the learned model's
+    design is not predicted better by eq. S.5r's second, so nothing is written."""
+    truth = SurgeModel(TRUTH.gain, TRUTH.exponent, TRUTH.gamma, TRUTH.lag_s)
+    good = design_speed_gains(truth, 2.0, (2.0, 2.0), SpeedRules(), 1.0, POOR, speed_max=2.0).gains
     survey, learner = SpeedSurvey(good, seed=1), _learner(good)
     _fly(learner, survey, 200.0)
-    assert learner.phase is Phase.LEARNING and learner.original_best and not learner.writes
+    assert learner.phase is Phase.LEARNING and learner.original_best and not learner.writes and not survey.written
     assert learner.note.startswith("nothing to write: no speed design is predicted better than the vehicle's own")
 
 
@@ -221,7 +235,8 @@ def test_on_ardurover_the_session_learns_the_speed_loop_with_its_records(tmp_pat
     assert result is not None and result.speed is not None and result.speed.in_force
     # the verified speed gains stay; the mask goes back
     assert port.params["ATC_SPEED_P"] == written["ATC_SPEED_P"] != POOR.p
-    assert port.params["CRUISE_THROTTLE"] == 80.0 and port.params["GCS_PID_MASK"] == 0.0
+    assert port.params["CRUISE_THROTTLE"] / 100.0 == pytest.approx(port.params["CRUISE_SPEED"] / TRUTH.gain, abs=0.01)
+    assert port.params["GCS_PID_MASK"] == 0.0
     (campaign,) = [c for c in store.campaigns() if c["kind"] == "learning"]
     (stored,) = store.behavior_results(campaign["id"], "learning")
     assert stored["result"]["speed"]["phase"] == "kept"

@@ -1,16 +1,21 @@
 """The speed loop's surge dynamics learned from a mission's own speed changes, and the speed-change
 segments that verify learned speed gains (eq. L.4). Pure.
 
-**The record** (:class:`StraightSpeedRecorder`). While the vehicle runs straight (|yaw rate| below
-3°/s, as the campaign's ``behaviors.speed_tuning.SurgeRecorder``) in a mode the autopilot steers, the
-throttle its speed loop outputs (``Telemetry.thrust_ratio``: ArduRover's SERVO3 read back, or a skid
-pair's un-mixed throttle, eq. S.1) and the speed are kept at ``sample_s``. A turn, a gap or a mode the
-autopilot does not steer closes the *stretch*. In an ArduRover AUTO survey a stretch is a lane: the
-acceleration from rest to WP_SPEED at the start of AUTO (the first lane), or the re-acceleration
-after the corner (the others), the lane at WP_SPEED, and the slow-down before the next corner. A
-stretch *holds a speed change* when its speed spans at least ``min_change_m_s``.
+**The record** (:class:`MissionSpeedRecorder`). While the vehicle is in a mode the autopilot steers
+and turns slower than ``max_yaw_rate_deg_s``, the throttle its speed loop outputs
+(``Telemetry.thrust_ratio``: ArduRover's SERVO3 read back, or a skid pair's un-mixed throttle, eq.
+S.1) and the speed are kept at ``sample_s``. A faster turn, a gap or a mode the autopilot does not
+steer closes the *stretch*, and so does ``max_stretch_s``. The limit is not the campaign's straight
+running (``SurgeRecorder``'s 3°/s): ArduRover's AUTO makes its speed changes inside the corners
+(measured on SITL's boat at WP_SPEED 2: the demand falls from 2.0 to 1.6 m/s as the turn starts, at
+14–21°/s, and is back at 2.0 while the boat still turns at 14–17°/s; the straights held one speed
+change in a whole survey, the start of AUTO), so the corners are in. Eq. S.4 has no turning term: a
+hull that loses speed to its own turning (sway–yaw coupling) is fitted with that loss in the record,
+which the held-out validation and the verification of the flown speed changes judge. A stretch
+*holds a speed change* when its speed spans at least ``min_change_m_s``: the acceleration from rest
+to WP_SPEED at the start of AUTO, and each corner's slow-down and re-acceleration.
 
-**The fit and its validation** (:meth:`StraightSpeedRecorder.fit`). Once ``min_changes`` stretches
+**The fit and its validation** (:meth:`MissionSpeedRecorder.fit`). Once ``min_changes`` stretches
 hold a speed change, the surge model (eq. S.4) is fitted by :func:`companion.numerics.surge.fit_surge_model`
 (the campaign's output-error fit, not a second one) on every closed stretch but the newest one that
 holds a speed change, and validated on that one, which it has not seen: the speed simulated from its
@@ -35,9 +40,9 @@ and judged where it would show: the output error on a stretch the fit has not se
 
 **Speed-change segments** (:class:`SpeedSegmentRecorder`, verification of eq. L.4). The speed loop's
 asked-for and measured speed (PID_TUNING: ArduRover sends, for GCS_PID_MASK bit value 2, the speed
-demand after its acceleration limit and the measured speed), in windows of straight running of at
-most ``window_s``; a window of at least ``min_s`` whose asked-for speed spans ``min_change_m_s`` or
-more is a segment (a re-acceleration after a corner, a slow-down before one), its figure the RMS of
+demand after its acceleration limit and the measured speed), in windows of the record's running
+(the same yaw-rate limit) of at most ``window_s``; a window of at least ``min_s`` whose asked-for speed spans ``min_change_m_s`` or
+more is a segment (a corner's slow-down and re-acceleration, the start of AUTO), its figure the RMS of
 asked-for minus measured speed (m/s).
 """
 from __future__ import annotations
@@ -57,20 +62,25 @@ STEADY_S = 2.0
 
 @dataclass(frozen=True)
 class SpeedRecordConfig:
-    """When a straight sample is kept and when the record is fitted (module docstring)."""
+    """When a sample is kept and when the record is fitted (module docstring)."""
 
-    straight_rate_deg_s: float = 3.0  # as the campaign's SurgeRecorder
+    #: samples turning faster are left out. ArduRover's AUTO makes its speed changes inside the corners
+    #: (measured on SITL's boat at WP_SPEED 2: the demand falls from 2.0 to 1.6 m/s as the turn starts
+    #: and is back at 2.0 while it still turns at 14–17°/s), so they are in; 3.0 keeps the campaign's
+    #: straight running only (``SurgeRecorder``), which on that survey held one speed change, the start
+    max_yaw_rate_deg_s: float = 30.0
     sample_s: float = 0.1  # samples kept this far apart (the fit integrates at ≤ 50 ms anyway)
     max_gap_s: float = 0.5  # a longer gap closes the stretch
     min_stretch_s: float = 5.0  # a shorter stretch is dropped
+    max_stretch_s: float = 60.0  # a longer one is closed there (and the next one begins)
     min_change_m_s: float = 0.3  # a stretch whose speed spans this holds a speed change
     min_changes: int = 2  # stretches holding a speed change before a fit (one of them held out)
     min_r2: float = 0.9  # the held-out stretch's R² (eq. 3.35's form)
-    max_stretches: int = 12  # the newest stretches kept (memory and the fit's time)
+    max_stretches: int = 6  # the newest stretches kept (memory, and the fit's time in the resident loop)
 
     def __post_init__(self) -> None:
-        require_positive(self, "straight_rate_deg_s", "sample_s", "max_gap_s", "min_stretch_s", "min_change_m_s",
-                         "min_r2")
+        require_positive(self, "max_yaw_rate_deg_s", "sample_s", "max_gap_s", "min_stretch_s", "max_stretch_s",
+                         "min_change_m_s", "min_r2")
         require_count(self, "min_changes", "max_stretches")
         if self.min_changes < 2:
             raise ValueError("SpeedRecordConfig.min_changes: at least 2 (one is held out for the validation)")
@@ -80,7 +90,7 @@ class SpeedRecordConfig:
 
 @dataclass(frozen=True)
 class SpeedStretch:
-    """One closed stretch of straight running: times (vehicle s), throttle (0..1) and speed (m/s)."""
+    """One closed stretch of the record: times (vehicle s), throttle (0..1) and speed (m/s)."""
 
     times: np.ndarray
     throttle: np.ndarray
@@ -149,7 +159,7 @@ def validate_surge(model: SurgeModel, stretch: SpeedStretch) -> tuple[float, flo
     return r2, float(np.sqrt(np.mean(error ** 2)))
 
 
-class StraightSpeedRecorder:
+class MissionSpeedRecorder:
     """Streams (time, throttle, speed, yaw rate, allowed); closes stretches; :meth:`fit` when the
     record holds enough speed change (module docstring)."""
 
@@ -167,7 +177,7 @@ class StraightSpeedRecorder:
 
     def add(self, t: float, throttle: float, speed: float, yaw_rate: float, allowed: bool) -> None:
         c = self.config
-        straight = math.isfinite(yaw_rate) and abs(yaw_rate) < math.radians(c.straight_rate_deg_s)
+        straight = math.isfinite(yaw_rate) and abs(yaw_rate) < math.radians(c.max_yaw_rate_deg_s)
         if not (allowed and straight and all(math.isfinite(v) for v in (t, throttle, speed))):
             self._close()
             return
@@ -176,6 +186,8 @@ class StraightSpeedRecorder:
         if self._rows and t - self._rows[-1][0] < c.sample_s - 1e-9:
             return
         self._rows.append((t, throttle, speed))
+        if t - self._rows[0][0] >= c.max_stretch_s:
+            self._close()
 
     def _close(self) -> None:
         rows, self._rows = self._rows, []
@@ -248,7 +260,8 @@ class FlownSpeedSegment:
 
 
 class SpeedSegmentRecorder:
-    """Streams (time, asked-for speed, measured speed, throttle, straight); :meth:`add` returns a
+    """Streams (time, asked-for speed, measured speed, throttle, recorded: within the record's yaw-rate
+    limit in a mode the autopilot steers); :meth:`add` returns a
     :class:`FlownSpeedSegment` when a window with a speed change closes (module docstring)."""
 
     def __init__(self, window_s: float = 20.0, min_s: float = 5.0, min_change_m_s: float = 0.3,
@@ -268,8 +281,8 @@ class SpeedSegmentRecorder:
             self.interrupted += 1
         self._rows = []
 
-    def add(self, t: float, desired: float, achieved: float, throttle: float, straight: bool) -> FlownSpeedSegment | None:
-        usable = straight and all(math.isfinite(v) for v in (t, desired, achieved))
+    def add(self, t: float, desired: float, achieved: float, throttle: float, recorded: bool) -> FlownSpeedSegment | None:
+        usable = recorded and all(math.isfinite(v) for v in (t, desired, achieved))
         closed = None
         if self._rows and (not usable or t - self._rows[-1][0] > self.max_gap_s):
             closed = self._close()
