@@ -315,3 +315,14 @@ def test_ardurovers_speed_loop_pid_tuning_is_read_as_speeds():
     sub = TelemetryAssembler(ARDUSUB)
     sub.take(mavlink.MAVLink_pid_tuning_message(4, 1.85, 1.62, 0.74, 0.02, 0.01, 0.0, 0.0, 0.0))
     assert "speed_target" not in sub._fields
+
+
+def test_the_ground_stations_accept_keeps_the_speed_gains_being_verified(tmp_path):
+    port, store, session = _session(tmp_path)
+    while not session.learner.speed.writes:
+        session.step(port.next_telemetry())
+    written = {name: port.params[name] for name in ("CRUISE_SPEED", "CRUISE_THROTTLE", "ATC_SPEED_P", "ATC_SPEED_I")}
+    assert session.learner.speed.phase is Phase.VERIFYING and session.accept()
+    assert session.learner.speed.phase is Phase.KEPT
+    session.finish()
+    assert {name: port.params[name] for name in written} == written and port.params["GCS_PID_MASK"] == 0.0
