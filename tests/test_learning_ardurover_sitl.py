@@ -1,6 +1,7 @@
 """``companion run --learn`` beside the real ArduRover firmware flying an ordinary survey in AUTO:
 a ground station of its own (SITL's serial1) uploads a lawnmower with the MAVLink mission protocol
-and switches to AUTO, and the companion on serial0 only learns, writes and verifies. Two boats:
+and switches to AUTO, and the companion on serial0 only learns, writes and verifies (the heading
+gains from the survey's turns; on our boat the speed loop's from its speed changes too, eq. L.4). Two boats:
 our first-order boat through SITL's JSON backend on the frame's shipped steering gains, and SITL's
 own ``motorboat`` (physics this project did not write, ``harness.own_sitl``) tuned poorly by its
 user.
@@ -33,7 +34,7 @@ def test_learning_in_auto_stops_the_weave_and_keeps_verified_gains(tmp_path):
     with SimulatorProcess("boat", SPEEDUP, 1, (0.0, 0.0), autopilot="ardurover", ardupilot_bin=BIN, lockstep=False,
                           ready_timeout_s=120.0) as sim:
         station = MissionGroundStation(f"tcp:127.0.0.1:{sim.port + 2}", lawnmower(),
-                                       {"WP_SPEED": 2.0, "GCS_PID_MASK": 1})
+                                       {"WP_SPEED": 2.0, "GCS_PID_MASK": 3})  # steering and speed loops
         run = learn_beside(sim.endpoint, station, store_path)
     assert run.returncode == 0, run.output[-2000:]
     assert run.finished, "the survey did not finish"
@@ -47,6 +48,14 @@ def test_learning_in_auto_stops_the_weave_and_keeps_verified_gains(tmp_path):
     calm = [lane["cross_track_rms_m"] for lane in lanes if lane["start_s"] > written_at]
     assert weaving and calm
     assert max(calm) < 0.3 * min(weaving)  # the lanes after the write, against the lanes before it
+    # the speed loop learned from the survey's speed changes (eq. L.4): written on a straight, verified
+    # by the corners flown on it against the original gains replayed on the same asked-for speeds
+    speed = learned["speed"]
+    assert speed["phase"] == "kept", speed["reason"]
+    (write,) = speed["writes"]
+    assert write["loop"] == "speed" and set(write["gains"]) == {"cruise_speed", "cruise_thrust", "speed_p", "speed_i"}
+    assert speed["verdict"]["metric"] == "speed error m/s"
+    assert speed["verdict"]["after_error"] < speed["verdict"]["before_error"]
 
 
 #: SITL's motorboat as a user who copied another boat's steering gains finds it: a third of the
