@@ -45,7 +45,7 @@ from typing import Callable, Protocol, Sequence
 
 from behaviors.base import Behaviour, Footprint
 from behaviors.learning_records import GainWrite, Phase
-from behaviors.mission_speed import SpeedLearner, SpeedLearningResult
+from behaviors.mission_speed import SpeedLearner, SpeedLearningConfig, SpeedLearningResult
 import numpy as np
 
 from companion.checks import require_choice, require_positive
@@ -115,6 +115,8 @@ class LearningConfig:
     max_turn_rate_deg_s: float = 1.5
     max_heading_error_deg: float = 5.0
     verdict: VerdictConfig = VerdictConfig()
+    #: the speed loop's learning (eq. L.4), where the autopilot has a speed loop the companion designs
+    speed: SpeedLearningConfig = SpeedLearningConfig()
 
     def __post_init__(self) -> None:
         require_positive(self, "min_step_deg", "turn_s", "verify_turns", "segment_s", "min_segment_rate_deg_s",

@@ -49,7 +49,7 @@ import numpy as np
 from behaviors.base import Footprint
 from behaviors.gain_scheduling import ScheduleKind
 from behaviors.mission_learning import DesignOutcome, LearningConfig, LearningResult, MissionLearner, Phase
-from behaviors.mission_speed import SPEED_LOOP_GAINS, SpeedDesignOutcome, SpeedLearner, SpeedLearningConfig
+from behaviors.mission_speed import SPEED_LOOP_GAINS, SpeedDesignOutcome, SpeedLearner
 from companion.link.errors import ParamError
 from companion.link.port import VehiclePort
 from companion.link.profile import AutopilotProfile
@@ -278,9 +278,8 @@ class LearningSession:
     """One ``companion run --learn`` session: the learner, its trail and its records."""
 
     def __init__(self, link: VehiclePort, store: Store, vehicle_id: int, config: LearningConfig = LearningConfig(),
-                 campaign: CampaignConfig = CampaignConfig(), speed: SpeedLearningConfig = SpeedLearningConfig()) -> None:
+                 campaign: CampaignConfig = CampaignConfig()) -> None:
         self.link, self.store, self.vehicle_id, self.config = link, store, vehicle_id, config
-        self.speed_config = speed
         self.campaign = campaign.resolved_for(link.profile)
         self.learner: MissionLearner | None = None
         self.campaign_id: int | None = None
@@ -376,7 +375,7 @@ class LearningSession:
             log.info("learning: WP_SPEED/ATC_ACCEL_MAX not read (%s): the speed design takes none", exc)
             context = {}
         return SpeedLearner(SpeedLoopDesigner(original, context, self.campaign.speed.rules), original,
-                            self.speed_config)
+                            self.config.speed)
 
     def _speed_gains(self, profile) -> dict[str, float]:
         """The speed loop's gains as found, for eq. A.2k's speed hold (the speed learner's writes, eq. L.4,
