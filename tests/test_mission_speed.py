@@ -6,6 +6,7 @@ a trail that puts the original speed gains back. The survey is ArduRover's speed
 surge model with a random sea and speed noise (``harness.speed_survey``), seeded, in lockstep."""
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 from dataclasses import replace
@@ -20,7 +21,7 @@ from companion.numerics.mission_speed import MissionSpeedRecorder, SpeedRecordCo
 from companion.numerics.mission_turns import SPEED_ERROR, TurnFigures, VerdictConfig, judge_turns
 from companion.numerics.speed_gains import SpeedLoopGains, SpeedRules, design_speed_gains, simulate_speed_tracking
 from companion.numerics.surge import SurgeModel
-from companion.procedures.learning import LearningSession, SpeedLoopDesigner, speed_unlearned
+from companion.procedures.learning import LearningSession, SpeedContext, SpeedLoopDesigner, speed_unlearned
 from companion.procedures.trail import interrupted, recover
 from companion.records.owner import ProcessOwner
 from companion.records.store import Store
@@ -141,7 +142,7 @@ def test_the_speed_verdict_speaks_of_speeds():
 
 # ---------------------------------------------------------------------------- the learner
 def _learner(original: SpeedLoopGains = POOR) -> SpeedLearner:
-    designer = SpeedLoopDesigner(original.params(), {"speed_default": 2.0, "accel_max": 1.0}, SpeedRules())
+    designer = SpeedLoopDesigner(original.params(), SpeedContext(speed_max=2.0, accel_max=1.0), SpeedRules())
     return SpeedLearner(designer, original.params())
 
 
@@ -326,3 +327,11 @@ def test_the_ground_stations_accept_keeps_the_speed_gains_being_verified(tmp_pat
     assert session.learner.speed.phase is Phase.KEPT
     session.finish()
     assert {name: port.params[name] for name in written} == written and port.params["GCS_PID_MASK"] == 0.0
+
+
+def test_the_speed_designs_context_takes_what_was_read_and_keeps_its_defaults_otherwise():
+    assert SpeedContext.from_params({"speed_default": 2.0, "accel_max": 0.5}) == SpeedContext(2.0, 0.5)
+    assert SpeedContext.from_params({}) == SpeedContext(math.inf, 1.0)
+    assert SpeedContext.from_params({"speed_default": 0.0, "accel_max": -1.0}) == SpeedContext(math.inf, 1.0)
+    with pytest.raises(ValueError):
+        SpeedContext(speed_max=-1.0)

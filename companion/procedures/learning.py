@@ -50,6 +50,7 @@ from behaviors.base import Footprint
 from behaviors.gain_scheduling import ScheduleKind
 from behaviors.mission_learning import DesignOutcome, LearningConfig, LearningResult, MissionLearner, Phase
 from behaviors.mission_speed import SPEED_LOOP_GAINS, SpeedDesignOutcome, SpeedLearner
+from companion.checks import require_positive
 from companion.link.errors import ParamError
 from companion.link.port import VehiclePort
 from companion.link.profile import AutopilotProfile
@@ -220,21 +221,38 @@ class LearnedSpeedLoop:
                                        segment.desired, float(segment.achieved[0]), segment.throttle0)
 
 
+@dataclass(frozen=True)
+class SpeedContext:
+    """What the speed design reads from the vehicle and never writes: WP_SPEED (m/s, the steps stay
+    below it; inf when not read or 0) and ATC_ACCEL_MAX (m/s², 1.0 when not read, as the campaign)."""
+
+    speed_max: float = math.inf
+    accel_max: float = 1.0
+
+    def __post_init__(self) -> None:
+        require_positive(self, "speed_max", "accel_max")
+
+    @classmethod
+    def from_params(cls, values: dict[str, float]) -> "SpeedContext":
+        """From the neutral names read (``speed_default``, ``accel_max``); a missing, zero or negative
+        value keeps the default."""
+        speed, accel = values.get("speed_default", math.nan), values.get("accel_max", math.nan)
+        return cls(speed_max=speed if speed > 0.0 else math.inf, accel_max=accel if accel > 0.0 else 1.0)
+
+
 class SpeedLoopDesigner:
     """The campaign's speed design (``design_speed_gains``, eq. S.5 and S.5r) on a surge model fitted and
     validated on the mission's own speed changes (eq. L.4), the vehicle's own gains a candidate; its
-    speed range the mission's steady speeds, its steps below WP_SPEED (``context``: ``speed_default``,
-    ``accel_max`` as read)."""
+    speed range the mission's steady speeds, its steps below WP_SPEED (:class:`SpeedContext`)."""
 
-    def __init__(self, original: dict[str, float], context: dict[str, float], rules: SpeedRules) -> None:
-        self.original, self.context, self.rules = dict(original), dict(context), rules
+    def __init__(self, original: dict[str, float], context: SpeedContext, rules: SpeedRules) -> None:
+        self.original, self.context, self.rules = dict(original), context, rules
 
     def __call__(self, fit: SpeedFit) -> SpeedDesignOutcome:
-        speed_max = self.context.get("speed_default", math.inf)
         try:
             design = design_speed_gains(fit.model, self.original["cruise_speed"], fit.speed_range, self.rules,
-                                        self.context.get("accel_max", 1.0), SpeedLoopGains.from_params(self.original),
-                                        speed_max=speed_max if speed_max > 0.0 else math.inf)
+                                        self.context.accel_max, SpeedLoopGains.from_params(self.original),
+                                        speed_max=self.context.speed_max)
         except ValueError as exc:
             return SpeedDesignOutcome(None, f"no speed design: {exc}")
         if design.keeps_original:
@@ -370,10 +388,10 @@ class LearningSession:
             return None
         names = [name for name in ("speed_default", "accel_max") if name in self.link.profile.params]
         try:
-            context = self.link.get_params(names) if names else {}
+            context = SpeedContext.from_params(self.link.get_params(names) if names else {})
         except ParamError as exc:
             log.info("learning: WP_SPEED/ATC_ACCEL_MAX not read (%s): the speed design takes none", exc)
-            context = {}
+            context = SpeedContext()
         return SpeedLearner(SpeedLoopDesigner(original, context, self.campaign.speed.rules), original,
                             self.config.speed)
 
