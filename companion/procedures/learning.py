@@ -230,7 +230,9 @@ class SpeedContext:
     accel_max: float = 1.0
 
     def __post_init__(self) -> None:
-        require_positive(self, "speed_max", "accel_max")
+        require_positive(self, "accel_max")
+        if not self.speed_max > 0.0:  # inf: no WP_SPEED to stay below
+            raise ValueError(f"SpeedContext.speed_max must be > 0 (inf for none), not {self.speed_max!r}")
 
     @classmethod
     def from_params(cls, values: dict[str, float]) -> "SpeedContext":
