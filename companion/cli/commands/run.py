@@ -65,8 +65,8 @@ def add_parser(subparsers) -> None:
                         help="tune during ordinary missions: learn the yaw model from the mission's own course "
                              "changes, write the designed heading gains on a steady straight (never in a turn or a "
                              "hand-flown mode), verify them on the next course changes and revert if they are worse "
-                             "or not as predicted (USER_4 param1=1 accepts, 0 reverts). Replaces --scheduling of "
-                             "stored designs while on")
+                             "or not as predicted (USER_4 param1=1 accepts, 0 reverts); on ArduRover the speed loop "
+                             "too, from the mission's speed changes. Replaces --scheduling of stored designs while on")
     parser.add_argument("--preset", default=None,
                         help="simulator preset (analytic minimum speed: the levelled start of minimum-speed seeking "
                              "and the results)")
