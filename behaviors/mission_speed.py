@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Protocol, Sequence
 
 import numpy as np
@@ -42,7 +42,8 @@ from companion.checks import require_count, require_positive
 from companion.interface import Command, SetParameters, StatusText, Telemetry
 from companion.numerics.mission_speed import (FlownSpeedSegment, SpeedFit, SpeedRecordConfig, SpeedSegmentRecorder,
                                               MissionSpeedRecorder)
-from companion.numerics.mission_turns import SPEED_ERROR, TurnFigures, TurnVerdict, VerdictConfig, judge_turns
+from companion.numerics.mission_turns import (SPEED_ERROR, TurnFigures, TurnVerdict, VerdictConfig, holding_worse,
+                                              judge_turns)
 
 log = logging.getLogger(__name__)
 
@@ -88,9 +89,14 @@ class SpeedLearningConfig:
     verify_segments: int = 3
     min_verify: int = 2
     verdict: VerdictConfig = VerdictConfig()
+    #: eq. L.4h (eq. L.2h on the speed): a keep waits for a lane held on the learned gains, and is
+    #: refused when the lanes' speed error on them exceeds the original gains' by this factor and this
+    #: much (the speed estimate alone drifts 0.03 m/s: eq. S.5r)
+    holding_ratio: float = 1.5
+    holding_floor_m_s: float = 0.02
 
     def __post_init__(self) -> None:
-        require_positive(self, "segment_s", "min_segment_s", "min_change_m_s")
+        require_positive(self, "segment_s", "min_segment_s", "min_change_m_s", "holding_ratio", "holding_floor_m_s")
         require_count(self, "verify_segments", "min_verify")
         if self.min_verify > self.verify_segments:
             raise ValueError("SpeedLearningConfig.min_verify is at most verify_segments")
@@ -304,6 +310,15 @@ class SpeedLearner:
             alone = [judge_turns([], [f], self.config.verdict, flown_reference=False).keep for f in after]
             if any(keep != verdict.keep for keep in alone):
                 return []
+        if verdict.keep:  # eq. L.4h: the lanes too, once one was held on the learned gains
+            before_holds = [e for start, e in self.segments.holds if start < self.written_at and math.isfinite(e)]
+            after_holds = [e for start, e in self.segments.holds if start >= self.written_at and math.isfinite(e)]
+            if before_holds and not after_holds:
+                return []
+            worse = holding_worse(before_holds, after_holds, self.config.holding_ratio, self.config.holding_floor_m_s,
+                                  "speed error", "m/s", digits=3)
+            if worse is not None:
+                verdict = replace(verdict, keep=False, reason=worse)
         self.verdict, self.verdict_at_s = verdict, now
         self.events.append({"type": "verdict", "loop": "speed", "time_s": now, **verdict.to_dict()})
         if verdict.keep:

@@ -306,13 +306,21 @@ class VerdictConfig:
         """Why the legs flown on learned gains (``after``: each window's turn-rate error, deg/s) are
         held worse than those on the original gains (``before``) beyond eq. L.2h's tolerance; None
         when they are not, or when either side has no leg."""
-        old, new = _mean(before), _mean(after)
-        if not (math.isfinite(old) and math.isfinite(new)):
-            return None
-        if new > max(self.holding_ratio * old, old + self.holding_floor_deg_s):
-            return (f"worse on the legs: turn-rate error {new:.2f} deg/s on {len(after)} straight windows against "
-                    f"{old:.2f} deg/s on the original gains ({len(before)})")
+        return holding_worse(before, after, self.holding_ratio, self.holding_floor_deg_s, "turn-rate error", "deg/s")
+
+
+def holding_worse(before: Sequence[float], after: Sequence[float], ratio: float, floor: float, figure: str,
+                  unit: str, digits: int = 2) -> str | None:
+    """eq. L.2h's rule on any loop's legs: why the mean ``figure`` on the legs flown on learned gains
+    (``after``) exceeds ``ratio`` times and ``floor`` more than on the original gains (``before``);
+    None when it does not, or when either side has no leg."""
+    old, new = _mean(before), _mean(after)
+    if not (math.isfinite(old) and math.isfinite(new)):
         return None
+    if new > max(ratio * old, old + floor):
+        return (f"worse on the legs: {figure} {new:.{digits}f} {unit} on {len(after)} straight windows against "
+                f"{old:.{digits}f} {unit} on the original gains ({len(before)})")
+    return None
 
 
 @dataclass(frozen=True)
